@@ -1,0 +1,217 @@
+"""The grid world of Debnath & Nassour (2014) §V-A, as a functional JAX environment.
+
+SPEC G1–G5: an ASCII map (``.`` free, ``#`` obstacle, ``G`` goal; x = column,
+y = row), four actions (G2: 0 right, 1 left, 2 up, 3 down), a uniformly drawn
+free non-goal start cell (G3), moves that stay put off the grid (r = 0) or on
+bumping an obstacle (r = −1), enter the goal with r = +1 and terminate (G4),
+and at most C chances per trial (G5: truncation, kept apart from termination).
+
+Static structure (the map, transition tables) lives on the `GridWorld` object;
+`reset`/`step` are pure functions over the frozen `GridState`, gymnax-style.
+States are flat cell indices ``s = y * width + x``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxeac.errors import UsageError
+from jaxeac.pytree import pytree_dataclass
+
+#: G2 action order and the (dx, dy) each one applies.
+ACTION_NAMES = ("right", "left", "up", "down")
+ACTION_DELTAS = ((1, 0), (-1, 0), (0, -1), (0, 1))
+
+#: G1: the `paper` preset map, 11×11, goal at the centre, two obstacles.
+PAPER_MAP = """\
+...........
+...........
+...........
+...#.......
+...#.......
+...#.G.....
+...#.......
+...#.......
+.....####..
+...........
+...........
+"""
+
+MAPS = {"paper": PAPER_MAP}
+
+
+@dataclasses.dataclass(frozen=True)
+class GridMap:
+    """A validated map (G1): obstacle mask [H, W], goal cell, and start cells."""
+
+    height: int
+    width: int
+    obstacles: np.ndarray  # bool [H, W]
+    goal: tuple[int, int]  # (x, y)
+    text: str
+
+    @property
+    def n_cells(self) -> int:
+        return self.height * self.width
+
+    @property
+    def goal_index(self) -> int:
+        return self.goal[1] * self.width + self.goal[0]
+
+    @property
+    def start_cells(self) -> np.ndarray:
+        """G3: flat indices of free, non-goal cells, in row-major order."""
+        free = ~self.obstacles.reshape(-1)
+        free[self.goal_index] = False
+        return np.flatnonzero(free).astype(np.int32)
+
+
+def parse_map(text: str, *, source: str = "map") -> GridMap:
+    """Parse and validate an ASCII map (G1); raise `UsageError` naming the problem."""
+    rows = [line.rstrip() for line in text.strip().splitlines()]
+    if not rows or rows == [""]:
+        raise UsageError(f"{source} is empty; give one row of '.', '#' and 'G' per line")
+    widths = {len(r) for r in rows}
+    if len(widths) != 1:
+        raise UsageError(
+            f"{source} has ragged rows (lengths {sorted(widths)}); make every row the same width"
+        )
+    bad = sorted({ch for r in rows for ch in r} - set(".#G"))
+    if bad:
+        raise UsageError(
+            f"{source} has unknown characters {''.join(bad)!r}; use only '.', '#' and 'G'"
+        )
+    goals = [(x, y) for y, r in enumerate(rows) for x, ch in enumerate(r) if ch == "G"]
+    if len(goals) != 1:
+        raise UsageError(f"{source} must have exactly one goal 'G' (found {len(goals)})")
+    obstacles = np.array([[ch == "#" for ch in r] for r in rows], dtype=bool)
+    grid = GridMap(len(rows), len(rows[0]), obstacles, goals[0], "\n".join(rows) + "\n")
+    if grid.start_cells.size == 0:
+        raise UsageError(f"{source} has no free start cell besides the goal; add a '.' cell")
+    return grid
+
+
+def load_map(path: str | Path) -> GridMap:
+    """Read a map file (G1); a missing or unreadable file is a `UsageError`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UsageError(f"map file {path} does not exist; check the --map path") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"cannot read map file {path}: {exc}; pass a readable text file") from None
+    return parse_map(text, source=f"map file {path}")
+
+
+def get_map(name: str) -> GridMap:
+    """A named map preset (G1), e.g. ``paper``."""
+    if name not in MAPS:
+        raise UsageError(f"unknown map preset {name!r}; choose one of {sorted(MAPS)}")
+    return parse_map(MAPS[name], source=f"map preset {name!r}")
+
+
+@pytree_dataclass
+class GridState:
+    """Agent position (flat cell index) and the chance counter within the trial."""
+
+    position: jax.Array  # int32 []
+    chance: jax.Array  # int32 [], steps taken so far in this trial
+
+
+@pytree_dataclass
+class GridStep:
+    """What one move returns (G4); `bumped` feeds the immediate reward r̃ (E5)."""
+
+    state: GridState
+    reward: jax.Array  # float32 []
+    terminated: jax.Array  # bool [], reached the goal
+    truncated: jax.Array  # bool [], used all C chances without reaching it
+    bumped: jax.Array  # bool [], tried to move into an obstacle
+
+
+class GridWorld:
+    """Functional grid world with precomputed transition tables (G1–G5)."""
+
+    n_actions = 4
+
+    def __init__(self, grid_map: GridMap, n_chances: int):
+        if n_chances < 1:
+            raise UsageError(f"chances must be a positive integer (got {n_chances})")
+        self.map = grid_map
+        self.n_chances = int(n_chances)
+        self.n_states = grid_map.n_cells
+        next_state, reward, bumped = _transition_tables(grid_map)
+        self._next_state = next_state
+        self._reward = reward
+        self._bumped = bumped
+        self._start_cells = grid_map.start_cells
+        gx, gy = grid_map.goal
+        ys, xs = np.divmod(np.arange(self.n_states), grid_map.width)
+        #: ‖s − g‖₂ for every cell, used by the shaped reward of E5.
+        self.goal_distance = np.hypot(xs - gx, ys - gy).astype(np.float32)
+
+    @property
+    def n_starts(self) -> int:
+        return int(self._start_cells.size)
+
+    @property
+    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(next_state [S, A] int32, reward [S, A] float32, bumped [S, A] bool)."""
+        return self._next_state, self._reward, self._bumped
+
+    def reset(self, key: jax.Array) -> GridState:
+        """G3: start in a free, non-goal cell drawn uniformly with `key`."""
+        return self.reset_at(jax.random.randint(key, (), 0, self.n_starts))
+
+    def reset_at(self, start_index: jax.Array) -> GridState:
+        """Start in free non-goal cell number `start_index` (row-major order)."""
+        cells = jnp.asarray(self._start_cells)
+        return GridState(position=cells[start_index], chance=jnp.int32(0))
+
+    def observation(self, state: GridState) -> jax.Array:
+        """The agent's state index: the flat cell index."""
+        return state.position
+
+    def step(self, state: GridState, action: jax.Array) -> GridStep:
+        """G4/G5: apply `action`; terminated on reaching the goal, truncated after C chances."""
+        s = state.position
+        s_next = jnp.asarray(self._next_state)[s, action]
+        reward = jnp.asarray(self._reward)[s, action]
+        bumped = jnp.asarray(self._bumped)[s, action]
+        chance = state.chance + 1
+        terminated = s_next == self.map.goal_index
+        truncated = (~terminated) & (chance >= self.n_chances)
+        return GridStep(GridState(s_next, chance), reward, terminated, truncated, bumped)
+
+    def shaped_reward(self, s_next: jax.Array, bumped: jax.Array, goal_known: jax.Array):
+        """E5: r̃ = −1 on a bump; else R_max / (1 + ‖s' − g‖₂) once the goal is known; else 0."""
+        dist = jnp.asarray(self.goal_distance)[s_next]
+        return jnp.where(bumped, -1.0, jnp.where(goal_known, 1.0 / (1.0 + dist), 0.0))
+
+
+def _transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tabulate G4 for every (cell, action): next cell, reward, bumped."""
+    h, w = grid_map.height, grid_map.width
+    n = h * w
+    next_state = np.zeros((n, 4), np.int32)
+    reward = np.zeros((n, 4), np.float32)
+    bumped = np.zeros((n, 4), bool)
+    goal = grid_map.goal_index
+    for s in range(n):
+        y, x = divmod(s, w)
+        for a, (dx, dy) in enumerate(ACTION_DELTAS):
+            nx, ny = x + dx, y + dy
+            if not (0 <= nx < w and 0 <= ny < h):
+                next_state[s, a] = s  # off the grid: stay, r = 0
+            elif grid_map.obstacles[ny, nx]:
+                next_state[s, a], reward[s, a], bumped[s, a] = s, -1.0, True
+            else:
+                t = ny * w + nx
+                next_state[s, a] = t
+                reward[s, a] = 1.0 if t == goal else 0.0
+    return next_state, reward, bumped

@@ -1,0 +1,215 @@
+"""Actor-critic (AC) and enhanced actor-critic (EAC) as pure single-stream functions.
+
+Debnath & Nassour (2014): equations (1)–(4) for AC and Algorithm 1 for EAC,
+with every open point pinned by SPEC E1–E7. AC is EAC with both memories off;
+there is one code path. Callers vmap over seeds.
+
+* (1) π(a|s) ∝ exp(p(s,a)/τ), preferences start at 0 (uniform policy).
+* (3) δ = r + γ·V(s') − V(s), with V(s') = 0 when s' is terminal.
+* critic: V(s) ← V(s) + α·δ;  (4) actor: p(s,a) ← p(s,a) + β·δ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+
+from jaxeac import memory as mem
+from jaxeac.errors import UsageError
+from jaxeac.pytree import pytree_dataclass
+
+FailureRule = Literal["previous_trial", "within_trial"]
+FAILURE_RULES = ("previous_trial", "within_trial")
+
+#: A step size: a constant, or an optax schedule over the 0-based trial index.
+Rate = float | Callable[[jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentConfig:
+    """Static choices of the agent (shapes and code paths; hashed by jit).
+
+    `success_memory` / `failure_memory` switch the two memories of Algorithm 1;
+    both off is the classic AC. `learn_on_memory_steps` is the E2 variant and
+    `failure_rule` the E6 variant.
+    """
+
+    success_memory: bool = True
+    failure_memory: bool = True
+    learn_on_memory_steps: bool = False
+    failure_rule: FailureRule = "previous_trial"
+    memory: mem.Layout = "dense"
+    capacity: int = 1024
+
+    def __post_init__(self):
+        if self.failure_rule not in FAILURE_RULES:
+            raise UsageError(
+                f"unknown failure_rule {self.failure_rule!r}; choose one of {FAILURE_RULES}"
+            )
+        if self.memory not in mem.LAYOUTS:
+            raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {mem.LAYOUTS}")
+        if isinstance(self.capacity, bool) or not isinstance(self.capacity, int) or self.capacity <= 0:
+            raise UsageError(f"capacity must be a positive integer (got {self.capacity!r})")
+
+    @property
+    def uses_memory(self) -> bool:
+        return self.success_memory or self.failure_memory
+
+
+#: The two algorithms of the paper, plus memory ablations (issue: which part of EAC works?).
+ALGORITHMS: dict[str, AgentConfig] = {
+    "ac": AgentConfig(success_memory=False, failure_memory=False),
+    "eac": AgentConfig(),
+    "eac_success_only": AgentConfig(failure_memory=False),
+    "eac_failure_only": AgentConfig(success_memory=False),
+}
+
+
+def algorithm(name: str, **overrides) -> AgentConfig:
+    """The `AgentConfig` of a named algorithm, with overrides (e.g. memory layout)."""
+    if name not in ALGORITHMS:
+        raise UsageError(f"unknown algorithm {name!r}; choose from {sorted(ALGORITHMS)}")
+    return dataclasses.replace(ALGORITHMS[name], **overrides)
+
+
+@pytree_dataclass
+class Hyper:
+    """Traced numeric settings (vmappable for sweeps): rates, discount, temperature."""
+
+    alpha: jax.Array  # critic step size
+    beta: jax.Array  # actor step size
+    gamma: jax.Array  # discount
+    temperature: jax.Array  # softmax temperature τ of (1)
+
+
+@pytree_dataclass
+class AgentState:
+    """Everything an agent carries across trials of one seed."""
+
+    preferences: jax.Array  # float32 [S, A], p(s, a) of (1), (4)
+    values: jax.Array  # float32 [S], V(s) of (2)
+    memory: mem.Memory | None  # success/failure experience (None for AC)
+    goal_known: jax.Array  # bool [], E5: goal reached at least once
+    prev_rtilde: jax.Array  # float32 [C], r̃ of the previous trial (E6)
+    prev_length: jax.Array  # int32 [], chances used in the previous trial (0 = none yet)
+
+
+def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int) -> AgentState:
+    """Preferences and values at 0 (uniform "random" policy, Alg. 1 line 1), empty memories."""
+    memory = (
+        mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity) if cfg.uses_memory else None
+    )
+    return AgentState(
+        preferences=jnp.zeros((n_states, n_actions), jnp.float32),
+        values=jnp.zeros((n_states,), jnp.float32),
+        memory=memory,
+        goal_known=jnp.bool_(False),
+        prev_rtilde=jnp.zeros((n_chances,), jnp.float32),
+        prev_length=jnp.int32(0),
+    )
+
+
+def sample_softmax(logits: jax.Array, allowed: jax.Array, u: jax.Array) -> jax.Array:
+    """Inverse-CDF draw from softmax (1) restricted to `allowed`, with one uniform u ∈ [0, 1).
+
+    Returns the smallest a with u·Σw < cumsum(w)[a], where w = exp(logits − max)·allowed.
+    """
+    shifted = logits - jnp.max(jnp.where(allowed, logits, -jnp.inf))
+    weights = jnp.where(allowed, jnp.exp(shifted), 0.0)
+    cdf = jnp.cumsum(weights)
+    action = jnp.sum(cdf <= u * cdf[-1])
+    return jnp.minimum(action, logits.shape[0] - 1).astype(jnp.int32)
+
+
+def select_action(cfg: AgentConfig, agent: AgentState, state: jax.Array, u: jax.Array, hyper: Hyper):
+    """E1: choose an action at `state`; returns (action, learns) where `learns` follows E2.
+
+    (a) a success action → take it; (b) some but not all actions flagged failed →
+    softmax over the unflagged ones; (c) otherwise plain AC softmax (1).
+    """
+    logits = agent.preferences[state] / hyper.temperature
+    n_actions = logits.shape[0]
+    allowed = jnp.ones((n_actions,), bool)
+    from_memory = jnp.bool_(False)
+    if cfg.failure_memory:
+        flags = mem.failure_flags(agent.memory, state, n_actions)
+        n_flagged = flags.sum()
+        restrict = (n_flagged > 0) & (n_flagged < n_actions)
+        allowed = jnp.where(restrict, ~flags, allowed)
+        from_memory = restrict
+    action = sample_softmax(logits, allowed, u)
+    if cfg.success_memory:
+        remembered = mem.success_action(agent.memory, state)
+        has_success = remembered >= 0
+        action = jnp.where(has_success, remembered, action)
+        from_memory = from_memory | has_success
+    learns = jnp.bool_(True) if cfg.learn_on_memory_steps else ~from_memory
+    return action, learns
+
+
+def td_error(reward, value, next_value, gamma, terminated) -> jax.Array:
+    """(3): δ = r + γ·V(s') − V(s), with V(s') = 0 at a terminal s'."""
+    return reward + gamma * jnp.where(terminated, 0.0, next_value) - value
+
+
+def critic_update(values: jax.Array, state, delta, alpha, learn) -> jax.Array:
+    """(2): V(s) ← V(s) + α·δ (only when `learn`)."""
+    return values.at[state].add(jnp.where(learn, alpha * delta, 0.0))
+
+
+def actor_update(preferences: jax.Array, state, action, delta, beta, learn) -> jax.Array:
+    """(4): p(s,a) ← p(s,a) + β·δ for the taken action only (only when `learn`)."""
+    return preferences.at[state, action].add(jnp.where(learn, beta * delta, 0.0))
+
+
+def learn_step(agent: AgentState, state, action, reward, next_state, terminated, learn, alpha, beta, gamma):
+    """Eqs. (2)–(4) on one transition, applied when `learn` (E2)."""
+    delta = td_error(reward, agent.values[state], agent.values[next_state], gamma, terminated)
+    return agent.replace(
+        values=critic_update(agent.values, state, delta, alpha, learn),
+        preferences=actor_update(agent.preferences, state, action, delta, beta, learn),
+    )
+
+
+def failure_mask(cfg: AgentConfig, rtilde, length, prev_rtilde, prev_length) -> jax.Array:
+    """E6: bool [C], chances whose (state, action) a failed trial flags.
+
+    ``previous_trial`` (paper): r̃(c|t) < r̃(c|t−1) for every c that exists in both
+    trials (none on the first trial). ``within_trial`` (variant): r̃(c|t) < r̃(c−1|t), c ≥ 2.
+    """
+    c = jnp.arange(rtilde.shape[0])
+    if cfg.failure_rule == "previous_trial":
+        return (c < jnp.minimum(length, prev_length)) & (rtilde < prev_rtilde)
+    earlier = jnp.concatenate([rtilde[:1], rtilde[:-1]])
+    return (c >= 1) & (c < length) & (rtilde < earlier)
+
+
+def end_trial(cfg: AgentConfig, agent: AgentState, states, actions, rtilde, length, success):
+    """Alg. 1 lines 15–29 after a trial: E4 success write or E6 failure write; keep r̃ for t+1."""
+    valid = jnp.arange(states.shape[0]) < length
+    memory = agent.memory
+    if cfg.success_memory:
+        written = mem.write_success(memory, states, actions, valid & success)
+        memory = written
+    if cfg.failure_memory:
+        flag = failure_mask(cfg, rtilde, length, agent.prev_rtilde, agent.prev_length) & ~success
+        memory = mem.write_failure(memory, states, actions, flag)
+    return agent.replace(memory=memory, prev_rtilde=rtilde, prev_length=length)
+
+
+def greedy_policy(cfg: AgentConfig, agent: AgentState) -> jax.Array:
+    """G7: int32 [S], the memory action where there is one, else argmax of preferences."""
+    greedy = jnp.argmax(agent.preferences, axis=1).astype(jnp.int32)
+    if not cfg.success_memory:
+        return greedy
+    remembered = mem.policy_actions(agent.memory, agent.preferences.shape[0])
+    return jnp.where(remembered >= 0, remembered, greedy)
+
+
+def rate_at(rate: Rate, traced: jax.Array, trial: jax.Array) -> jax.Array:
+    """A step size at a 0-based trial: the optax schedule's value, else the traced constant."""
+    return rate(trial) if callable(rate) else traced
