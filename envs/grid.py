@@ -128,7 +128,7 @@ class GridStep:
     """What one move returns (G4); `bumped` feeds the immediate reward r̃ (E5)."""
 
     state: GridState
-    reward: jax.Array  # float32 []
+    reward: jax.Array  # float []
     terminated: jax.Array  # bool [], reached the goal
     truncated: jax.Array  # bool [], used all C chances without reaching it
     bumped: jax.Array  # bool [], tried to move into an obstacle
@@ -153,7 +153,7 @@ class GridWorld:
         gx, gy = grid_map.goal
         ys, xs = np.divmod(np.arange(self.n_states), grid_map.width)
         #: ‖s − g‖₂ for every cell, used by the shaped reward of E5.
-        self.goal_distance = np.hypot(xs - gx, ys - gy).astype(np.float32)
+        self.goal_distance = np.hypot(xs - gx, ys - gy)  # float64; jnp casts to the default float
 
     @property
     def n_starts(self) -> int:
@@ -161,7 +161,7 @@ class GridWorld:
 
     @property
     def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(next_state [S, A] int32, reward [S, A] float32, bumped [S, A] bool)."""
+        """(next_state [S, A] int32, reward [S, A] float, bumped [S, A] bool)."""
         return self._next_state, self._reward, self._bumped
 
     def reset(self, key: jax.Array) -> GridState:
@@ -199,7 +199,7 @@ def _transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.nd
     h, w = grid_map.height, grid_map.width
     n = h * w
     next_state = np.zeros((n, 4), np.int32)
-    reward = np.zeros((n, 4), np.float32)
+    reward = np.zeros((n, 4))
     bumped = np.zeros((n, 4), bool)
     goal = grid_map.goal_index
     for s in range(n):

@@ -90,7 +90,7 @@ class Hyper:
 class AgentState:
     """Everything an agent carries across trials of one seed."""
 
-    preferences: jax.Array  # float32 [S, A], p(s, a) of (1), (4)
+    preferences: jax.Array  # float [S, A], p(s, a) of (1), (4)
     values: jax.Array  # float32 [S], V(s) of (2)
     memory: mem.Memory | None  # success/failure experience (None for AC)
     goal_known: jax.Array  # bool [], E5: goal reached at least once
@@ -104,11 +104,11 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int) 
         mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity) if cfg.uses_memory else None
     )
     return AgentState(
-        preferences=jnp.zeros((n_states, n_actions), jnp.float32),
-        values=jnp.zeros((n_states,), jnp.float32),
+        preferences=jnp.zeros((n_states, n_actions), float),
+        values=jnp.zeros((n_states,), float),
         memory=memory,
         goal_known=jnp.bool_(False),
-        prev_rtilde=jnp.zeros((n_chances,), jnp.float32),
+        prev_rtilde=jnp.zeros((n_chances,), float),
         prev_length=jnp.int32(0),
     )
 
@@ -125,7 +125,7 @@ def sample_softmax(logits: jax.Array, allowed: jax.Array, u: jax.Array) -> jax.A
     return jnp.minimum(action, logits.shape[0] - 1).astype(jnp.int32)
 
 
-def select_action(cfg: AgentConfig, agent: AgentState, state: jax.Array, u: jax.Array, hyper: Hyper):
+def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper):
     """E1: choose an action at `state`; returns (action, learns) where `learns` follows E2.
 
     (a) a success action → take it; (b) some but not all actions flagged failed →

@@ -31,7 +31,8 @@ def check_writable_dir(path: str | os.PathLike) -> Path:
         with tempfile.NamedTemporaryFile(dir=out, prefix=".probe-"):
             pass
     except OSError as exc:
-        raise UsageError(f"cannot write to --out {out}: {exc.strerror or exc}; choose a writable folder") from None
+        reason = exc.strerror or exc
+        raise UsageError(f"cannot write to --out {out}: {reason}; choose a writable folder") from None
     return out
 
 
@@ -44,6 +45,9 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

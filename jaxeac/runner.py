@@ -63,7 +63,7 @@ class RunConfig:
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
         def const(x):
-            return jnp.float32(0.0 if callable(x) else x)
+            return jnp.asarray(0.0 if callable(x) else x, dtype=float)
 
         return Hyper(const(self.alpha), const(self.beta), const(self.gamma), const(self.temperature))
 
@@ -143,19 +143,23 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, randoms
     return agent, record
 
 
+def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, TrialRecord]:
+    """One seed's run, keeping everything: the final agent and every trial's record [T, ...]."""
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances)
+
+    def trial_step(agent: AgentState, trial):
+        randoms = trial_randoms(key, trial, env.n_chances)
+        return run_trial(env, cfg, agent, hyper, randoms, trial)
+
+    return jax.lax.scan(trial_step, agent, jnp.arange(cfg.trials))
+
+
 def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResult]:
     """Build ``run(seed_key, hyper) -> SeedResult``: one `lax.scan` over T trials."""
 
     def run(key: jax.Array, hyper: Hyper) -> SeedResult:
-        agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances)
-
-        def trial_step(agent: AgentState, trial):
-            randoms = trial_randoms(key, trial, env.n_chances)
-            agent, record = run_trial(env, cfg, agent, hyper, randoms, trial)
-            return agent, (record.success, record.length)
-
-        agent, (success, steps) = jax.lax.scan(trial_step, agent, jnp.arange(cfg.trials))
-        return SeedResult(success, steps, greedy_policy(cfg.agent, agent))
+        agent, records = trace_run(env, cfg, key, hyper)
+        return SeedResult(records.success, records.length, greedy_policy(cfg.agent, agent))
 
     return run
 

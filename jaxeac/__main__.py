@@ -1,0 +1,5 @@
+import sys
+
+from jaxeac.cli import main
+
+sys.exit(main())

@@ -1,0 +1,168 @@
+"""The `jaxeac` command line: `jaxeac grid`, `jaxeac compare`, ...
+
+Bad input prints one line ``error: ...`` on stderr and exits with code 2, before
+any compute and without writing result files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+
+from jaxeac.errors import UsageError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but errors are one line (`error: ...`) and exit code 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def positive_int(text: str) -> int:
+    """An integer ≥ 1 (rejects 1.5, 0, -3, 'ten')."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a positive integer")
+    return value
+
+
+def nonneg_int(text: str) -> int:
+    """An integer ≥ 0 (a PRNG key)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a non-negative integer")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite number (rejects nan, inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number")
+    return value
+
+
+def add_grid_flags(p: argparse.ArgumentParser) -> None:
+    """The grid-world flags shared by `grid` and `sweep`; unset flags come from the preset."""
+    p.add_argument("--preset", default="paper", help="settings preset (default: paper, SPEC G6)")
+    p.add_argument("--map", dest="map_file", metavar="FILE", help="ASCII map file (SPEC G1)")
+    p.add_argument("--trials", type=positive_int, metavar="T", help="trials per run")
+    p.add_argument("--chances", type=positive_int, metavar="C", help="steps per trial (G5)")
+    p.add_argument("--alpha", type=finite_float, metavar="A", help="critic step size α")
+    p.add_argument("--beta", type=finite_float, metavar="B", help="actor step size β")
+    p.add_argument("--gamma", type=finite_float, metavar="G", help="discount γ in [0, 1]")
+    p.add_argument("--temperature", type=finite_float, metavar="TAU", help="softmax temperature τ > 0")
+    p.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO",
+                   help="algorithms: ac, eac, eac_success_only, eac_failure_only (default: ac eac)")
+    p.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
+    p.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="root PRNG key (R1)")
+    p.add_argument("--chunk-size", type=positive_int, default=1024, metavar="M",
+                   help="seeds per compiled batch; bounds memory (default 1024)")
+    p.add_argument("--memory", default="dense", metavar="LAYOUT", help="memory layout: dense | buffer (E7)")
+    p.add_argument("--capacity", type=positive_int, default=1024, metavar="K",
+                   help="slots per memory for --memory buffer")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    g = sub.add_parser("grid", help="run AC and EAC on the grid world over many seeds")
+    add_grid_flags(g)
+    g.add_argument("--out", default="runs/grid", metavar="DIR", help="run folder (default runs/grid)")
+    g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder")
+    c.add_argument("dir", metavar="DIR", help="a run folder written by `jaxeac grid` or `jaxeac bowling`")
+    add_compare_flags(c)
+    return parser
+
+
+def add_compare_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--baseline", default="ac", help="baseline algorithm (default ac)")
+    p.add_argument("--treatment", default="eac", help="treatment algorithm (default eac)")
+    p.add_argument("--resamples", type=positive_int, default=10_000, metavar="R",
+                   help="bootstrap and permutation resamples (default 10000)")
+    p.add_argument("--alpha", dest="test_alpha", type=finite_float, default=0.05,
+                   help="significance level (default 0.05)")
+    p.add_argument("--key", dest="stats_key", type=nonneg_int, default=0, metavar="K",
+                   help="PRNG key of the resampling")
+
+
+def cmd_grid(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from jaxeac.experiment import GridSettings, run_grid, summary_table, write_grid_outputs
+    from jaxeac.io import check_writable_dir
+
+    settings = GridSettings(
+        preset=args.preset, map_file=args.map_file, trials=args.trials, chances=args.chances,
+        alpha=args.alpha, beta=args.beta, gamma=args.gamma, temperature=args.temperature,
+        algos=tuple(args.algos), seeds=args.seeds, key=args.key, chunk_size=args.chunk_size,
+        memory=args.memory, capacity=args.capacity,
+    ).resolved()
+    settings.grid_map()  # a bad map fails here, before any compute
+    out = check_writable_dir(args.out)
+    with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
+              desc="grid", file=sys.stderr) as bar:
+        run = run_grid(settings, progress=bar.update)
+    summary = write_grid_outputs(run, out)
+    print(summary_table(summary))
+    print(f"results in {out}/")
+    if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2:
+        return run_compare(out, quiet=args.quiet)
+    return 0
+
+
+def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
+                quiet=False) -> int:
+    from jaxeac.stats import compare_run_dir
+
+    result = compare_run_dir(run_dir, baseline=baseline, treatment=treatment, resamples=resamples,
+                             alpha=alpha, key=key, progress=not quiet)
+    p = result["primary"]
+    lo, hi = p["diff_ci95"]
+    print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} (95% BCa CI [{lo:+.3f}, {hi:+.3f}]), "
+          f"Welch p = {p['p_welch']:.3g}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
+    print(f"report in {run_dir}/report.md")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    if not (0 < args.test_alpha < 1):
+        raise UsageError(f"--alpha must lie in (0, 1) (got {args.test_alpha})")
+    return run_compare(args.dir, baseline=args.baseline, treatment=args.treatment,
+                       resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key)
+
+
+COMMANDS = {"grid": cmd_grid, "compare": cmd_compare}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `jaxeac` console script; returns the exit code."""
+    try:
+        args = build_parser().parse_args(argv)
+        return COMMANDS[args.command](args)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted; no partial result files were written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,253 @@
+"""The grid-world experiment end to end: settings → runs of each algorithm → files on disk.
+
+`GridSettings` is what the CLI and notebooks fill in (validated up front, so bad
+input fails before any compute); `run_grid` runs every algorithm over seeds
+0..N−1 (SPEC R1) and `write_grid_outputs` writes the run folder atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+import platform
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import numpy as np
+from scipy import stats as sps
+
+from envs.grid import GridMap, GridWorld, get_map, load_map
+from jaxeac import __version__
+from jaxeac.agent import ALGORITHMS, algorithm
+from jaxeac.errors import UsageError
+from jaxeac.io import atomic_write_json, staged_dir
+from jaxeac.memory import LAYOUTS
+from jaxeac.presets import make as make_preset
+from jaxeac.runner import RunConfig, SeedsResult, run_seeds
+
+
+def _positive_int(name: str, value) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
+        raise UsageError(f"{name} must be a positive integer (got {value!r})")
+
+
+def _rate(name: str, value, *, upper: float | None = None, positive: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise UsageError(f"{name} must be a finite number (got {value!r})")
+    if value < 0 or (positive and value == 0):
+        raise UsageError(f"{name} must be {'positive' if positive else 'non-negative'} (got {value!r})")
+    if upper is not None and value > upper:
+        raise UsageError(f"{name} must lie in [0, {upper:g}] (got {value!r})")
+
+
+@dataclasses.dataclass(frozen=True)
+class GridSettings:
+    """Everything that defines a grid run; `None` fields come from the preset."""
+
+    preset: str = "paper"
+    map_file: str | None = None
+    trials: int | None = None
+    chances: int | None = None
+    alpha: float | None = None
+    beta: float | None = None
+    gamma: float | None = None
+    temperature: float | None = None
+    algos: tuple[str, ...] = ("ac", "eac")
+    seeds: int = 1000
+    key: int = 0
+    chunk_size: int = 1024
+    memory: str = "dense"
+    capacity: int = 1024
+
+    def resolved(self) -> GridSettings:
+        """Fill unset fields from the preset and validate everything (raises `UsageError`)."""
+        preset = make_preset(self.preset)
+        filled = dataclasses.replace(
+            self,
+            **{
+                f: getattr(preset, f)
+                for f in ("trials", "chances", "alpha", "beta", "gamma", "temperature")
+                if getattr(self, f) is None
+            },
+        )
+        filled.validate()
+        return filled
+
+    def validate(self) -> None:
+        for name in ("trials", "chances", "seeds", "chunk_size", "capacity"):
+            _positive_int(name.replace("_", " "), getattr(self, name))
+        _rate("alpha", self.alpha)
+        _rate("beta", self.beta)
+        _rate("gamma", self.gamma, upper=1.0)
+        _rate("temperature", self.temperature, positive=True)
+        if isinstance(self.key, bool) or not isinstance(self.key, int | np.integer) or self.key < 0:
+            raise UsageError(f"key must be a non-negative integer (got {self.key!r})")
+        if not self.algos:
+            raise UsageError("algos is empty; pass at least one of " + ", ".join(sorted(ALGORITHMS)))
+        for name in self.algos:
+            algorithm(name)  # raises on unknown names
+        if len(set(self.algos)) != len(self.algos):
+            raise UsageError(f"algos lists an algorithm twice ({' '.join(self.algos)}); list each once")
+        if self.memory not in LAYOUTS:
+            raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {', '.join(LAYOUTS)}")
+
+    def grid_map(self) -> GridMap:
+        return load_map(self.map_file) if self.map_file else get_map(make_preset(self.preset).map)
+
+    def run_config(self, algo: str) -> RunConfig:
+        agent = algorithm(algo, memory=self.memory, capacity=self.capacity)
+        return RunConfig(
+            trials=self.trials, agent=agent, alpha=self.alpha, beta=self.beta,
+            gamma=self.gamma, temperature=self.temperature,
+        )
+
+
+@dataclasses.dataclass
+class GridRun:
+    """A finished grid experiment: settings, map and per-algorithm results."""
+
+    settings: GridSettings
+    grid_map: GridMap
+    results: dict[str, SeedsResult]
+
+
+def run_grid(settings: GridSettings, *, progress: Callable[[int], None] | None = None) -> GridRun:
+    """Run every algorithm of `settings` (already `resolved()`) over its seeds."""
+    grid_map = settings.grid_map()
+    env = GridWorld(grid_map, settings.chances)
+    results = {
+        algo: run_seeds(
+            env, settings.run_config(algo), root_key=settings.key, n_seeds=settings.seeds,
+            chunk_size=settings.chunk_size, progress=progress,
+        )
+        for algo in settings.algos
+    }
+    return GridRun(settings, grid_map, results)
+
+
+def mean_ci95(x: np.ndarray) -> tuple[float, float, float, float]:
+    """(mean, sd, lo, hi): Student-t 95 % interval of the mean (NaN bounds when n < 2)."""
+    x = np.asarray(x, float)
+    n, mean = x.size, float(x.mean())
+    if n < 2:
+        return mean, float("nan"), float("nan"), float("nan")
+    sd = float(x.std(ddof=1))
+    half = float(sps.t.ppf(0.975, n - 1)) * sd / math.sqrt(n)
+    return mean, sd, mean - half, mean + half
+
+
+def welch_diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
+    """(mean(b) − mean(a), lo, hi) with the Welch–Satterthwaite 95 % interval."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    diff = float(b.mean() - a.mean())
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    se = math.sqrt(va + vb)
+    if se == 0:
+        return diff, diff, diff
+    df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    half = float(sps.t.ppf(0.975, df)) * se
+    return diff, diff - half, diff + half
+
+
+def versions() -> dict[str, str]:
+    """Versions of the packages a result depends on."""
+    import matplotlib
+    import mujoco
+    import optax
+
+    return {
+        "jaxeac": __version__, "python": platform.python_version(), "jax": jax.__version__,
+        "jaxlib": jax.lib.__version__ if hasattr(jax.lib, "__version__") else jax.__version__,
+        "numpy": np.__version__, "optax": optax.__version__, "mujoco": mujoco.__version__,
+        "matplotlib": matplotlib.__version__, "platform": platform.platform(),
+    }
+
+
+def summarize(run: GridRun) -> dict:
+    """summary.json content: config, versions, devices, timings, per-algorithm statistics."""
+    s = run.settings
+    per_algo = {}
+    for algo, r in run.results.items():
+        mean, sd, lo, hi = mean_ci95(r.successes)
+        per_algo[algo] = {
+            "mean_successes": mean, "sd_successes": sd, "ci95_successes": [lo, hi],
+            "mean_steps": float(r.steps.sum(axis=1).mean()),
+            "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds,
+            "agent_steps": r.agent_steps,
+            "agent_steps_per_second": r.agent_steps / r.run_seconds if r.run_seconds > 0 else None,
+        }
+    out = {
+        "experiment": "grid",
+        "primary_measure": "successes",
+        "algos": list(s.algos),
+        "trials": s.trials,
+        "seeds": s.seeds,
+        "key": s.key,
+        "config": dataclasses.asdict(s) | {"map": run.grid_map.text},
+        "versions": versions(),
+        "devices": [str(d) for d in jax.devices()],
+        "command": " ".join(sys.argv),
+        "compile_seconds": sum(r.compile_seconds for r in run.results.values()),
+        "run_seconds": sum(r.run_seconds for r in run.results.values()),
+        "per_algo": per_algo,
+    }
+    total_steps = sum(r.agent_steps for r in run.results.values())
+    out["agent_steps_per_second"] = total_steps / out["run_seconds"] if out["run_seconds"] > 0 else None
+    if "ac" in run.results and "eac" in run.results:
+        diff, lo, hi = welch_diff_ci95(run.results["ac"].successes, run.results["eac"].successes)
+        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
+    return out
+
+
+def summary_table(summary: dict) -> str:
+    """The short text table printed at the end of `jaxeac grid`."""
+    lines = [f"{'algo':<18}{'seeds':>7}{'mean successes':>16}   95% CI          sd",]
+    for algo, st in summary["per_algo"].items():
+        lo, hi = st["ci95_successes"]
+        lines.append(
+            f"{algo:<18}{summary['seeds']:>7}{st['mean_successes']:>16.2f}   "
+            f"[{lo:7.2f}, {hi:7.2f}] {st['sd_successes']:6.2f}"
+        )
+    if "eac_minus_ac" in summary:
+        d = summary["eac_minus_ac"]
+        lines.append(f"EAC - AC: {d['diff']:+.2f} successes of {summary['trials']} "
+                     f"(95% CI [{d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}], Welch)")
+    rate = summary.get("agent_steps_per_second")
+    lines.append(f"compile {summary['compile_seconds']:.1f} s, run {summary['run_seconds']:.1f} s"
+                 + (f", {rate:.3g} agent-steps/s" if rate else ""))
+    return "\n".join(lines)
+
+
+def per_seed_csv(run: GridRun) -> str:
+    """per_seed.csv: one row per algorithm and seed (seed = i of fold_in(root, i))."""
+    buf = io.StringIO()
+    buf.write("algo,seed,successes,steps,first_success\n")
+    for algo, r in run.results.items():
+        total_steps = r.steps.sum(axis=1)
+        for i, succ, steps, first in zip(r.seeds, r.successes, total_steps, r.first_success, strict=True):
+            buf.write(f"{algo},{i},{succ},{steps},{first}\n")
+    return buf.getvalue()
+
+
+def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True) -> dict:
+    """Write per_seed.csv, curves.npz, policies.npz, summary.json and figures, all or nothing."""
+    summary = summarize(run)
+    with staged_dir(out) as stage:
+        (stage / "per_seed.csv").write_text(per_seed_csv(run))
+        np.savez_compressed(
+            stage / "curves.npz",
+            **{algo: r.success for algo, r in run.results.items()},
+            **{f"{algo}_steps": r.steps.astype(np.int16) for algo, r in run.results.items()},
+        )
+        np.savez_compressed(
+            stage / "policies.npz", **{algo: r.policy.astype(np.int8) for algo, r in run.results.items()}
+        )
+        if figures:
+            from jaxeac import plots
+
+            summary["figures"] = plots.grid_figures(run, stage)
+        atomic_write_json(stage / "summary.json", summary)
+    return summary
