@@ -76,7 +76,8 @@ def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: in
     free = ~grid.obstacles.reshape(-1)
     free[grid.goal_index] = False
     d = np.array(ACTION_DELTAS)[policy.astype(int)]
-    ax.quiver(xs[free], ys[free], d[free, 0], -d[free, 1], angles="xy", scale_units="xy",
+    # y grows downwards (row index), as in the map, so dy is drawn as is.
+    ax.quiver(xs[free], ys[free], d[free, 0], d[free, 1], angles="xy", scale_units="xy",
               scale=2.4, width=0.006, color="0.35", pivot="middle")
     path = greedy_path(grid, policy, start, max_steps)
     py, px = np.divmod(np.array(path), w)

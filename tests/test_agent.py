@@ -1,0 +1,204 @@
+"""Hand-computed golden values for each update of AC/EAC (eqs. 1-4, SPEC E1-E6), jitted and not."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxeac import memory as mem
+from jaxeac.agent import (
+    AgentConfig,
+    Hyper,
+    actor_update,
+    algorithm,
+    critic_update,
+    end_trial,
+    failure_mask,
+    greedy_policy,
+    init_agent,
+    learn_step,
+    rate_at,
+    sample_softmax,
+    select_action,
+    td_error,
+)
+from jaxeac.errors import UsageError
+
+JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
+
+
+def maybe_jit(f, jit, **kw):
+    return jax.jit(f, **kw) if jit else f
+
+
+@JIT
+def test_td_error_golden(jit):
+    f = maybe_jit(td_error, jit)
+    # (3): δ = 1 + 0.9·0.2 − 0.5 = 0.68; terminal s' → V(s') = 0: δ = 1 − 0.5 = 0.5
+    assert float(f(1.0, 0.5, 0.2, 0.9, False)) == pytest.approx(0.68)
+    assert float(f(1.0, 0.5, 0.2, 0.9, True)) == pytest.approx(0.5)
+    assert float(f(-1.0, 0.0, 0.0, 0.9, False)) == pytest.approx(-1.0)
+
+
+@JIT
+def test_critic_and_actor_updates_golden(jit):
+    values = jnp.array([0.0, 0.5, -0.25])
+    v = maybe_jit(critic_update, jit)(values, 1, 0.68, 0.1, True)
+    np.testing.assert_allclose(v, [0.0, 0.568, -0.25], rtol=1e-6)  # V(s) += α·δ
+    v = maybe_jit(critic_update, jit)(values, 1, 0.68, 0.1, False)
+    np.testing.assert_array_equal(v, values)  # E2: no learning on memory steps
+    prefs = jnp.zeros((3, 4))
+    p = maybe_jit(actor_update, jit)(prefs, 2, 3, -0.5, 0.3, True)
+    expected = np.zeros((3, 4))
+    expected[2, 3] = -0.15  # (4): only the taken action moves, by β·δ
+    np.testing.assert_allclose(p, expected, rtol=1e-6)
+
+
+def test_learn_step_golden_sequence():
+    """Two transitions by hand: 0 --a1--> 1 (r=0), then 1 --a0--> goal (r=1, terminal)."""
+    agent = init_agent(algorithm("ac"), 3, 2, 4)
+    agent = agent.replace(values=jnp.array([0.0, 0.2, 0.7]))
+    a1 = learn_step(agent, 0, 1, 0.0, 1, False, True, 0.5, 0.2, 0.9)
+    # δ = 0 + 0.9·0.2 − 0 = 0.18 → V0 = 0.09, p(0,1) = 0.036
+    np.testing.assert_allclose(a1.values, [0.09, 0.2, 0.7], rtol=1e-6)
+    np.testing.assert_allclose(a1.preferences[0], [0.0, 0.036], rtol=1e-6)
+    a2 = learn_step(a1, 1, 0, 1.0, 2, True, True, 0.5, 0.2, 0.9)
+    # δ = 1 + 0 − 0.2 = 0.8 (terminal ignores V(goal) = 0.7) → V1 = 0.6, p(1,0) = 0.16
+    np.testing.assert_allclose(a2.values, [0.09, 0.6, 0.7], rtol=1e-6)
+    np.testing.assert_allclose(a2.preferences[1], [0.16, 0.0], rtol=1e-6)
+
+
+@JIT
+def test_sample_softmax_inverse_cdf(jit):
+    f = maybe_jit(sample_softmax, jit)
+    logits = jnp.array([0.0, math.log(3.0)])  # (1): π = [0.25, 0.75]
+    everything = jnp.array([True, True])
+    assert int(f(logits, everything, 0.0)) == 0
+    assert int(f(logits, everything, 0.24)) == 0
+    assert int(f(logits, everything, 0.26)) == 1
+    assert int(f(logits, everything, 0.999999)) == 1
+    # restricted to {0, 2}: weights e^0, e^ln3 → [0.25, 0, 0.75, 0]; flagged actions never drawn
+    logits = jnp.array([0.0, 5.0, math.log(3.0), 9.0])
+    allowed = jnp.array([True, False, True, False])
+    assert int(f(logits, allowed, 0.24)) == 0
+    assert int(f(logits, allowed, 0.26)) == 2
+    assert int(f(logits, allowed, 0.9999)) == 2
+    # only the last action allowed
+    assert int(f(logits, jnp.array([False, False, False, True]), 0.0)) == 3
+
+
+def test_sample_softmax_frequencies_match_equation_1():
+    logits = jnp.array([0.5, -1.0, 2.0, 0.0])
+    u = jax.random.uniform(jax.random.key(0), (200_000,))
+    draws = jax.vmap(lambda x: sample_softmax(logits, jnp.ones(4, bool), x))(u)
+    freq = np.bincount(np.asarray(draws), minlength=4) / u.size
+    np.testing.assert_allclose(freq, jax.nn.softmax(logits), atol=4e-3)
+
+
+def hyper(temperature=1.0):
+    return Hyper(jnp.float32(0.1), jnp.float32(0.3), jnp.float32(0.9), jnp.float32(temperature))
+
+
+def test_select_action_e1_order():
+    cfg = algorithm("eac")
+    agent = init_agent(cfg, 4, 4, 5)
+    m = agent.memory
+    m = mem.write_success(m, jnp.array([1]), jnp.array([3]), jnp.array([True]))
+    m = mem.write_failure(m, jnp.array([1, 2, 2, 3, 3, 3, 3]), jnp.array([0, 0, 1, 0, 1, 2, 3]),
+                          jnp.ones(7, bool))
+    agent = agent.replace(memory=m)
+    # (a) success memory wins even over failure flags at the same state
+    assert tuple(map(int, select_action(cfg, agent, 1, 0.0, hyper()))) == (3, 0)
+    # (b) two of four flagged at state 2 → uniform over {2, 3}; no learning (E2)
+    a, learns = select_action(cfg, agent, 2, 0.49, hyper())
+    assert (int(a), bool(learns)) == (2, False)
+    assert int(select_action(cfg, agent, 2, 0.51, hyper())[0]) == 3
+    # (c) all four flagged at state 3 → plain softmax over all, learns
+    assert [int(select_action(cfg, agent, 3, u, hyper())[0]) for u in (0.1, 0.3, 0.6, 0.9)] == [0, 1, 2, 3]
+    assert bool(select_action(cfg, agent, 3, 0.1, hyper())[1])
+    # (c) nothing remembered at state 0 → plain softmax, learns
+    assert bool(select_action(cfg, agent, 0, 0.1, hyper())[1])
+    # E2 variant: learns on memory steps too
+    variant = algorithm("eac", learn_on_memory_steps=True)
+    assert bool(select_action(variant, agent, 1, 0.0, hyper())[1])
+    assert bool(select_action(variant, agent, 2, 0.0, hyper())[1])
+
+
+def test_select_action_temperature():
+    cfg = algorithm("ac")
+    agent = init_agent(cfg, 1, 2, 1).replace(preferences=jnp.array([[0.0, math.log(3.0)]]))
+    # τ = 1: π = [.25, .75]; τ → large: π → [.5, .5]
+    assert int(select_action(cfg, agent, 0, 0.3, hyper(1.0))[0]) == 1
+    assert int(select_action(cfg, agent, 0, 0.3, hyper(1e6))[0]) == 0
+
+
+def test_failure_mask_rules_golden():
+    prev = jnp.array([0.5, 0.4, -1.0, 0.2, 0.0])
+    cur = jnp.array([0.4, 0.4, -1.0, 0.1, 0.0])
+    cfg = AgentConfig()
+    # E6: c exists in both trials (min(3, 4) = 3 chances) and r̃(c|t) < r̃(c|t−1)
+    np.testing.assert_array_equal(failure_mask(cfg, cur, 3, prev, 4), [True, False, False, False, False])
+    np.testing.assert_array_equal(failure_mask(cfg, cur, 5, prev, 5), [True, False, False, True, False])
+    # first trial: no previous trial → nothing flagged
+    np.testing.assert_array_equal(failure_mask(cfg, cur, 5, prev, 0), [False] * 5)
+    within = AgentConfig(failure_rule="within_trial")
+    # variant: r̃(c|t) < r̃(c−1|t) for c ≥ 2 (1-based)
+    np.testing.assert_array_equal(failure_mask(within, cur, 5, prev, 5), [False, False, True, False, True])
+    np.testing.assert_array_equal(failure_mask(within, cur, 2, prev, 5), [False] * 5)
+
+
+def test_end_trial_writes_success_or_failure_not_both():
+    cfg = algorithm("eac")
+    agent = init_agent(cfg, 6, 4, 4).replace(prev_rtilde=jnp.array([1.0, 1.0, 1.0, 1.0]),
+                                             prev_length=jnp.int32(4))
+    states, actions = jnp.array([0, 1, 0, 5]), jnp.array([1, 2, 3, 0])
+    rtilde = jnp.array([0.0, 0.0, 0.0, 0.0])
+    won = end_trial(cfg, agent, states, actions, rtilde, jnp.int32(3), jnp.bool_(True))
+    # E4: chronological, last write wins for state 0; chance 4 was never taken
+    np.testing.assert_array_equal(won.memory.success, [3, 2, -1, -1, -1, -1])
+    assert not bool(won.memory.failure.any())
+    lost = end_trial(cfg, agent, states, actions, rtilde, jnp.int32(4), jnp.bool_(False))
+    assert bool((lost.memory.success == -1).all())
+    assert sorted(zip(*map(list, np.nonzero(lost.memory.failure)))) == [(0, 1), (0, 3), (1, 2), (5, 0)]
+    np.testing.assert_array_equal(lost.prev_rtilde, rtilde)
+    assert int(lost.prev_length) == 4
+
+
+def test_ac_has_no_memory_and_greedy_policy():
+    ac = algorithm("ac")
+    agent = init_agent(ac, 2, 3, 1)
+    assert agent.memory is None and not ac.uses_memory
+    agent = agent.replace(preferences=jnp.array([[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]]))
+    np.testing.assert_array_equal(greedy_policy(ac, agent), [1, 0])
+    eac = algorithm("eac")
+    e = init_agent(eac, 2, 3, 1).replace(preferences=agent.preferences)
+    e = e.replace(memory=mem.write_success(e.memory, jnp.array([1]), jnp.array([2]), jnp.array([True])))
+    np.testing.assert_array_equal(greedy_policy(eac, e), [1, 2])  # G7: memory first
+
+
+def test_rate_schedule():
+    import optax
+
+    sched = optax.linear_schedule(1.0, 0.0, 10)
+    assert float(rate_at(sched, jnp.float32(0.5), 5)) == pytest.approx(0.5)
+    assert float(rate_at(0.3, jnp.float32(0.7), 5)) == pytest.approx(0.7)
+
+
+@pytest.mark.parametrize(("kw", "msg"), [
+    ({"failure_rule": "sideways"}, "unknown failure_rule"),
+    ({"memory": "sparse"}, "unknown memory layout"),
+    ({"capacity": 0}, "capacity must be a positive integer"),
+    ({"capacity": 2.5}, "capacity must be a positive integer"),
+])
+def test_agent_config_rejects_bad_values(kw, msg):
+    with pytest.raises(UsageError, match=msg):
+        AgentConfig(**kw)
+
+
+def test_unknown_algorithm():
+    with pytest.raises(UsageError, match="unknown algorithm 'sarsa'"):
+        algorithm("sarsa")
