@@ -1,0 +1,126 @@
+"""The `jaxeac grid` command line: outputs, and bad input → one-line error, exit 2, nothing written."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxeac.cli import main
+
+SMALL = ["--seeds", "4", "--trials", "6", "--chances", "10", "--quiet", "--no-compare"]
+
+
+def result_files(folder):
+    return sorted(p.name for p in folder.iterdir()) if folder.exists() else []
+
+
+@pytest.fixture
+def bad_map(tmp_path):
+    path = tmp_path / "two_goals.txt"
+    path.write_text("G..\n..G\n")
+    return path
+
+
+BAD = {
+    "map breaks G1": (["--map", "{bad_map}"], "exactly one goal"),
+    "missing map": (["--map", "{tmp}/nope.txt"], "does not exist"),
+    "zero seeds": (["--seeds", "0"], "must be a positive integer"),
+    "negative trials": (["--trials", "-3"], "must be a positive integer"),
+    "fractional chances": (["--chances", "2.5"], "is not an integer"),
+    "word seeds": (["--seeds", "ten"], "is not an integer"),
+    "nan alpha": (["--alpha", "nan"], "not a finite number"),
+    "inf beta": (["--beta", "inf"], "not a finite number"),
+    "negative alpha": (["--alpha", "-0.1"], "alpha must be non-negative"),
+    "gamma above 1": (["--gamma", "1.5"], r"gamma must lie in \[0, 1\]"),
+    "gamma below 0": (["--gamma", "-0.5"], "gamma must be non-negative"),
+    "zero temperature": (["--temperature", "0"], "temperature must be positive"),
+    "unknown preset": (["--preset", "huge"], "unknown preset 'huge'"),
+    "unknown algorithm": (["--algos", "ac", "sarsa"], "unknown algorithm 'sarsa'"),
+    "unknown memory": (["--memory", "sparse"], "unknown memory layout 'sparse'"),
+    "zero capacity": (["--capacity", "0"], "must be a positive integer"),
+    "zero chunk": (["--chunk-size", "0"], "must be a positive integer"),
+    "negative key": (["--key", "-1"], "must be a non-negative integer"),
+    "out is a file": (["--out", "{tmp}/file.txt"], "is not a directory"),
+    "out under a file": (["--out", "{tmp}/file.txt/sub"], "cannot write to --out"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_one_line_exit_2_nothing_written(case, tmp_path, bad_map, capsys):
+    flags, message = BAD[case]
+    (tmp_path / "file.txt").write_text("not a folder")
+    out = tmp_path / "out"
+    argv = ["grid", *SMALL, "--out", str(out)]
+    argv += [f.format(bad_map=bad_map, tmp=tmp_path) for f in flags]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
+    import re
+
+    assert re.search(message, err), err
+    assert result_files(out) == []
+    assert (tmp_path / "file.txt").read_text() == "not a folder"
+
+
+def test_grid_end_to_end(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["grid", *SMALL, "--out", str(out), "--key", "5"]) == 0
+    printed = capsys.readouterr().out
+    assert "EAC - AC" in printed and "agent-steps/s" in printed
+    assert result_files(out) == ["curves.npz", "fig2_policies.png", "fig3_cumulative_successes.png",
+                                 "per_seed.csv", "policies.npz", "summary.json"]
+    rows = list(csv.DictReader((out / "per_seed.csv").open()))
+    assert [(r["algo"], int(r["seed"])) for r in rows] == [(a, i) for a in ("ac", "eac") for i in range(4)]
+    curves = np.load(out / "curves.npz")
+    for algo in ("ac", "eac"):
+        success = curves[algo]
+        assert success.dtype == bool and success.shape == (4, 6)
+        mine = [r for r in rows if r["algo"] == algo]
+        np.testing.assert_array_equal([int(r["successes"]) for r in mine], success.sum(1))
+        np.testing.assert_array_equal([int(r["steps"]) for r in mine], curves[f"{algo}_steps"].sum(1))
+        for r, s in zip(mine, success, strict=True):
+            assert int(r["first_success"]) == (np.argmax(s) + 1 if s.any() else -1)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["trials"] == 6 and summary["config"]["alpha"] == 0.1  # flag + preset
+    assert summary["key"] == 5 and summary["devices"] and summary["versions"]["jax"]
+    assert summary["per_algo"]["eac"]["mean_successes"] == pytest.approx(curves["eac"].sum(1).mean())
+    assert summary["compile_seconds"] > 0 and summary["agent_steps_per_second"] > 0
+
+
+def test_cli_results_match_library_and_rerun(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["grid", *SMALL, "--out", str(a), "--chunk-size", "3"]) == 0
+    assert main(["grid", *SMALL, "--out", str(b), "--chunk-size", "4"]) == 0
+    assert (a / "per_seed.csv").read_text() == (b / "per_seed.csv").read_text()
+
+
+def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, capsys):
+    from jaxeac import plots
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full while drawing")
+
+    monkeypatch.setattr(plots, "grid_figures", broken)
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError):
+        main(["grid", *SMALL, "--out", str(out)])
+    assert result_files(out) == []
+
+
+def test_console_entry_points(tmp_path):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.run([sys.executable, "-m", "jaxeac", "grid", "--seeds", "0"],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert proc.stderr.startswith("error: ")
+    proc = subprocess.run([sys.executable, "-m", "jaxeac", "--help"], capture_output=True, text=True,
+                          env=env, timeout=120)
+    assert proc.returncode == 0 and "grid" in proc.stdout
