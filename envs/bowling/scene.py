@@ -1,0 +1,277 @@
+"""Bowling scene constants, configuration, pin state and the throw maths shared by both backends.
+
+SPEC ids: B1 (scene, see ``xmls/bowling.xml``), B2 (shoulder angles), B3 (execution
+noise), B4 (pins down / removed / standing), B7 (both backends prepare and judge a
+throw with the functions here, so they differ only in the physics engine).
+
+Everything here is backend-neutral JAX: ``throw_start`` builds the initial
+``qpos``/``qvel`` of a throw from the pin state, the angle and the noise draw, and
+``judge_throw`` turns the final pin poses into the next pin state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxeac.errors import UsageError
+
+XML_PATH = Path(__file__).resolve().parent / "xmls" / "bowling.xml"
+
+N_PINS = 10
+BALL_RADIUS = 0.11  # m (B1)
+ARM_LENGTH = 0.6  # m: radius of the release arc around the shoulder axis (B2)
+PIN_RADIUS = 0.06  # m
+PIN_CENTRE_Z = 0.19  # m: centre height of an upright pin (0.38 m tall)
+PIN_SPACING = 0.30  # m between neighbouring pin centres
+HEAD_PIN_X = 6.6  # m: 6.0 m from the theta = 0 release point
+ROW_GAP = PIN_SPACING * math.sqrt(3.0) / 2.0
+
+
+def _pin_xy() -> np.ndarray:
+    """Pin centres (10, 2), standard numbering; +y is the thrower's left (B1)."""
+    xy = []
+    for row in range(4):
+        for j in range(row + 1):
+            xy.append((HEAD_PIN_X + row * ROW_GAP, (row / 2.0 - j) * PIN_SPACING))
+    return np.asarray(xy, dtype=np.float64)
+
+
+PIN_XY = _pin_xy()
+# The pin deck (B4 "leaves the deck"): a pin whose centre ends outside this box is down.
+DECK_X = (HEAD_PIN_X - 0.5, HEAD_PIN_X + 3 * ROW_GAP + 0.3)
+DECK_HALF_WIDTH = 0.6
+# Fallen pins are parked here (B4 "removed"): 1000 m up, 1 m apart, behind the thrower.
+# They free-fall during a throw (20 m in 2 s; 10 s allowed), touching nothing, and are
+# put back here before every throw.
+PARK_XYZ = np.stack(
+    [np.full(N_PINS, -10.0), np.arange(N_PINS) - 4.5, np.full(N_PINS, 1000.0)], axis=1
+)
+# qpos/qvel layout of the model: ball free joint first, then pin1..pin10.
+BALL_QPOS = slice(0, 7)
+PINS_QPOS = slice(7, 77)
+NQ, NV = 77, 66
+TIMESTEP = 0.005  # s, as in the MJCF file
+MAX_STEPS = 2000  # 10 s: parked pins must not reach the floor
+
+BACKENDS = ("c", "mjx")
+
+
+@dataclasses.dataclass(frozen=True)
+class BowlingConfig:
+    """Static settings of the bowling throw (B2, B3, B4); validated on construction."""
+
+    n_angles: int = 21  # K shoulder angles (B2)
+    theta_max: float = 0.1  # rad; +-theta_max lie in the no-pin zone (B2)
+    noise_angle: float = 0.003  # rad, s.d. of the Gaussian noise on theta (B3)
+    noise_speed: float = 0.1  # m/s, s.d. of the Gaussian noise on release speed (B3)
+    release_speed: float = 7.0  # m/s (ball released rolling, no slip)
+    n_steps: int = 400  # physics steps per throw (5 ms each: 2 s)
+    tilt_down_deg: float = 45.0  # a pin tilted more than this is down (B4)
+    trajectory_stride: int = 5  # record every k-th step when a trajectory is asked for
+    nthread: int = 0  # C backend threads; 0 = os.cpu_count()
+
+    def __post_init__(self) -> None:
+        """Check every field; raise UsageError naming the problem and the fix."""
+        if not isinstance(self.n_angles, int) or self.n_angles < 2:
+            raise UsageError(f"n_angles={self.n_angles!r}: need an integer >= 2 (K angles)")
+        if not math.isfinite(self.theta_max) or self.theta_max <= 0:
+            raise UsageError(f"theta_max={self.theta_max!r}: need a finite angle > 0 (rad)")
+        if self.theta_max >= math.pi / 2:
+            raise UsageError(f"theta_max={self.theta_max!r}: need < pi/2 so throws go down-lane")
+        for name in ("noise_angle", "noise_speed"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                raise UsageError(f"{name}={value!r}: need a finite value >= 0 (0 = exact)")
+        if not math.isfinite(self.release_speed) or self.release_speed <= 0:
+            raise UsageError(f"release_speed={self.release_speed!r}: need a speed > 0 (m/s)")
+        if not isinstance(self.n_steps, int) or not 1 <= self.n_steps <= MAX_STEPS:
+            raise UsageError(f"n_steps={self.n_steps!r}: need an integer in [1, {MAX_STEPS}]")
+        if not 0 < self.tilt_down_deg < 90:
+            raise UsageError(f"tilt_down_deg={self.tilt_down_deg!r}: need a value in (0, 90)")
+        if not isinstance(self.trajectory_stride, int) or self.trajectory_stride < 1:
+            raise UsageError(f"trajectory_stride={self.trajectory_stride!r}: need an integer >= 1")
+        if not isinstance(self.nthread, int) or self.nthread < 0:
+            raise UsageError(f"nthread={self.nthread!r}: need an integer >= 0 (0 = all cores)")
+
+
+def angles(cfg: BowlingConfig) -> np.ndarray:
+    """The K shoulder angles evenly spaced on [-theta_max, theta_max] (B2)."""
+    return np.linspace(-cfg.theta_max, cfg.theta_max, cfg.n_angles)
+
+
+def check_backend(backend: str) -> str:
+    """Return backend if known, else raise UsageError (B7)."""
+    if backend not in BACKENDS:
+        raise UsageError(f"unknown bowling backend {backend!r}: use one of {', '.join(BACKENDS)}")
+    return backend
+
+
+def check_angles(angle, cfg: BowlingConfig) -> np.ndarray:
+    """Return the angles as float array, or raise UsageError if outside +-theta_max (B2)."""
+    a = np.asarray(angle, dtype=np.float64)
+    if not np.all(np.isfinite(a)):
+        raise UsageError("throw angle is NaN or infinite: pass finite angles in radians")
+    tol = 1e-9 * max(1.0, cfg.theta_max)
+    if np.any(np.abs(a) > cfg.theta_max + tol):
+        bad = float(a.flat[int(np.argmax(np.abs(a)))])
+        raise UsageError(
+            f"throw angle {bad:g} rad lies outside +-theta_max={cfg.theta_max:g}: "
+            "use an angle in range or raise theta_max"
+        )
+    return a
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class PinState:
+    """Pins before a throw (B4, B5): qpos (..., 10, 7) pose per pin, standing bool (..., 10)."""
+
+    qpos: jax.Array
+    standing: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """Recorded positions every cfg.trajectory_stride steps: ball (..., T, 3), pins (..., T, 10, 3)."""
+
+    ball: jax.Array
+    pins: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ThrowResult:
+    """Outcome of a throw (B4, B5): the next pin state, pins knocked, and what the deck looked like."""
+
+    pins_after: PinState  # fallen pins parked, standing pins at rest (B4)
+    knocked: jax.Array  # int32 (...,): pins that fell in this throw (reward, E5)
+    standing: jax.Array  # bool (..., 10): pins standing after the throw
+    rest_qpos: jax.Array  # (..., 10, 7): every pin's pose at the end of the throw, fallen included
+    trajectory: Trajectory | None = None
+
+
+def upright_qpos() -> np.ndarray:
+    """qpos (10, 7) of the full rack, upright at the triangle positions (B1)."""
+    q = np.zeros((N_PINS, 7))
+    q[:, :2] = PIN_XY
+    q[:, 2] = PIN_CENTRE_Z
+    q[:, 3] = 1.0
+    return q
+
+
+def park_qpos() -> np.ndarray:
+    """qpos (10, 7) of the parking spots of removed pins (B4)."""
+    q = np.zeros((N_PINS, 7))
+    q[:, :3] = PARK_XYZ
+    q[:, 3] = 1.0
+    return q
+
+
+def initial_pins(batch: int | None = None) -> PinState:
+    """A full rack, batched over a leading axis of size batch (None: unbatched) (B5)."""
+    qpos = jnp.asarray(upright_qpos(), dtype=jnp.float32)
+    standing = jnp.ones(N_PINS, dtype=bool)
+    if batch is None:
+        return PinState(qpos=qpos, standing=standing)
+    if not isinstance(batch, int) or batch < 1:
+        raise UsageError(f"batch={batch!r}: need an integer >= 1")
+    return PinState(
+        qpos=jnp.broadcast_to(qpos, (batch, N_PINS, 7)),
+        standing=jnp.broadcast_to(standing, (batch, N_PINS)),
+    )
+
+
+def throw_noise(key: jax.Array) -> jax.Array:
+    """Standard-normal draws (2,) for one throw: [angle, speed] (B3); same key, same draw."""
+    return jax.random.normal(key, (2,))
+
+
+def throw_start(
+    pins: PinState, angle: jax.Array, eps: jax.Array, cfg: BowlingConfig
+) -> tuple[jax.Array, jax.Array]:
+    """Initial (qpos (77,), qvel (66,)) of one throw from pins, angle and noise draw eps (B2-B4)."""
+    theta = angle + cfg.noise_angle * eps[0]
+    speed = jnp.maximum(cfg.release_speed + cfg.noise_speed * eps[1], 0.1 * cfg.release_speed)
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    ball_q = jnp.stack([ARM_LENGTH * c, ARM_LENGTH * s, jnp.full_like(c, BALL_RADIUS),
+                        jnp.ones_like(c), jnp.zeros_like(c), jnp.zeros_like(c),
+                        jnp.zeros_like(c)])
+    vx, vy = speed * c, speed * s
+    # Rolling without slip; free-joint angular velocity is in the body frame (identity here).
+    ball_v = jnp.stack([vx, vy, jnp.zeros_like(c), -vy / BALL_RADIUS, vx / BALL_RADIUS,
+                        jnp.zeros_like(c)])
+    pin_q = pins.qpos.astype(ball_q.dtype)
+    pin_q = jnp.where(pins.standing[:, None], pin_q, jnp.asarray(park_qpos(), pin_q.dtype))
+    qpos = jnp.concatenate([ball_q, pin_q.reshape(-1)])
+    qvel = jnp.concatenate([ball_v, jnp.zeros(NV - 6, ball_v.dtype)])
+    return qpos, qvel
+
+
+def pin_down(rest_qpos: jax.Array, cfg: BowlingConfig) -> jax.Array:
+    """bool (10,): pin tilted beyond cfg.tilt_down_deg, off the deck, or non-finite (B4)."""
+    pos, quat = rest_qpos[:, :3], rest_qpos[:, 3:]
+    quat = quat / jnp.linalg.norm(quat, axis=-1, keepdims=True)
+    # z-component of the pin's axis in the world frame = cos(tilt).
+    cos_tilt = 1.0 - 2.0 * (quat[:, 1] ** 2 + quat[:, 2] ** 2)
+    tilted = cos_tilt < math.cos(math.radians(cfg.tilt_down_deg))
+    off_deck = (
+        (pos[:, 0] < DECK_X[0]) | (pos[:, 0] > DECK_X[1]) | (jnp.abs(pos[:, 1]) > DECK_HALF_WIDTH)
+    )
+    bad = ~jnp.all(jnp.isfinite(rest_qpos), axis=-1)
+    return tilted | off_deck | bad
+
+
+def judge_throw(pins: PinState, rest_qpos: jax.Array, cfg: BowlingConfig) -> ThrowResult:
+    """Next pin state and pins knocked from the pin poses at the end of a throw (B4, B5)."""
+    down = pin_down(rest_qpos, cfg)
+    standing = pins.standing & ~down
+    knocked = jnp.sum(pins.standing & down).astype(jnp.int32)
+    park = jnp.asarray(park_qpos(), pins.qpos.dtype)
+    qpos_after = jnp.where(standing[:, None], rest_qpos.astype(pins.qpos.dtype), park)
+    return ThrowResult(
+        pins_after=PinState(qpos=qpos_after, standing=standing),
+        knocked=knocked,
+        standing=standing,
+        rest_qpos=rest_qpos.astype(pins.qpos.dtype),
+    )
+
+
+def as_keys(key_or_noise, batch: int) -> jax.Array | None:
+    """Batch of PRNG keys (batch,) from one key or a batch of keys; None if given a noise array."""
+    arr = key_or_noise
+    if isinstance(arr, jax.Array) and jnp.issubdtype(arr.dtype, jax.dtypes.prng_key):
+        keys = arr if arr.ndim == 1 else jax.random.split(arr, batch)
+    else:
+        a = np.asarray(arr)
+        if a.dtype == np.uint32 and a.shape == (2,):
+            keys = jax.random.split(jnp.asarray(a), batch)
+        elif a.dtype == np.uint32 and a.shape == (batch, 2):
+            keys = jnp.asarray(a)
+        else:
+            return None
+    if keys.shape[0] != batch:
+        raise UsageError(f"got {keys.shape[0]} keys for a batch of {batch}: pass one key or one per throw")
+    return keys
+
+
+def batch_noise(key_or_noise, batch: int) -> jax.Array:
+    """Standard-normal draws (batch, 2) from a key, a batch of keys, or given directly (B3)."""
+    keys = as_keys(key_or_noise, batch)
+    if keys is None:
+        eps = jnp.asarray(key_or_noise, dtype=jnp.float32)
+        if eps.shape == (2,):
+            eps = jnp.broadcast_to(eps, (batch, 2))
+        if eps.shape != (batch, 2):
+            raise UsageError(
+                f"noise array of shape {tuple(eps.shape)}: pass a PRNG key or "
+                f"standard normals of shape ({batch}, 2)"
+            )
+        return eps
+    return jax.vmap(throw_noise)(keys)
