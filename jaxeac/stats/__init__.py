@@ -1,0 +1,56 @@
+"""Statistics for AC-versus-EAC comparisons (SPEC §6).
+
+Entry point: `compare_run_dir(run_dir, ...)` writes stats.json, report.md and
+figures. Array-level functions (per-seed values as 1-D arrays, curves as
+[seeds, trials]) are exported for notebooks; every resampling function takes
+an explicit `key` (an int seed or a `jax.random` key).
+"""
+
+from jaxeac.stats.bootstrap import bca_ci, bca_interval, iqm, iqm_ci
+from jaxeac.stats.closed_form import (
+    Estimate,
+    TestResult,
+    a12,
+    brunner_munzel,
+    hedges_g,
+    holm,
+    logrank,
+    newcombe_diff,
+    power_ttest,
+    risk_ratio_ci,
+    seeds_for_power,
+    welch_t,
+    wilson_ci,
+)
+from jaxeac.stats.compare import calibrate, compare_measures, permutation_test
+from jaxeac.stats.curves import curve_bands
+from jaxeac.stats.run import compare_experiment, compare_run_dir
+from jaxeac.stats.rundir import load_run_dir, per_seed_measures
+
+__all__ = [
+    "Estimate",
+    "TestResult",
+    "a12",
+    "bca_ci",
+    "bca_interval",
+    "brunner_munzel",
+    "calibrate",
+    "compare_experiment",
+    "compare_measures",
+    "compare_run_dir",
+    "curve_bands",
+    "hedges_g",
+    "holm",
+    "iqm",
+    "iqm_ci",
+    "load_run_dir",
+    "logrank",
+    "newcombe_diff",
+    "per_seed_measures",
+    "permutation_test",
+    "power_ttest",
+    "risk_ratio_ci",
+    "seeds_for_power",
+    "welch_t",
+    "wilson_ci",
+]

@@ -1,0 +1,333 @@
+"""Closed-form tests, intervals and effect sizes, on the host (SPEC §6).
+
+The vectorised helpers (`*_masks`) take one pooled sample and a bool matrix of
+group labels [S, N] (row s: which units are in the treatment group of split s),
+so the AC-versus-AC calibration runs hundreds of splits at once; the public
+functions are thin wrappers for two plain samples.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, special, stats
+
+from jaxeac.errors import UsageError
+
+
+@dataclass(frozen=True)
+class TestResult:
+    """A test statistic, its two-sided p-value and (where defined) degrees of freedom."""
+
+    statistic: float
+    pvalue: float
+    df: float = math.nan
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate with a two-sided confidence interval."""
+
+    estimate: float
+    low: float
+    high: float
+    level: float = 0.95
+
+
+def check_sample(x, name: str = "x") -> np.ndarray:
+    """A 1-D float array of per-seed values with at least 2 finite entries."""
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim != 1:
+        raise UsageError(
+            f"{name} must be 1-D (one value per seed), got shape {arr.shape}; "
+            "reduce the trials axis first (e.g. sum over trials)"
+        )
+    if arr.shape[0] < 2:
+        raise UsageError(f"{name} has {arr.shape[0]} seed(s); at least 2 seeds per method are needed")
+    if not np.all(np.isfinite(arr)):
+        raise UsageError(f"{name} contains NaN or inf; remove or fix those seeds")
+    return arr
+
+
+# ---------------------------------------------------------------- Welch
+def welch_from_moments(n1, s1, ss1, n2, s2, ss2):
+    """Welch t (group 2 minus group 1), df and p from sums and centred sums of squares.
+
+    Welch (1947); Satterthwaite (1946) degrees of freedom. Arrays broadcast.
+    """
+    m1, m2 = s1 / n1, s2 / n2
+    v1 = np.maximum(ss1 - n1 * m1**2, 0.0) / (n1 - 1)
+    v2 = np.maximum(ss2 - n2 * m2**2, 0.0) / (n2 - 1)
+    a, b = v1 / n1, v2 / n2
+    se = np.sqrt(a + b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(se > 0, (m2 - m1) / np.where(se > 0, se, 1.0), 0.0)
+        df = np.where(se > 0, (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1)), np.nan)
+    p = np.where(se > 0, 2 * stats.t.sf(np.abs(t), np.where(se > 0, df, 1.0)), 1.0)
+    return t, df, p
+
+
+def welch_t(x_baseline, x_treatment) -> TestResult:
+    """Welch's unequal-variance t-test of mean(treatment) − mean(baseline)."""
+    x = check_sample(x_baseline, "x_baseline")
+    y = check_sample(x_treatment, "x_treatment")
+    c = np.concatenate([x, y]).mean()
+    x, y = x - c, y - c
+    t, df, p = welch_from_moments(x.size, x.sum(), (x**2).sum(), y.size, y.sum(), (y**2).sum())
+    return TestResult(float(t), float(p), float(df))
+
+
+# ---------------------------------------------------------------- effect sizes
+def hedges_correction(n1, n2):
+    """Exact small-sample factor J(df) = Γ(df/2) / (sqrt(df/2) Γ((df-1)/2)) (Hedges 1981)."""
+    df = np.asarray(n1 + n2 - 2, dtype=np.float64)
+    return np.exp(special.gammaln(df / 2) - special.gammaln((df - 1) / 2)) / np.sqrt(df / 2)
+
+
+def hedges_from_moments(n1, s1, ss1, n2, s2, ss2):
+    """Hedges' g (group 2 minus group 1) from sums and sums of squares; arrays broadcast."""
+    m1, m2 = s1 / n1, s2 / n2
+    pooled = (np.maximum(ss1 - n1 * m1**2, 0) + np.maximum(ss2 - n2 * m2**2, 0)) / (n1 + n2 - 2)
+    sd = np.sqrt(pooled)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(sd > 0, (m2 - m1) / np.where(sd > 0, sd, 1.0), 0.0)
+    return d * hedges_correction(n1, n2)
+
+
+def hedges_g(x_baseline, x_treatment) -> float:
+    """Hedges' g = J · (mean_t − mean_b) / pooled SD (Hedges 1981; Hedges & Olkin 1985)."""
+    x = check_sample(x_baseline, "x_baseline")
+    y = check_sample(x_treatment, "x_treatment")
+    c = np.concatenate([x, y]).mean()
+    x, y = x - c, y - c
+    return float(hedges_from_moments(x.size, x.sum(), (x**2).sum(), y.size, y.sum(), (y**2).sum()))
+
+
+# ---------------------------------------------------------------- Brunner–Munzel / A12
+def _within_ranks(sorted_vals: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    """Mid-ranks of each row's masked units within that row's group; units in sorted order."""
+    _, starts, inverse = np.unique(sorted_vals, return_index=True, return_inverse=True)
+    cnt = np.add.reduceat(masks.astype(np.float64), starts, axis=1)  # [S, U]
+    less = np.cumsum(cnt, axis=1) - cnt
+    return (less + (cnt + 1) / 2)[:, inverse]
+
+
+def brunner_munzel_masks(pooled: np.ndarray, masks: np.ndarray, alpha: float = 0.05):
+    """Brunner–Munzel for many splits of one pooled sample (Brunner & Munzel 2000).
+
+    masks: bool [S, N], True = treatment. Returns (p̂ = P(T > B) + ½P(T = B),
+    W, df, p two-sided, CI low, CI high) arrays of length S; the CI for p̂ is
+    p̂ ± t_{df,1−α/2} · sqrt(n_b S²_b + n_t S²_t)/(n_b n_t) (Neubert & Brunner 2007).
+    """
+    order = np.argsort(pooled, kind="stable")
+    v = pooled[order]
+    mt = masks[:, order]
+    mb = ~mt
+    rc = stats.rankdata(v)  # pooled mid-ranks, same for every split
+    nt = mt.sum(1).astype(np.float64)
+    nb = mb.sum(1).astype(np.float64)
+    rt = _within_ranks(v, mt)
+    rb = _within_ranks(v, mb)
+    dt = np.where(mt, rc - rt, 0.0)
+    db = np.where(mb, rc - rb, 0.0)
+    mean_t = dt.sum(1) / nt
+    mean_b = db.sum(1) / nb
+    s2t = ((dt**2).sum(1) - nt * mean_t**2) / (nt - 1)
+    s2b = ((db**2).sum(1) - nb * mean_b**2) / (nb - 1)
+    rct = (rc * mt).sum(1) / nt
+    rcb = (rc * mb).sum(1) / nb
+    phat = (rct - (nt + 1) / 2) / nb
+    var = nb * s2b + nt * s2t
+    se = np.sqrt(np.maximum(var, 0)) / (nb * nt)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = (rct - rcb) * nb * nt / ((nb + nt) * np.sqrt(var))
+        df = var**2 / ((nb * s2b) ** 2 / (nb - 1) + (nt * s2t) ** 2 / (nt - 1))
+    deg = ~(var > 0)
+    w = np.where(deg, 0.0, w)
+    df = np.where(deg, np.nan, df)
+    p = np.where(
+        deg, np.where(np.isclose(phat, 0.5), 1.0, 0.0), 2 * stats.t.sf(np.abs(w), np.where(deg, 1, df))
+    )
+    q = np.where(deg, 0.0, stats.t.ppf(1 - alpha / 2, np.where(deg, 1, df)))
+    lo = np.clip(phat - q * se, 0, 1)
+    hi = np.clip(phat + q * se, 0, 1)
+    return phat, w, df, p, lo, hi
+
+
+def _pool(x_baseline, x_treatment):
+    x = check_sample(x_baseline, "x_baseline")
+    y = check_sample(x_treatment, "x_treatment")
+    pooled = np.concatenate([x, y])
+    mask = np.concatenate([np.zeros(x.size, bool), np.ones(y.size, bool)])[None]
+    return pooled, mask
+
+
+def brunner_munzel(x_baseline, x_treatment) -> TestResult:
+    """Brunner–Munzel test of P(T > B) + ½P(T = B) = ½ (Brunner & Munzel 2000).
+
+    Same statistic and p-value as `scipy.stats.brunnermunzel(x_baseline, x_treatment)`.
+    """
+    pooled, mask = _pool(x_baseline, x_treatment)
+    _, w, df, p, _, _ = brunner_munzel_masks(pooled, mask)
+    return TestResult(float(w[0]), float(p[0]), float(df[0]))
+
+
+def a12(x_baseline, x_treatment, alpha: float = 0.05) -> Estimate:
+    """Vargha–Delaney A12 = P(T > B) + ½P(T = B) with the Brunner–Munzel CI (Vargha & Delaney 2000)."""
+    pooled, mask = _pool(x_baseline, x_treatment)
+    phat, _, _, _, lo, hi = brunner_munzel_masks(pooled, mask, alpha)
+    return Estimate(float(phat[0]), float(lo[0]), float(hi[0]), 1 - alpha)
+
+
+# ---------------------------------------------------------------- log-rank
+def logrank_masks(time: np.ndarray, event: np.ndarray, masks: np.ndarray):
+    """Two-sample log-rank (Mantel 1966; Peto & Peto 1972) for many splits.
+
+    time: int [N] event or censoring times; event: bool [N]; masks bool [S, N]
+    (True = treatment). Returns (chi2, p, observed_t, expected_t) of length S.
+    """
+    times, inv = np.unique(time[event], return_inverse=True)
+    if times.size == 0:
+        s = masks.shape[0]
+        return np.zeros(s), np.ones(s), np.zeros(s), np.zeros(s)
+    ev = np.zeros((time.size, times.size))
+    ev[np.nonzero(event)[0], inv] = 1.0
+    at_risk = (time[:, None] >= times[None, :]).astype(np.float64)  # [N, J]
+    m = masks.astype(np.float64)
+    d_t = m @ ev  # [S, J] events in treatment
+    d = ev.sum(0)  # [J] events in both groups
+    n_t = m @ at_risk  # [S, J] at risk in treatment
+    n_all = at_risk.sum(0)  # [J]
+    e_t = d * n_t / n_all
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.where(n_all > 1, d * (n_t / n_all) * (1 - n_t / n_all) * (n_all - d) / (n_all - 1), 0.0)
+    o, e, var = d_t.sum(1), e_t.sum(1), v.sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi2 = np.where(var > 0, (o - e) ** 2 / np.where(var > 0, var, 1), 0.0)
+    return chi2, stats.chi2.sf(chi2, 1), o, e
+
+
+def logrank(time_baseline, event_baseline, time_treatment, event_treatment) -> TestResult:
+    """Log-rank test for time to first success; censored units have event=False.
+
+    Matches `statsmodels.duration.survfunc.survdiff`.
+    """
+    tb, tt = check_sample(time_baseline, "time_baseline"), check_sample(time_treatment, "time_treatment")
+    eb, et = np.asarray(event_baseline, bool), np.asarray(event_treatment, bool)
+    if eb.shape != tb.shape or et.shape != tt.shape:
+        raise UsageError("event and time arrays have different shapes; pass one entry per seed in each")
+    time = np.concatenate([tb, tt])
+    event = np.concatenate([eb, et])
+    mask = np.concatenate([np.zeros(tb.size, bool), np.ones(tt.size, bool)])[None]
+    chi2, p, _, _ = logrank_masks(time, event, mask)
+    return TestResult(float(chi2[0]), float(p[0]), 1.0)
+
+
+# ---------------------------------------------------------------- proportions
+def wilson_ci(count: float, nobs: float, alpha: float = 0.05) -> tuple[float, float]:
+    """Wilson (1927) score interval for a binomial proportion."""
+    z = stats.norm.ppf(1 - alpha / 2)
+    p = count / nobs
+    den = 1 + z**2 / nobs
+    centre = (p + z**2 / (2 * nobs)) / den
+    half = z * math.sqrt(p * (1 - p) / nobs + z**2 / (4 * nobs**2)) / den
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def newcombe_diff(count_baseline, n_baseline, count_treatment, n_treatment, alpha=0.05) -> Estimate:
+    """Risk difference p_t − p_b with Newcombe's hybrid score interval (Newcombe 1998, method 10)."""
+    pb, pt = count_baseline / n_baseline, count_treatment / n_treatment
+    lb, ub = wilson_ci(count_baseline, n_baseline, alpha)
+    lt, ut = wilson_ci(count_treatment, n_treatment, alpha)
+    d = pt - pb
+    low = d - math.sqrt((pt - lt) ** 2 + (ub - pb) ** 2)
+    high = d + math.sqrt((ut - pt) ** 2 + (pb - lb) ** 2)
+    return Estimate(d, low, high, 1 - alpha)
+
+
+def _ratio_score_z(phi, x1, n1, x2, n2, correction):
+    """Score statistic for H0: p1 = phi·p2 (Miettinen & Nurminen 1985; Koopman 1984)."""
+    big_n = n1 + n2
+    a = big_n * phi
+    b = -(n1 * phi + x1 + n2 + x2 * phi)
+    c = x1 + x2
+    p2r = (-b - math.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a)
+    p1r = phi * p2r
+    var = p1r * (1 - p1r) / n1 + phi**2 * p2r * (1 - p2r) / n2
+    if correction:
+        var *= big_n / (big_n - 1)
+    diff = x1 / n1 - phi * x2 / n2
+    if var <= 0:
+        return math.copysign(math.inf, diff) if diff else 0.0
+    return diff / math.sqrt(var)
+
+
+def risk_ratio_ci(
+    count_baseline, n_baseline, count_treatment, n_treatment, alpha=0.05, correction=True
+) -> Estimate:
+    """Risk ratio p_t / p_b with the score interval (Miettinen & Nurminen 1985).
+
+    With correction=True this matches statsmodels
+    `confint_proportions_2indep(..., compare="ratio", method="score")`.
+    """
+    x1, n1, x2, n2 = float(count_treatment), float(n_treatment), float(count_baseline), float(n_baseline)
+    z = stats.norm.ppf(1 - alpha / 2)
+    est = (x1 / n1) / (x2 / n2) if x2 > 0 else math.inf
+
+    def f(logphi, target):
+        return _ratio_score_z(math.exp(logphi), x1, n1, x2, n2, correction) - target
+
+    # z(phi) decreases in phi: the CI is {phi : -z <= z(phi) <= z}
+    lo_end, hi_end = -30.0, 30.0
+    low = 0.0 if x1 == 0 or f(lo_end, z) <= 0 else math.exp(optimize.brentq(f, lo_end, hi_end, args=(z,)))
+    high = (
+        math.inf
+        if x2 == 0 or f(hi_end, -z) >= 0
+        else math.exp(optimize.brentq(f, lo_end, hi_end, args=(-z,)))
+    )
+    return Estimate(est, low, high, 1 - alpha)
+
+
+# ---------------------------------------------------------------- power, Holm
+def power_ttest(d: float, n: int, alpha: float = 0.05) -> float:
+    """Power of the two-sided two-sample t-test with n per group (noncentral t; Cohen 1988)."""
+    df = 2 * n - 2
+    nc = d * math.sqrt(n / 2)
+    crit = stats.t.ppf(1 - alpha / 2, df)
+    return float(stats.nct.sf(crit, df, nc) + stats.nct.cdf(-crit, df, nc))
+
+
+def seeds_for_power(d: float, power: float = 0.8, alpha: float = 0.05, n_max: int = 10**8) -> int | None:
+    """Smallest seeds per method giving `power` to detect standardised effect |d| (None if > n_max)."""
+    d = abs(float(d))
+    if not d > 0 or not math.isfinite(d):
+        return None
+    z = stats.norm.ppf(1 - alpha / 2) + stats.norm.ppf(power)
+    guess = max(2, int(2 * (z / d) ** 2))
+    if guess > n_max:
+        return None
+    lo, hi = 2, max(3, guess)
+    while power_ttest(d, hi, alpha) < power:
+        lo, hi = hi, hi * 2
+        if hi > n_max:
+            return None
+    while hi - lo > 1:  # power increases with n: bisect
+        mid = (lo + hi) // 2
+        if power_ttest(d, mid, alpha) >= power:
+            hi = mid
+        else:
+            lo = mid
+    return hi if power_ttest(d, lo, alpha) < power else lo
+
+
+def holm(pvalues) -> np.ndarray:
+    """Holm (1979) step-down adjusted p-values (same order as given)."""
+    p = np.asarray(pvalues, dtype=np.float64)
+    m = p.size
+    order = np.argsort(p)
+    adj = np.maximum.accumulate((m - np.arange(m)) * p[order])
+    out = np.empty(m)
+    out[order] = np.minimum(adj, 1.0)
+    return out

@@ -1,0 +1,304 @@
+"""report.md and figures for `jaxeac compare` (SPEC §6)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+FIGURES = {
+    "curves": "compare_curves.png",
+    "distributions": "compare_distributions.png",
+    "improvement": "compare_improvement.png",
+}
+
+
+def _f(x, nd=3):
+    if x is None:
+        return "—"
+    if isinstance(x, int | np.integer):
+        return str(int(x))
+    x = float(x)
+    if not math.isfinite(x):
+        return "—"
+    if x != 0 and (abs(x) < 1e-3 or abs(x) >= 1e5):
+        return f"{x:.2e}"
+    return f"{x:.{nd}f}"
+
+
+def _p(x):
+    if x is None or not math.isfinite(float(x)):
+        return "—"
+    return "< 1e-4" if x < 1e-4 else f"{x:.4f}"
+
+
+def _ci(pair, nd=3):
+    return f"[{_f(pair[0], nd)}, {_f(pair[1], nd)}]"
+
+
+def _size_word(g):
+    g = abs(g)
+    return "negligible" if g < 0.2 else "small" if g < 0.5 else "medium" if g < 0.8 else "large"
+
+
+def plain_words(stats: dict) -> str:
+    """A paragraph in plain words on the primary measure and the curves."""
+    pr = stats["primary"]
+    b, t = stats["baseline"].upper(), stats["treatment"].upper()
+    alpha = stats["settings"]["alpha"]
+    p_holm = pr.get("p_holm", pr["p_welch"])
+    better = pr["diff"] > 0 if pr["higher_is_better"] else pr["diff"] < 0
+    sig = p_holm <= alpha and not (pr["diff_ci95"][0] <= 0 <= pr["diff_ci95"][1])
+    lines = [
+        f"On the primary measure ({pr['description']}), {t} averaged {_f(pr['mean_treatment'], 2)} and "
+        f"{b} {_f(pr['mean_baseline'], 2)} over {pr['n_treatment']} and {pr['n_baseline']} seeds: "
+        f"a difference of {_f(pr['diff'], 2)} (95 % CI {_ci(pr['diff_ci95'], 2)}, "
+        f"Holm-adjusted p = {_p(p_holm)})."
+    ]
+    if sig:
+        lines.append(f"{t} is {'better' if better else 'worse'} than {b} on this measure at α = {alpha}.")
+    else:
+        lines.append(f"At α = {alpha} the data do not show a difference between {t} and {b} on this measure.")
+    lines.append(
+        f"A randomly chosen {t} seed scores higher than a randomly chosen {b} seed with probability "
+        f"{_f(pr['a12'], 2)} (95 % CI {_ci(pr['a12_ci95'], 2)}); "
+        f"the standardised effect is {_size_word(pr['hedges_g'])} "
+        f"(Hedges' g = {_f(pr['hedges_g'], 2)})."
+    )
+    n80 = pr["seeds_for_80pct_power"]
+    if n80 is None:
+        lines.append("The observed effect is zero, so no number of seeds gives 80 % power to detect it.")
+    else:
+        lines.append(
+            f"Detecting an effect of this size with 80 % power at α = {alpha} needs {n80} seeds per method."
+        )
+    cur = stats.get("curves")
+    if cur:
+        k = len(cur["significant_trials"])
+        what = "success rates" if cur["kind"] == "success_rate" else "mean returns"
+        if k == 0:
+            lines.append(
+                f"No single trial's {what} differ after family-wise control over all {cur['trials']} trials."
+            )
+        else:
+            s = f"Per-trial {what} differ (family-wise α = {alpha}) at {k} of {cur['trials']} trials"
+            s += f", first at trial {cur['first_significant_trial']}"
+            if cur["sustained_from_trial"] is not None:
+                s += f", and at every trial from trial {cur['sustained_from_trial']} on"
+            lines.append(s + ".")
+    cal = stats.get("calibration", {}).get("false_positive_rate")
+    if cal:
+        r = cal["welch"][stats["primary"]["measure"]]
+        lines.append(
+            f"As a check, {b} against itself (random halves) gave Welch's test a false-positive rate of "
+            f"{_f(r['rate'], 3)} (95 % CI {_ci(r['ci95'], 3)}) against the nominal {alpha}."
+        )
+    return " ".join(lines)
+
+
+def write_figures(stats: dict, data: dict, out: Path) -> None:
+    """Learning curves with simultaneous bands, per-seed ECDFs and probability of improvement."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    b, t = stats["baseline"], stats["treatment"]
+    colors = {b: "tab:blue", t: "tab:orange"}
+    cur = stats.get("curves")
+    if cur:
+        x = np.arange(1, cur["trials"] + 1)
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, height_ratios=(2, 1))
+        for side, name in (("baseline", b), ("treatment", t)):
+            m = np.asarray(cur[f"mean_{side}"])
+            lo, hi = (np.asarray(v) for v in cur[f"band_{side}"])
+            ax1.plot(x, m, color=colors[name], label=f"{name.upper()} (n={stats['primary'][f'n_{side}']})")
+            ax1.fill_between(x, lo, hi, color=colors[name], alpha=0.25, lw=0)
+        ax1.set_ylabel("success rate" if cur["kind"] == "success_rate" else "mean pins per trial")
+        ax1.set_title(
+            f"Per-trial means with {100 * (1 - stats['settings']['alpha']):.0f} % simultaneous bands"
+        )
+        ax1.legend(loc="lower right")
+        d = np.asarray(cur["diff"])
+        lo, hi = (np.asarray(v) for v in cur["band_diff"])
+        ax2.plot(x, d, color="k", lw=1)
+        ax2.fill_between(x, lo, hi, color="grey", alpha=0.3, lw=0)
+        ax2.axhline(0, color="k", lw=0.5)
+        sig = np.asarray(cur["significant_trials"], int)
+        if sig.size:
+            ax2.plot(
+                sig,
+                np.full(sig.size, ax2.get_ylim()[0]),
+                "|",
+                color="tab:red",
+                ms=8,
+                label="differs (max-T, FWER)",
+            )
+            ax2.legend(loc="best", fontsize=8)
+        ax2.set_ylabel(f"{t.upper()} − {b.upper()}")
+        ax2.set_xlabel("trial")
+        fig.tight_layout()
+        fig.savefig(out / FIGURES["curves"], dpi=90)
+        plt.close(fig)
+    names = list(data["measures"])
+    fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3))
+    for ax, name in zip(np.atleast_1d(axes), names, strict=True):
+        for side, algo in (("baseline", b), ("treatment", t)):
+            v = np.sort(data["measures"][name][side])
+            ax.step(
+                v, np.arange(1, v.size + 1) / v.size, where="post", color=colors[algo], label=algo.upper()
+            )
+        ax.set_title(name, fontsize=9)
+        ax.set_ylabel("share of seeds ≤ x", fontsize=8)
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    fig.suptitle("Per-seed distributions (ECDF)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / FIGURES["distributions"], dpi=90)
+    plt.close(fig)
+    res = [stats["primary"], *stats["secondary"].values()]
+    fig, ax = plt.subplots(figsize=(6, 0.6 * len(res) + 1.2))
+    y = np.arange(len(res))[::-1]
+    est = np.array([r["prob_improvement"] for r in res])
+    lo = np.array([r["prob_improvement_ci95"][0] for r in res])
+    hi = np.array([r["prob_improvement_ci95"][1] for r in res])
+    ax.errorbar(est, y, xerr=[est - lo, hi - est], fmt="o", color="tab:orange", capsize=3)
+    ax.axvline(0.5, color="k", lw=0.5, ls="--")
+    ax.set_yticks(y, [r["measure"] for r in res])
+    ax.set_xlim(0, 1)
+    ax.set_xlabel(f"P({t.upper()} better than {b.upper()}) with 95 % CI")
+    fig.tight_layout()
+    fig.savefig(out / FIGURES["improvement"], dpi=90)
+    plt.close(fig)
+
+
+def render_markdown(stats: dict) -> str:
+    """The readable report."""
+    b, t = stats["baseline"].upper(), stats["treatment"].upper()
+    st = stats["settings"]
+    holm = stats["holm"]
+    res = [stats["primary"], *stats["secondary"].values()]
+    out = [
+        f"# {t} versus {b}: {stats['experiment']} run",
+        "",
+        f"Run directory: `{stats['run_dir']}`; {stats['trials']} trials per seed; "
+        f"{stats['primary']['n_baseline']} {b} seeds and {stats['primary']['n_treatment']} {t} seeds. "
+        "The seed is the unit of analysis.",
+        "",
+        "## In plain words",
+        "",
+        plain_words(stats),
+        "",
+        "## Estimates",
+        "",
+        f"Differences are {t} − {b}. CIs are 95 % BCa bootstrap ({st['resamples']} resamples per method) "
+        "except A12 (Brunner–Munzel). p (Holm) adjusts the declared family "
+        f"({', '.join(holm['family'])}) with each measure's declared test "
+        f"({'; '.join(f'{k}: {v}' for k, v in holm['tests'].items())}).",
+        "",
+        f"| measure | {b} mean | {t} mean | difference [95 % CI] | Hedges' g [95 % CI] | "
+        f"P({t} better) [95 % CI] | p Welch | p perm. | p Brunner–Munzel | p (Holm) | seeds for 80 % power |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in res:
+        role = " (primary)" if r is stats["primary"] else ""
+        arrow = "↑" if r["higher_is_better"] else "↓"
+        out.append(
+            f"| {r['measure']}{role} {arrow} | {_f(r['mean_baseline'])} | {_f(r['mean_treatment'])} | "
+            f"{_f(r['diff'])} {_ci(r['diff_ci95'])} | {_f(r['hedges_g'])} {_ci(r['hedges_g_ci95'])} | "
+            f"{_f(r['prob_improvement'])} {_ci(r['prob_improvement_ci95'])} | {_p(r['p_welch'])} | "
+            f"{_p(r['p_permutation'])} | {_p(r['brunner_munzel']['p'])} | {_p(r.get('p_holm'))} | "
+            f"{_f(r['seeds_for_80pct_power'])} |"
+        )
+    out += ["", "↑ higher is better, ↓ lower is better. Measures:", ""]
+    out += [f"- `{r['measure']}`: {r['description']}" for r in res]
+    pr = stats["primary"]
+    pw = pr["power"]
+    out += [
+        "",
+        f"Interquartile mean of the primary measure: "
+        f"{b} {_f(pr['iqm_baseline'])} {_ci(pr['iqm_baseline_ci95'])}, "
+        f"{t} {_f(pr['iqm_treatment'])} {_ci(pr['iqm_treatment_ci95'])} (95 % BCa).",
+        "",
+        f"Seeds per method for 80 % power (two-sided t-test, α = {st['alpha']}): observed effect "
+        f"(|g| = {_f(pw['observed_d'])}) {_f(pw['seeds_for_80pct_power'])}; d = 0.2: {pw['d=0.2']}; "
+        f"d = 0.5: {pw['d=0.5']}; d = 0.8: {pw['d=0.8']}.",
+        "",
+        "## Time to first success and success proportions",
+        "",
+        f"Log-rank test on the first successful trial (censored at {stats['trials']} when none): "
+        f"χ² = {_f(stats['logrank']['chi2'])}, p = {_p(stats['logrank']['p'])}.",
+        "",
+        f"| outcome per seed | {b} | {t} | risk difference [95 % CI, Newcombe] "
+        "| risk ratio [95 % CI, score] |",
+        "|---|---|---|---|---|",
+    ]
+    for name, pr_ in stats["proportions"].items():
+        out.append(
+            f"| {name} | {pr_['count_baseline']}/{pr_['n_baseline']} "
+            f"| {pr_['count_treatment']}/{pr_['n_treatment']} | "
+            f"{_f(pr_['risk_difference'])} {_ci(pr_['risk_difference_ci95'])} | "
+            f"{_f(pr_['risk_ratio'])} {_ci(pr_['risk_ratio_ci95'])} |"
+        )
+    cur = stats.get("curves")
+    if cur:
+        sig = cur["significant_trials"]
+        out += [
+            "",
+            "## Learning curves",
+            "",
+            f"![learning curves]({FIGURES['curves']})",
+            "",
+            f"Bands: {cur['band_method']}, holding over all {cur['trials']} trials at once. "
+            f"Trials where the methods differ: {cur['test_method']}, {st['permutations']} permutations; "
+            f"{len(sig)} of {cur['trials']} trials significant"
+            + (f" (first: {cur['first_significant_trial']}" if sig else "")
+            + (f"; every trial from {cur['sustained_from_trial']} on" if cur["sustained_from_trial"] else "")
+            + (")" if sig else "")
+            + ".",
+        ]
+    out += [
+        "",
+        "## Per-seed distributions",
+        "",
+        f"![per-seed distributions]({FIGURES['distributions']})",
+        "",
+        "## Probability of improvement",
+        "",
+        f"![probability of improvement]({FIGURES['improvement']})",
+        "",
+    ]
+    cal = stats.get("calibration", {})
+    if "false_positive_rate" in cal:
+        out += [
+            "## Calibration: baseline against itself",
+            "",
+            f"{cal['splits']} random splits of the {b} seeds into two disjoint groups of "
+            f"{cal['group_size']}; permutation reference {cal['resamples']} relabellings. "
+            f"Each rate should be near α = {cal['alpha']} (with {cal['splits']} splits, a rate is within "
+            f"about ±{_f(2 * math.sqrt(cal['alpha'] * (1 - cal['alpha']) / cal['splits']), 3)} "
+            "of α by chance).",
+            "",
+            "| test | measure | false-positive rate [95 % CI] |",
+            "|---|---|---|",
+        ]
+        for test, per in cal["false_positive_rate"].items():
+            for name, r in per.items():
+                out.append(f"| {test} | {name} | {_f(r['rate'])} {_ci(r['ci95'])} |")
+    elif cal:
+        out += ["## Calibration", "", f"Skipped: {cal.get('skipped')}"]
+    out += [
+        "",
+        "## Reproducibility",
+        "",
+        f"Key {st['key']} (bootstrap, permutation and calibration keys derived from it "
+        "by `jax.random.split`); "
+        f"{st['resamples']} bootstrap resamples per method, {st['permutations']} permutations, "
+        f"chunks of {st['chunk']}; calibration {st['calibration_splits']} splits × "
+        f"{st['calibration_resamples']} "
+        f"relabellings. Versions: {', '.join(f'{k} {v}' for k, v in stats['versions'].items())}. "
+        f"Resampling took {_f(stats['timing']['resample_seconds'], 2)} s, "
+        f"everything {_f(stats['timing']['total_seconds'], 2)} s.",
+        "",
+    ]
+    return "\n".join(out)

@@ -1,0 +1,248 @@
+"""`compare_run_dir`: the whole AC-versus-EAC comparison of a run directory (SPEC §6).
+
+Writes `stats.json`, `report.md` and the figures together (or none of them)
+through `jaxeac.io.staged_dir`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from importlib import metadata
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxeac.errors import UsageError
+from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.stats import closed_form as cf
+from jaxeac.stats._rng import as_key
+from jaxeac.stats.compare import _analyse, calibrate
+from jaxeac.stats.report import FIGURES, render_markdown, write_figures
+from jaxeac.stats.rundir import MEASURES, describe, load_run_dir, per_seed_measures
+
+SCHEMA = "jaxeac.stats/1"
+DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
+
+
+def _versions() -> dict:
+    out = {}
+    for pkg in ("jaxeac", "jax", "jaxlib", "numpy", "scipy"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = "unknown"
+    return out
+
+
+def _key_record(key) -> dict:
+    k = as_key(key)
+    return {
+        "seed": key if isinstance(key, int) else None,
+        "key_data": np.asarray(jax.random.key_data(k)).tolist(),
+    }
+
+
+def _check_settings(resamples, alpha, calibration_splits, calibration_resamples):
+    if not isinstance(resamples, int | np.integer) or resamples < 100:
+        raise UsageError(f"--resamples {resamples} is too small; use at least 100 (10000 recommended)")
+    if not 0 < alpha < 0.5:
+        raise UsageError(f"--alpha {alpha} must be between 0 and 0.5, e.g. 0.05")
+    if calibration_splits < 0 or calibration_resamples < 1:
+        raise UsageError("calibration splits must be >= 0 and calibration resamples >= 1")
+
+
+def compare_experiment(
+    success_baseline,
+    success_treatment,
+    *,
+    returns_baseline=None,
+    returns_treatment=None,
+    baseline: str = "ac",
+    treatment: str = "eac",
+    experiment: str = "grid",
+    resamples: int = 10_000,
+    alpha: float = 0.05,
+    key=0,
+    calibration_splits: int = 200,
+    calibration_resamples: int = 200,
+    chunk: int = 1000,
+    perm_chunk: int = 2000,
+    progress: bool = False,
+) -> tuple[dict, dict]:
+    """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures)."""
+    t0 = time.perf_counter()
+    _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
+    sb, st = np.asarray(success_baseline), np.asarray(success_treatment)
+    if sb.ndim != 2 or st.ndim != 2 or sb.shape[1] != st.shape[1]:
+        raise UsageError(
+            f"success arrays must be [seeds, trials] with the same trials, got {sb.shape} and {st.shape}"
+        )
+    T = sb.shape[1]
+    bowling = returns_baseline is not None
+    mb = per_seed_measures(sb, returns_baseline)
+    mt = per_seed_measures(st, returns_treatment)
+    names = [k for k in mb if not k.startswith("_")]
+    vb = {k: mb[k] for k in names}
+    vt = {k: mt[k] for k in names}
+    for name, v in (*vb.items(), *vt.items()):
+        cf.check_sample(v, name)
+    curves = (np.asarray(returns_baseline), np.asarray(returns_treatment)) if bowling else (sb, st)
+    k_main, k_cal = jax.random.split(as_key(key))
+    hib = {k: MEASURES[k][0] for k in names}
+    res = _analyse(
+        vb,
+        vt,
+        k_main,
+        curves=curves,
+        resamples=resamples,
+        alpha=alpha,
+        chunk=chunk,
+        perm_chunk=perm_chunk,
+        higher_is_better=hib,
+        progress=progress,
+    )
+    measures = res["measures"]
+    for k in names:
+        measures[k]["description"] = describe(k, T)
+    lr = cf.logrank(mb["_time"], mb["_event"], mt["_time"], mt["_event"])
+    measures["first_success"]["logrank"] = {"chi2": lr.statistic, "p": lr.pvalue}
+    tests = {k: DECLARED_TESTS.get(k, "Welch t") for k in names}
+    p_raw = [lr.pvalue if tests[k] == "log-rank" else measures[k]["p_welch"] for k in names]
+    p_adj = cf.holm(p_raw)
+    p_perm_adj = cf.holm([measures[k]["p_permutation"] for k in names])
+    for k, pa, pp in zip(names, p_adj, p_perm_adj, strict=True):
+        measures[k]["p_holm"] = float(pa)
+        measures[k]["p_permutation_holm"] = float(pp)
+    proportions = {}
+    for name, ob, ot in (
+        ("any_success", mb["_event"], mt["_event"]),
+        ("final_trial_success", sb[:, -1].astype(bool), st[:, -1].astype(bool)),
+    ):
+        cb_, ct_ = int(ob.sum()), int(ot.sum())
+        rd = cf.newcombe_diff(cb_, ob.size, ct_, ot.size, alpha)
+        rr = cf.risk_ratio_ci(cb_, ob.size, ct_, ot.size, alpha)
+        proportions[name] = {
+            "count_baseline": cb_,
+            "n_baseline": int(ob.size),
+            "count_treatment": ct_,
+            "n_treatment": int(ot.size),
+            "risk_difference": rd.estimate,
+            "risk_difference_ci95": [rd.low, rd.high],
+            "risk_difference_method": "Newcombe (1998) hybrid score, method 10",
+            "risk_ratio": rr.estimate,
+            "risk_ratio_ci95": [rr.low, rr.high],
+            "risk_ratio_method": "Miettinen-Nurminen (1985) score",
+        }
+    t_cal = time.perf_counter()
+    if calibration_splits > 0:
+        cal = calibrate(
+            vb,
+            curves[0],
+            k_cal,
+            splits=calibration_splits,
+            resamples=calibration_resamples,
+            alpha=alpha,
+            time_event=(mb["_time"], mb["_event"]),
+        )
+    else:
+        cal = {"skipped": "calibration_splits = 0"}
+    t_cal = time.perf_counter() - t_cal
+    primary = names[0]
+    stats = {
+        "schema": SCHEMA,
+        "experiment": experiment,
+        "baseline": baseline,
+        "treatment": treatment,
+        "trials": T,
+        "primary": measures[primary],
+        "secondary": {k: measures[k] for k in names[1:]},
+        "holm": {
+            "family": names,
+            "tests": tests,
+            "p_raw": dict(zip(names, p_raw, strict=True)),
+            "p_adjusted": dict(zip(names, p_adj.tolist(), strict=True)),
+            "method": "Holm (1979) step-down, family-wise error rate",
+        },
+        "logrank": {
+            "chi2": lr.statistic,
+            "p": lr.pvalue,
+            "measure": "first_success",
+            "censoring": f"no success within {T} trials",
+        },
+        "proportions": proportions,
+        "curves": res["curves"],
+        "calibration": cal,
+        "settings": {
+            "key": key if isinstance(key, int) else None,
+            "key_record": _key_record(key),
+            "key_derivation": "main, calibration = split(key); bootstrap baseline, bootstrap treatment, "
+            "permutation = split(main); chunk c uses fold_in(subkey, c)",
+            "resamples": resamples,
+            "permutations": resamples,
+            "alpha": alpha,
+            "chunk": chunk,
+            "permutation_chunk": perm_chunk,
+            "calibration_splits": calibration_splits,
+            "calibration_resamples": calibration_resamples,
+            "bootstrap": "BCa (Efron 1987), methods resampled independently",
+        },
+        "versions": _versions(),
+        "timing": {"resample_seconds": res["resample_seconds"], "calibration_seconds": t_cal},
+    }
+    stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
+    plot = {"measures": {k: {"baseline": vb[k], "treatment": vt[k]} for k in names}}
+    return stats, plot
+
+
+def compare_run_dir(
+    run_dir,
+    *,
+    baseline: str = "ac",
+    treatment: str = "eac",
+    resamples: int = 10_000,
+    alpha: float = 0.05,
+    key: int = 0,
+    calibration_splits: int = 200,
+    calibration_resamples: int = 200,
+    chunk: int = 1000,
+    progress: bool = True,
+) -> dict:
+    """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
+
+    Returns the content of stats.json. Bad input raises `jaxeac.errors.UsageError`.
+    """
+    t0 = time.perf_counter()
+    _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
+    data = load_run_dir(run_dir, baseline, treatment)
+    bowling = data.experiment == "bowling"
+    stats, plot = compare_experiment(
+        data.success[baseline],
+        data.success[treatment],
+        returns_baseline=data.returns.get(baseline) if bowling else None,
+        returns_treatment=data.returns.get(treatment) if bowling else None,
+        baseline=baseline,
+        treatment=treatment,
+        experiment=data.experiment,
+        resamples=resamples,
+        alpha=alpha,
+        key=key,
+        calibration_splits=calibration_splits,
+        calibration_resamples=calibration_resamples,
+        chunk=chunk,
+        progress=progress,
+    )
+    if data.primary_measure not in stats["primary"]["measure"]:
+        raise UsageError(
+            f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run"
+        )
+    stats["run_dir"] = str(Path(run_dir))
+    stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
+    with staged_dir(run_dir) as stage:
+        write_figures(stats, plot, stage)
+        stats["timing"]["total_seconds"] = time.perf_counter() - t0
+        clean = to_jsonable(stats)
+        (stage / "report.md").write_text(render_markdown(clean), encoding="utf-8")
+        (stage / "stats.json").write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
+    return clean

@@ -1,0 +1,184 @@
+"""Reading a run directory and the per-seed measures of SPEC §6.
+
+A run directory holds `summary.json`, `per_seed.csv` and `curves.npz` (written by
+the grid and bowling runners). The primary measure is fixed in advance: total
+successes over T (grid) or total pins over T (bowling). Secondary measures:
+success rate over the last 20 % of trials, first successful trial (time to
+event, right-censored at T), and the normalised area under the cumulative
+success curve.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from jaxeac.errors import UsageError
+
+LATE_FRACTION = 0.2
+
+# name -> (higher_is_better, description template)
+MEASURES = {
+    "successes": (True, "successful trials out of {T}"),
+    "return": (True, "total pins over {T} trials"),
+    "late_success_rate": (True, "success rate over the last {late} trials"),
+    "first_success": (False, "first successful trial ({T1} if none)"),
+    "auc_cumulative": (True, "area under the cumulative-success curve (0-1)"),
+}
+
+
+@dataclass(frozen=True)
+class RunData:
+    """What `compare` needs from a run directory."""
+
+    path: Path
+    experiment: str
+    primary_measure: str
+    algos: tuple[str, ...]
+    trials: int
+    success: dict  # algo -> bool [N, T]
+    returns: dict  # algo -> int [N, T] (bowling) or empty
+    per_seed: dict  # algo -> {column: np.ndarray}
+
+
+def _read_per_seed(path: Path) -> dict:
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows or "algo" not in rows[0]:
+        raise UsageError(f"{path} has no rows or no 'algo' column; re-run the experiment to rewrite it")
+    out: dict = {}
+    for row in rows:
+        out.setdefault(row["algo"], []).append(row)
+    table = {}
+    for algo, rs in out.items():
+        cols = {}
+        for col in rs[0]:
+            if col == "algo":
+                continue
+            try:
+                cols[col] = np.array([float(r[col]) for r in rs])
+            except (TypeError, ValueError):
+                continue  # ignore non-numeric extra columns
+        table[algo] = cols
+    return table
+
+
+def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunData:
+    """Read and cross-check summary.json, per_seed.csv and curves.npz."""
+    path = Path(run_dir)
+    for name in ("summary.json", "per_seed.csv", "curves.npz"):
+        if not (path / name).is_file():
+            raise UsageError(
+                f"{path} has no {name}; pass a run directory written by 'jaxeac grid' or 'jaxeac bowling'"
+            )
+    try:
+        summary = json.loads((path / "summary.json").read_text())
+    except json.JSONDecodeError as exc:
+        raise UsageError(
+            f"{path / 'summary.json'} is not valid JSON ({exc.msg}); re-run the experiment"
+        ) from None
+    experiment = summary.get("experiment")
+    if experiment not in ("grid", "bowling"):
+        raise UsageError(f"summary.json experiment is {experiment!r}, expected 'grid' or 'bowling'")
+    primary = summary.get("primary_measure", "successes" if experiment == "grid" else "return")
+    if primary not in ("successes", "return"):
+        raise UsageError(f"summary.json primary_measure is {primary!r}, expected 'successes' or 'return'")
+    trials = int(summary.get("trials", 0))
+    algos = tuple(summary.get("algos", ()))
+    for algo, flag in ((baseline, "--baseline"), (treatment, "--treatment")):
+        if algo not in algos:
+            raise UsageError(f"{flag} {algo!r} is not in this run (algos: {', '.join(algos) or 'none'})")
+    if baseline == treatment:
+        raise UsageError("--baseline and --treatment are the same method; choose two different ones")
+    with np.load(path / "curves.npz") as npz:
+        arrays = {k: np.asarray(npz[k]) for k in npz.files}
+    per_seed = _read_per_seed(path / "per_seed.csv")
+    success, returns = {}, {}
+    for algo in (baseline, treatment):
+        if algo not in arrays:
+            raise UsageError(f"curves.npz has no array {algo!r}; re-run the experiment")
+        c = arrays[algo]
+        if c.ndim != 2 or c.shape[1] != trials:
+            hint = (
+                " (trials axis first? expected [seeds, trials])"
+                if c.ndim == 2 and c.shape[0] == trials
+                else ""
+            )
+            raise UsageError(f"curves.npz[{algo!r}] has shape {c.shape}, expected [seeds, {trials}]{hint}")
+        if c.shape[0] < 2:
+            raise UsageError(f"{algo} has {c.shape[0]} seed(s); at least 2 seeds per method are needed")
+        success[algo] = c.astype(bool)
+        if experiment == "bowling":
+            r = arrays.get(f"{algo}_return")
+            if r is None or r.shape != c.shape:
+                raise UsageError(
+                    f"curves.npz has no {algo}_return of shape {c.shape}; re-run the bowling experiment"
+                )
+            returns[algo] = r.astype(np.int64)
+        cols = per_seed.get(algo)
+        if cols is None or cols.get("successes", np.empty(0)).shape[0] != c.shape[0]:
+            n_csv = 0 if cols is None else len(next(iter(cols.values()), []))
+            raise UsageError(
+                f"per_seed.csv has {n_csv} rows for {algo} but curves.npz has {c.shape[0]} seeds; "
+                "the files come from different runs"
+            )
+        if not np.array_equal(cols["successes"], c.sum(1)):
+            raise UsageError(
+                f"per_seed.csv successes for {algo} do not match curves.npz; "
+                "the files come from different runs"
+            )
+        if "first_success" in cols:
+            fs = np.where(c.any(1), np.argmax(c, 1) + 1, -1)
+            if not np.array_equal(cols["first_success"], fs):
+                raise UsageError(
+                    f"per_seed.csv first_success for {algo} does not match curves.npz; re-run the experiment"
+                )
+        if (
+            experiment == "bowling"
+            and "return" in cols
+            and not np.array_equal(cols["return"], returns[algo].sum(1))
+        ):
+            raise UsageError(
+                f"per_seed.csv return for {algo} does not match curves.npz; re-run the experiment"
+            )
+    return RunData(path, experiment, primary, algos, trials, success, returns, per_seed)
+
+
+def late_window(trials: int) -> int:
+    """Number of trials in the last 20 % (at least 1)."""
+    return max(1, math.ceil(LATE_FRACTION * trials))
+
+
+def per_seed_measures(success: np.ndarray, returns: np.ndarray | None = None) -> dict:
+    """Per-seed measures from success [N, T] (and pins [N, T] for bowling); primary first.
+
+    Returns {name: float array [N]} plus the log-rank inputs under
+    "_time" (first success, T + 1 if none) and "_event" (bool).
+    """
+    s = np.asarray(success, bool)
+    if s.ndim != 2:
+        raise UsageError(f"success must be [seeds, trials], got shape {s.shape}")
+    n, T = s.shape
+    event = s.any(1)
+    first = np.where(event, np.argmax(s, 1) + 1, T + 1)
+    out = {}
+    if returns is None:
+        out["successes"] = s.sum(1).astype(np.float64)
+    else:
+        out["return"] = np.asarray(returns).sum(1).astype(np.float64)
+    out["late_success_rate"] = s[:, T - late_window(T) :].mean(1)
+    out["first_success"] = first.astype(np.float64)
+    # sum_t cumsum_t = sum_s success_s (T - s + 1), normalised by its maximum T(T+1)/2
+    out["auc_cumulative"] = (s * np.arange(T, 0, -1)).sum(1) / (T * (T + 1) / 2)
+    out["_time"] = first
+    out["_event"] = event
+    return out
+
+
+def describe(name: str, trials: int) -> str:
+    return MEASURES[name][1].format(T=trials, late=late_window(trials), T1=trials + 1)
