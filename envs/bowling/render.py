@@ -158,7 +158,7 @@ def _render_mujoco(qpos, standing, ball, path: Path) -> None:
     mujoco.mj_forward(model, data)
     cam = mujoco.MjvCamera()
     cam.lookat[:] = (PIN_XY[:, 0].mean(), 0.0, 0.1)
-    cam.distance, cam.azimuth, cam.elevation = 2.6, 180.0, -35.0
+    cam.distance, cam.azimuth, cam.elevation = 2.6, 0.0, -35.0  # from the thrower's side
     with mujoco.Renderer(model, 480, 640) as renderer:
         renderer.update_scene(data, camera=cam)
         image = renderer.render()
