@@ -88,28 +88,40 @@ class Hyper:
 
 @pytree_dataclass
 class AgentState:
-    """Everything an agent carries across trials of one seed."""
+    """Everything an agent carries across the trials of one seed."""
 
     preferences: jax.Array  # float [S, A], p(s, a) of (1), (4)
-    values: jax.Array  # float32 [S], V(s) of (2)
+    values: jax.Array  # float [S], V(s) of (2)
     memory: mem.Memory | None  # success/failure experience (None for AC)
     goal_known: jax.Array  # bool [], E5: goal reached at least once
-    prev_rtilde: jax.Array  # float32 [C], r̃ of the previous trial (E6)
-    prev_length: jax.Array  # int32 [], chances used in the previous trial (0 = none yet)
+    trial: jax.Array  # int32 [], 0-based index of the current trial
+    chance: jax.Array  # int32 [], chances taken so far in the current trial
+    outcomes: jax.Array  # bool [T], success of each finished trial
+    rtilde: jax.Array  # float [2, C], r̃ per chance of trials of even / odd index (E5, E6)
+    prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
+    path: tuple[jax.Array, jax.Array, jax.Array] | None  # buffer layout: states, actions, E6 flags [C]
 
 
-def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int) -> AgentState:
+def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, n_trials: int) -> AgentState:
     """Preferences and values at 0 (uniform "random" policy, Alg. 1 line 1), empty memories."""
     memory = (
         mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity) if cfg.uses_memory else None
     )
+    path = None
+    if cfg.uses_memory and cfg.memory == "buffer":
+        path = (jnp.zeros((n_chances,), jnp.int32), jnp.zeros((n_chances,), jnp.int32),
+                jnp.zeros((n_chances,), bool))
     return AgentState(
         preferences=jnp.zeros((n_states, n_actions), float),
         values=jnp.zeros((n_states,), float),
         memory=memory,
         goal_known=jnp.bool_(False),
-        prev_rtilde=jnp.zeros((n_chances,), float),
+        trial=jnp.int32(0),
+        chance=jnp.int32(0),
+        outcomes=jnp.zeros((n_trials,), bool),
+        rtilde=jnp.zeros((2, n_chances), float),
         prev_length=jnp.int32(0),
+        path=path,
     )
 
 
@@ -136,14 +148,14 @@ def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper):
     allowed = jnp.ones((n_actions,), bool)
     from_memory = jnp.bool_(False)
     if cfg.failure_memory:
-        flags = mem.failure_flags(agent.memory, state, n_actions)
+        flags = mem.failure_flags(agent.memory, state, agent.trial, agent.outcomes, n_actions)
         n_flagged = flags.sum()
         restrict = (n_flagged > 0) & (n_flagged < n_actions)
         allowed = jnp.where(restrict, ~flags, allowed)
         from_memory = restrict
     action = sample_softmax(logits, allowed, u)
     if cfg.success_memory:
-        remembered = mem.success_action(agent.memory, state)
+        remembered = mem.success_action(agent.memory, state, agent.trial, agent.outcomes)
         has_success = remembered >= 0
         action = jnp.where(has_success, remembered, action)
         from_memory = from_memory | has_success
@@ -175,30 +187,64 @@ def learn_step(agent: AgentState, state, action, reward, next_state, terminated,
     )
 
 
-def failure_mask(cfg: AgentConfig, rtilde, length, prev_rtilde, prev_length) -> jax.Array:
-    """E6: bool [C], chances whose (state, action) a failed trial flags.
+def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde) -> jax.Array:
+    """E6 for the chance just taken, with immediate reward `rtilde` (applies if the trial fails).
 
-    ``previous_trial`` (paper): r̃(c|t) < r̃(c|t−1) for every c that exists in both
-    trials (none on the first trial). ``within_trial`` (variant): r̃(c|t) < r̃(c−1|t), c ≥ 2.
+    ``previous_trial`` (paper): r̃(c|t) < r̃(c|t−1), for c that exists in trial t−1 too
+    (never in the first trial). ``within_trial`` (variant): r̃(c|t) < r̃(c−1|t), c ≥ 2.
     """
-    c = jnp.arange(rtilde.shape[0])
+    c, parity = agent.chance, agent.trial % 2
     if cfg.failure_rule == "previous_trial":
-        return (c < jnp.minimum(length, prev_length)) & (rtilde < prev_rtilde)
-    earlier = jnp.concatenate([rtilde[:1], rtilde[:-1]])
-    return (c >= 1) & (c < length) & (rtilde < earlier)
+        return (c < agent.prev_length) & (rtilde < agent.rtilde[1 - parity, c])
+    return (c >= 1) & (rtilde < agent.rtilde[parity, jnp.maximum(c - 1, 0)])
 
 
-def end_trial(cfg: AgentConfig, agent: AgentState, states, actions, rtilde, length, success):
-    """Alg. 1 lines 15–29 after a trial: E4 success write or E6 failure write; keep r̃ for t+1."""
-    valid = jnp.arange(states.shape[0]) < length
+def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active) -> AgentState:
+    """After each chance: keep r̃ (E5) and what the memories need (E4, E6); count the chance."""
+    c, parity, trial = agent.chance, agent.trial % 2, agent.trial
+    kept = agent.rtilde
+    flag = None
+    if cfg.failure_memory:  # only E6 reads r̃ back
+        flag = active & failure_condition(cfg, agent, rtilde)
+        c_safe = jnp.minimum(c, kept.shape[1] - 1)
+        kept = kept.at[parity, c_safe].set(jnp.where(active, rtilde, kept[parity, c_safe]))
+    memory, path = agent.memory, agent.path
+    if isinstance(memory, mem.DenseMemory):
+        if cfg.success_memory:
+            memory = mem.record_visit(memory, state, action, trial, agent.outcomes, active)
+        if cfg.failure_memory:
+            memory = mem.record_failure_candidate(memory, state, action, trial, agent.outcomes, flag)
+    elif path is not None:
+        index = jnp.where(active, c, c.dtype.type(path[0].shape[0]))  # inactive → dropped
+        path = (path[0].at[index].set(state, mode="drop"),
+                path[1].at[index].set(action, mode="drop"),
+                path[2].at[index].set(flag if flag is not None else False, mode="drop"))
+    return agent.replace(
+        rtilde=kept, memory=memory, path=path,
+        chance=c + active.astype(jnp.int32),
+    )
+
+
+def end_trial(cfg: AgentConfig, agent: AgentState, success, ends) -> AgentState:
+    """Alg. 1 lines 15–29 when a trial ends (`ends`): record its outcome, which puts the dense
+    memory's pending entries in effect; the buffer layout writes its slots now (E4 or E6)."""
+    length = agent.chance
     memory = agent.memory
-    if cfg.success_memory:
-        written = mem.write_success(memory, states, actions, valid & success)
-        memory = written
-    if cfg.failure_memory:
-        flag = failure_mask(cfg, rtilde, length, agent.prev_rtilde, agent.prev_length) & ~success
-        memory = mem.write_failure(memory, states, actions, flag)
-    return agent.replace(memory=memory, prev_rtilde=rtilde, prev_length=length)
+    if isinstance(memory, mem.BufferMemory):
+        states, actions, flags = agent.path
+        valid = (jnp.arange(states.shape[0]) < length) & ends
+        if cfg.success_memory:
+            memory = mem.write_success(memory, states, actions, valid & success)
+        if cfg.failure_memory:
+            memory = mem.write_failure(memory, states, actions, flags & valid & ~success)
+    t = jnp.minimum(agent.trial, agent.outcomes.shape[0] - 1)
+    outcomes = agent.outcomes.at[t].set(jnp.where(ends, success, agent.outcomes[t]))
+    return agent.replace(
+        memory=memory, outcomes=outcomes,
+        prev_length=jnp.where(ends, length, agent.prev_length),
+        trial=agent.trial + ends.astype(jnp.int32),
+        chance=jnp.where(ends, 0, agent.chance),
+    )
 
 
 def greedy_policy(cfg: AgentConfig, agent: AgentState) -> jax.Array:
@@ -206,7 +252,7 @@ def greedy_policy(cfg: AgentConfig, agent: AgentState) -> jax.Array:
     greedy = jnp.argmax(agent.preferences, axis=1).astype(jnp.int32)
     if not cfg.success_memory:
         return greedy
-    remembered = mem.policy_actions(agent.memory, agent.preferences.shape[0])
+    remembered = mem.policy_actions(agent.memory, agent.preferences.shape[0], agent.trial, agent.outcomes)
     return jnp.where(remembered >= 0, remembered, greedy)
 
 

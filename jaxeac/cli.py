@@ -135,7 +135,8 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
                              alpha=alpha, key=key, progress=not quiet)
     p = result["primary"]
     lo, hi = p["diff_ci95"]
-    print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} (95% BCa CI [{lo:+.3f}, {hi:+.3f}]), "
+    print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
+          f"(95% BCa CI [{lo:+.3f}, {hi:+.3f}]), "
           f"Welch p = {p['p_welch']:.3g}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
     print(f"report in {run_dir}/report.md")
     return 0

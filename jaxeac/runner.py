@@ -1,12 +1,22 @@
-"""One seed's whole run as a single `lax.scan` over trials; many seeds via vmap, in chunks.
+"""One seed's whole run as one compiled loop; many seeds via vmap, in chunks.
 
-`make_run(env, cfg)` returns ``run(seed_key, hyper) -> SeedResult`` (purejaxrl
-style). Seed i of a run uses ``fold_in(root_key, i)`` (SPEC R1), so its result
-never depends on the seeds beside it, the chunk size or the device count, and
-the same root key and config give bit-identical results (R2).
+Seed i of a run uses ``fold_in(root_key, i)`` (SPEC R1), so its result never
+depends on the seeds beside it, the chunk size or the device count, and the same
+root key and config give bit-identical results (R2).
 
-Randomness per trial comes from one place, `trial_randoms`: a start-cell key
-and the C action uniforms of the trial, drawn at once (no per-step key splits).
+Two loop structures give bit-identical results (tested):
+
+* ``trials`` — `trace_run`: a `lax.scan` over trials, each a `lax.scan` over C
+  chances, masked once the trial has ended. The literal shape of Algorithm 1;
+  needed by the buffer memory layout, whose writes happen at trial ends.
+* ``flat`` — the fast path: all seeds of a chunk advance one *chance* per
+  iteration and a seed whose trial ends starts its next trial at the next
+  iteration, so trials that end early (EAC's, mostly) leave no padded slots.
+  The loop stops when every seed of the chunk has run T trials.
+
+Random numbers come from one place: `step_uniform`, a counter-based hash of the
+seed's key words and (trial, chance), so no per-step key splitting is needed and
+both loops draw the same numbers.
 """
 
 from __future__ import annotations
@@ -14,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterator
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -30,10 +40,13 @@ from jaxeac.agent import (
     init_agent,
     learn_step,
     rate_at,
+    record_step,
     select_action,
 )
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
+
+Loop = Literal["auto", "flat", "trials"]
 
 
 class Env(Protocol):
@@ -42,8 +55,9 @@ class Env(Protocol):
     n_states: int
     n_actions: int
     n_chances: int
+    n_starts: int
 
-    def reset(self, key: jax.Array) -> Any: ...
+    def reset_at(self, start_index: jax.Array) -> Any: ...
     def observation(self, state: Any) -> jax.Array: ...
     def step(self, state: Any, action: jax.Array) -> Any: ...
     def shaped_reward(self, s_next, bumped, goal_known) -> jax.Array: ...
@@ -51,7 +65,7 @@ class Env(Protocol):
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-    """One algorithm's run: trial count, step sizes (constant or optax schedule), agent."""
+    """One algorithm's run: trial count, step sizes (constant or optax schedule), agent, loop."""
 
     trials: int
     agent: AgentConfig
@@ -59,6 +73,7 @@ class RunConfig:
     beta: Rate = 0.3
     gamma: float = 0.9
     temperature: float = 1.0
+    loop: Loop = "auto"
 
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
@@ -67,13 +82,13 @@ class RunConfig:
 
         return Hyper(const(self.alpha), const(self.beta), const(self.gamma), const(self.temperature))
 
-
-@pytree_dataclass
-class TrialRandoms:
-    """All random numbers one trial consumes."""
-
-    reset_key: jax.Array  # key for the G3 start cell
-    action_uniforms: jax.Array  # float32 [C], one per chance, for E1 sampling
+    @property
+    def resolved_loop(self) -> Literal["flat", "trials"]:
+        """`auto`: flat unless the buffer layout needs trial-end writes."""
+        if self.loop != "auto":
+            return self.loop
+        buffered = self.agent.uses_memory and self.agent.memory == "buffer"
+        return "trials" if buffered else "flat"
 
 
 @pytree_dataclass
@@ -82,7 +97,7 @@ class TrialRecord:
 
     states: jax.Array  # int32 [C]
     actions: jax.Array  # int32 [C]
-    rtilde: jax.Array  # float32 [C]
+    rtilde: jax.Array  # float [C]
     length: jax.Array  # int32 [], chances actually used
     success: jax.Array  # bool []
 
@@ -101,10 +116,82 @@ def seed_key(root_key: jax.Array, seed: jax.Array) -> jax.Array:
     return jax.random.fold_in(root_key, seed)
 
 
-def trial_randoms(key: jax.Array, trial: jax.Array, n_chances: int) -> TrialRandoms:
+def seed_words(key: jax.Array) -> jax.Array:
+    """uint32 [2]: the raw words of a (threefry) seed key, fed to `step_uniform`."""
+    return jax.random.key_data(key).reshape(-1)[:2].astype(jnp.uint32)
+
+
+def _mix32(h: jax.Array) -> jax.Array:
+    """A 32-bit avalanche mixer (the "lowbias32" constants of C. Wellons' hash search)."""
+    h = h ^ (h >> 16)
+    h = h * jnp.uint32(0x7FEB352D)
+    h = h ^ (h >> 15)
+    h = h * jnp.uint32(0x846CA68B)
+    return h ^ (h >> 16)
+
+
+def step_uniform(words: jax.Array, counter: jax.Array) -> jax.Array:
+    """A uniform in [0, 1) from the seed's key words and a 32-bit counter (counter-based RNG).
+
+    Three mixing rounds keyed by both words; the top 24 bits give the float, which is
+    exact in float32 and float64 alike.
+    """
+    h = _mix32(jnp.asarray(counter).astype(jnp.uint32) ^ words[0])
+    h = _mix32(h ^ words[1])
+    h = _mix32(h + jnp.uint32(0x9E3779B9))
+    return (h >> 8).astype(float) * (1.0 / (1 << 24))
+
+
+def action_counter(trial, chance, n_chances: int):
+    """The counter of the E1 uniform at (trial, chance); chance C is the start-cell draw."""
+    return trial * (n_chances + 1) + chance
+
+
+def start_index(words, trial, n_chances: int, n_starts: int) -> jax.Array:
+    """G3: the start cell (index into the free non-goal cells) of trial `trial`, uniform."""
+    u = step_uniform(words, action_counter(trial, n_chances, n_chances))
+    return jnp.minimum((u * n_starts).astype(jnp.int32), n_starts - 1)
+
+
+@pytree_dataclass
+class TrialRandoms:
+    """All random numbers one trial consumes (for tests and the literal reference)."""
+
+    start_index: jax.Array  # int32 []
+    action_uniforms: jax.Array  # float [C]
+
+
+def trial_randoms(key: jax.Array, trial, n_chances: int, n_starts: int) -> TrialRandoms:
     """The random numbers of trial `trial` (0-based) of the seed with key `key`."""
-    reset_key, action_key = jax.random.split(jax.random.fold_in(key, trial))
-    return TrialRandoms(reset_key, jax.random.uniform(action_key, (n_chances,)))
+    words = seed_words(key)
+    chances = jnp.arange(n_chances)
+    return TrialRandoms(
+        start_index(words, trial, n_chances, n_starts),
+        jax.vmap(lambda c: step_uniform(words, action_counter(trial, c, n_chances)))(chances),
+    )
+
+
+def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, u, hyper: Hyper, active):
+    """Alg. 1 lines 4–14 for one chance, if `active`: E1 choice, move, (2)–(4), r̃ (E5), records.
+
+    Returns (agent, step, state, action, r̃).
+    """
+    trial = jnp.minimum(agent.trial, cfg.trials - 1)
+    s = env.observation(env_state)
+    action, learns = select_action(cfg.agent, agent, s, u, hyper)
+    step = env.step(env_state, action)
+    s_next = env.observation(step.state)
+    agent = learn_step(
+        agent, s, action, step.reward, s_next, step.terminated, learns & active,
+        rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
+    )
+    goal_known = agent.goal_known | (active & step.terminated)  # E5: this step included
+    rtilde = env.shaped_reward(s_next, step.bumped, goal_known)
+    agent = record_step(cfg.agent, agent.replace(goal_known=goal_known), s, action, rtilde, active)
+    return agent, step, s, action, rtilde
+
+
+# --- the `trials` loop: literal Algorithm 1 structure -----------------------------------------
 
 
 @pytree_dataclass
@@ -114,48 +201,37 @@ class _ChanceCarry:
     done: jax.Array
 
 
-def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, randoms: TrialRandoms, trial):
-    """Algorithm 1 lines 3–29 for one trial: C chances (masked once done), then memory writes."""
-    alpha = rate_at(cfg.alpha, hyper.alpha, trial)
-    beta = rate_at(cfg.beta, hyper.beta, trial)
+def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words):
+    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6."""
+    trial = agent.trial
+    n_chances = env.n_chances
 
-    def chance(carry: _ChanceCarry, u):
-        s = env.observation(carry.env_state)
-        action, learns = select_action(cfg.agent, carry.agent, s, u, hyper)
-        step = env.step(carry.env_state, action)
+    def chance(carry: _ChanceCarry, c):
         live = ~carry.done
-        s_next = env.observation(step.state)
-        agent = learn_step(
-            carry.agent, s, action, step.reward, s_next, step.terminated, learns & live,
-            alpha, beta, hyper.gamma,
-        )
-        goal_known = agent.goal_known | (live & step.terminated)  # E5: this step included
-        rtilde = env.shaped_reward(s_next, step.bumped, goal_known)
+        u = step_uniform(words, action_counter(trial, c, n_chances))
+        agent, step, s, action, rtilde = take_chance(env, cfg, carry.agent, carry.env_state, u, hyper, live)
         env_state = jax.tree.map(lambda new, old: jnp.where(live, new, old), step.state, carry.env_state)
         done = carry.done | step.terminated | step.truncated
-        out = (s, action, rtilde, live, live & step.terminated)
-        return _ChanceCarry(env_state, agent.replace(goal_known=goal_known), done), out
+        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.terminated)
 
-    start = _ChanceCarry(env.reset(randoms.reset_key), agent, jnp.bool_(False))
-    end, (states, actions, rtilde, live, reached) = jax.lax.scan(chance, start, randoms.action_uniforms)
+    start = env.reset_at(start_index(words, trial, n_chances, env.n_starts))
+    end, (states, actions, rtilde, live, reached) = jax.lax.scan(
+        chance, _ChanceCarry(start, agent, jnp.bool_(False)), jnp.arange(n_chances)
+    )
     record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any())
-    agent = end_trial(cfg.agent, end.agent, states, actions, rtilde, record.length, record.success)
+    agent = end_trial(cfg.agent, end.agent, record.success, jnp.bool_(True))
     return agent, record
 
 
 def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, TrialRecord]:
-    """One seed's run, keeping everything: the final agent and every trial's record [T, ...]."""
-    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances)
-
-    def trial_step(agent: AgentState, trial):
-        randoms = trial_randoms(key, trial, env.n_chances)
-        return run_trial(env, cfg, agent, hyper, randoms, trial)
-
-    return jax.lax.scan(trial_step, agent, jnp.arange(cfg.trials))
+    """One seed's run with the `trials` loop, keeping the final agent and every trial's record."""
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    words = seed_words(key)
+    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words), agent, None, length=cfg.trials)
 
 
 def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResult]:
-    """Build ``run(seed_key, hyper) -> SeedResult``: one `lax.scan` over T trials."""
+    """Build ``run(seed_key, hyper) -> SeedResult`` for one seed (the `trials` loop)."""
 
     def run(key: jax.Array, hyper: Hyper) -> SeedResult:
         agent, records = trace_run(env, cfg, key, hyper)
@@ -164,13 +240,67 @@ def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResul
     return run
 
 
+# --- the `flat` loop: one chance per iteration, trials back to back ----------------------------
+
+
+@pytree_dataclass
+class _FlatCarry:
+    agent: AgentState
+    env_state: Any
+    steps: jax.Array  # int32 [T], chances used per trial
+
+
+def _flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    start = env.reset_at(start_index(words, 0, env.n_chances, env.n_starts))
+    return _FlatCarry(agent, start, jnp.zeros((cfg.trials,), jnp.int32))
+
+
+def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) -> _FlatCarry:
+    """One chance of one seed; a trial that ends here is closed and the next one started."""
+    agent = carry.agent
+    active = agent.trial < cfg.trials
+    trial = jnp.minimum(agent.trial, cfg.trials - 1)
+    u = step_uniform(words, action_counter(trial, agent.chance, env.n_chances))
+    agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, u, hyper, active)
+    ends = active & (step.terminated | step.truncated)
+    steps = carry.steps.at[trial].set(jnp.where(ends, agent.chance, carry.steps[trial]))
+    agent = end_trial(cfg.agent, agent, step.terminated, ends)
+    nxt = jnp.minimum(agent.trial, cfg.trials - 1)
+    start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
+    env_state = jax.tree.map(
+        lambda fresh, moved, old: jnp.where(ends, fresh, jnp.where(active, moved, old)),
+        start, step.state, carry.env_state,
+    )
+    return _FlatCarry(agent, env_state, steps)
+
+
+def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
+    """All seeds of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) until each ran T trials."""
+    carry = jax.vmap(lambda w: _flat_init(env, cfg, w))(words)
+    slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
+
+    def block(c: _FlatCarry) -> _FlatCarry:
+        return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, words, hyper), c)
+
+    carry = jax.lax.while_loop(lambda c: (c.agent.trial < cfg.trials).any(), block, carry)
+    policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(carry.agent)
+    return SeedResult(carry.agent.outcomes, carry.steps, policy)
+
+
+def _trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> SeedResult:
+    return jax.vmap(make_run(env, cfg))(keys, hyper)
+
+
 def make_batch_run(env: Env, cfg: RunConfig) -> Callable:
-    """jit(vmap(run)) over seed indices: ``(root_key, seeds [M], hyper) -> SeedResult [M, ...]``."""
-    run = make_run(env, cfg)
+    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> SeedResult [M, ...]``."""
+    loop = cfg.resolved_loop
 
     def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper) -> SeedResult:
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root_key, seeds)
-        return jax.vmap(run, in_axes=(0, None))(keys, hyper)
+        if loop == "trials":
+            return _trials_batch(env, cfg, keys, hyper)
+        return _flat_batch(env, cfg, jax.vmap(seed_words)(keys), hyper)
 
     return jax.jit(batch)
 
@@ -229,6 +359,7 @@ def run_seeds(
         raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
     chunk_size = min(chunk_size, n_seeds)
     hyper = cfg.hyper() if hyper is None else hyper
+    hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (chunk_size,)), hyper)
     batch = make_batch_run(env, cfg)
     root = jax.random.key(root_key)
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import jax
 import numpy as np
 
 from envs.grid import ACTION_DELTAS, GridMap
@@ -129,8 +128,8 @@ def reference_run(grid: GridMap, cfg: AgentConfig, *, trials, chances, alpha, be
     history: list[ReferenceTrial] = []
     starts = grid.start_cells
     for t in range(trials):
-        randoms = trial_randoms(key, t, chances)
-        s = int(starts[int(jax.random.randint(randoms.reset_key, (), 0, starts.size))])
+        randoms = trial_randoms(key, t, chances, starts.size)
+        s = int(starts[int(randoms.start_index)])
         uniforms = np.asarray(randoms.action_uniforms)
         trial = ReferenceTrial()
         for c in range(chances):

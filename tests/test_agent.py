@@ -9,7 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxeac import memory as mem
 from jaxeac.agent import (
     AgentConfig,
     Hyper,
@@ -17,16 +16,17 @@ from jaxeac.agent import (
     algorithm,
     critic_update,
     end_trial,
-    failure_mask,
     greedy_policy,
     init_agent,
     learn_step,
     rate_at,
+    record_step,
     sample_softmax,
     select_action,
     td_error,
 )
 from jaxeac.errors import UsageError
+from jaxeac.memory import dense_tables
 
 JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
 
@@ -60,7 +60,7 @@ def test_critic_and_actor_updates_golden(jit):
 
 def test_learn_step_golden_sequence():
     """Two transitions by hand: 0 --a1--> 1 (r=0), then 1 --a0--> goal (r=1, terminal)."""
-    agent = init_agent(algorithm("ac"), 3, 2, 4)
+    agent = init_agent(algorithm("ac"), 3, 2, 4, 10)
     agent = agent.replace(values=jnp.array([0.0, 0.2, 0.7]))
     a1 = learn_step(agent, 0, 1, 0.0, 1, False, True, 0.5, 0.2, 0.9)
     # δ = 0 + 0.9·0.2 − 0 = 0.18 → V0 = 0.09, p(0,1) = 0.036
@@ -103,14 +103,20 @@ def hyper(temperature=1.0):
     return Hyper(jnp.float32(0.1), jnp.float32(0.3), jnp.float32(0.9), jnp.float32(temperature))
 
 
+def with_tables(agent, success, failed):
+    """An EAC agent whose dense memory holds these committed tables."""
+    m = agent.memory
+    return agent.replace(memory=m.replace(success=jnp.asarray(success, m.success.dtype),
+                                          failed=jnp.asarray(failed)))
+
+
 def test_select_action_e1_order():
     cfg = algorithm("eac")
-    agent = init_agent(cfg, 4, 4, 5)
-    m = agent.memory
-    m = mem.write_success(m, jnp.array([1]), jnp.array([3]), jnp.array([True]))
-    m = mem.write_failure(m, jnp.array([1, 2, 2, 3, 3, 3, 3]), jnp.array([0, 0, 1, 0, 1, 2, 3]),
-                          jnp.ones(7, bool))
-    agent = agent.replace(memory=m)
+    failed = np.zeros((4, 4), bool)
+    failed[1, 0] = True
+    failed[2, :2] = True
+    failed[3, :] = True
+    agent = with_tables(init_agent(cfg, 4, 4, 5, 10), [-1, 3, -1, -1], failed)
     # (a) success memory wins even over failure flags at the same state
     assert tuple(map(int, select_action(cfg, agent, 1, 0.0, hyper()))) == (3, 0)
     # (b) two of four flagged at state 2 → uniform over {2, 3}; no learning (E2)
@@ -130,53 +136,84 @@ def test_select_action_e1_order():
 
 def test_select_action_temperature():
     cfg = algorithm("ac")
-    agent = init_agent(cfg, 1, 2, 1).replace(preferences=jnp.array([[0.0, math.log(3.0)]]))
+    agent = init_agent(cfg, 1, 2, 1, 1).replace(preferences=jnp.array([[0.0, math.log(3.0)]]))
     # τ = 1: π = [.25, .75]; τ → large: π → [.5, .5]
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1.0))[0]) == 1
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1e6))[0]) == 0
 
 
-def test_failure_mask_rules_golden():
-    prev = jnp.array([0.5, 0.4, -1.0, 0.2, 0.0])
-    cur = jnp.array([0.4, 0.4, -1.0, 0.1, 0.0])
-    cfg = AgentConfig()
-    # E6: c exists in both trials (min(3, 4) = 3 chances) and r̃(c|t) < r̃(c|t−1)
-    np.testing.assert_array_equal(failure_mask(cfg, cur, 3, prev, 4), [True, False, False, False, False])
-    np.testing.assert_array_equal(failure_mask(cfg, cur, 5, prev, 5), [True, False, False, True, False])
-    # first trial: no previous trial → nothing flagged
-    np.testing.assert_array_equal(failure_mask(cfg, cur, 5, prev, 0), [False] * 5)
-    within = AgentConfig(failure_rule="within_trial")
-    # variant: r̃(c|t) < r̃(c−1|t) for c ≥ 2 (1-based)
-    np.testing.assert_array_equal(failure_mask(within, cur, 5, prev, 5), [False, False, True, False, True])
-    np.testing.assert_array_equal(failure_mask(within, cur, 2, prev, 5), [False] * 5)
+def play_trial(cfg, agent, states, actions, rtilde, success):
+    """Feed one trial's chances through record_step and close it with end_trial."""
+    for s_, a_, r_ in zip(states, actions, rtilde, strict=True):
+        agent = record_step(cfg, agent, s_, a_, r_, jnp.bool_(True))
+    return end_trial(cfg, agent, jnp.bool_(success), jnp.bool_(True))
 
 
-def test_end_trial_writes_success_or_failure_not_both():
+def tables(agent):
+    success, failed = dense_tables(agent.memory, agent.trial, agent.outcomes)
+    return np.asarray(success), {(int(s), int(a)) for s, a in zip(*np.nonzero(np.asarray(failed)), strict=False)}
+
+
+def test_failure_rule_previous_trial_golden_e6():
     cfg = algorithm("eac")
-    agent = init_agent(cfg, 6, 4, 4).replace(prev_rtilde=jnp.array([1.0, 1.0, 1.0, 1.0]),
-                                             prev_length=jnp.int32(4))
-    states, actions = jnp.array([0, 1, 0, 5]), jnp.array([1, 2, 3, 0])
-    rtilde = jnp.array([0.0, 0.0, 0.0, 0.0])
-    won = end_trial(cfg, agent, states, actions, rtilde, jnp.int32(3), jnp.bool_(True))
-    # E4: chronological, last write wins for state 0; chance 4 was never taken
-    np.testing.assert_array_equal(won.memory.success, [3, 2, -1, -1, -1, -1])
-    assert not bool(won.memory.failure.any())
-    lost = end_trial(cfg, agent, states, actions, rtilde, jnp.int32(4), jnp.bool_(False))
-    assert bool((lost.memory.success == -1).all())
-    assert sorted(zip(*map(list, np.nonzero(lost.memory.failure)))) == [(0, 1), (0, 3), (1, 2), (5, 0)]
-    np.testing.assert_array_equal(lost.prev_rtilde, rtilde)
-    assert int(lost.prev_length) == 4
+    agent = init_agent(cfg, 8, 4, 5, 10)
+    # trial 1 fails: no previous trial, nothing flagged (t >= 2 only)
+    agent = play_trial(cfg, agent, [0, 1, 2, 3, 4], [0] * 5, [0.5, 0.4, -1.0, 0.2, 0.0], False)
+    assert tables(agent)[1] == set()
+    # trial 2 fails: r̃(c|2) < r̃(c|1) at c = 1 and 4 (1-based) → flag (5,1) and (7,1)
+    agent = play_trial(cfg, agent, [5, 6, 6, 7, 6], [1] * 5, [0.4, 0.4, -1.0, 0.1, 0.0], False)
+    assert tables(agent)[1] == {(5, 1), (7, 1)}
+    assert (tables(agent)[0] == -1).all()
+    # trial 3 succeeds in 2 chances: its lower r̃ flags nothing (E6 is for failed trials)
+    agent = play_trial(cfg, agent, [2, 3], [2, 3], [-1.0, -1.0], True)
+    assert tables(agent)[1] == {(5, 1), (7, 1)}
+    # trial 4 fails: only c = 1, 2 exist in trial 3 too; r̃ below trial 3's nowhere → no new flag
+    agent = play_trial(cfg, agent, [4, 4, 4, 4, 4], [3] * 5, [-1.0, -1.0, -5.0, -5.0, -5.0], False)
+    assert tables(agent)[1] == {(5, 1), (7, 1)}
+
+
+def test_failure_rule_within_trial_golden_e6():
+    cfg = algorithm("eac", failure_rule="within_trial")
+    agent = init_agent(cfg, 8, 4, 5, 10)
+    # r̃ = [.4, .4, −1, .1, 0]: drops at c = 3 (−1 < .4) and c = 5 (0 < .1), already in trial 1
+    agent = play_trial(cfg, agent, [0, 1, 2, 3, 4], [2] * 5, [0.4, 0.4, -1.0, 0.1, 0.0], False)
+    assert tables(agent)[1] == {(2, 2), (4, 2)}
+
+
+def test_success_write_golden_e4():
+    cfg = algorithm("eac")
+    agent = init_agent(cfg, 6, 4, 4, 10)
+    # success: chronological, the last action at a state wins (state 0: 1 then 3)
+    agent = play_trial(cfg, agent, [0, 1, 0], [1, 2, 3], [0.0, 0.0, 1.0], True)
+    np.testing.assert_array_equal(tables(agent)[0], [3, 2, -1, -1, -1, -1])
+    # a failed trial through the same states changes nothing
+    agent = play_trial(cfg, agent, [0, 1, 4, 5], [0, 0, 0, 0], [0.0, 0.0, 0.0, 0.0], False)
+    np.testing.assert_array_equal(tables(agent)[0], [3, 2, -1, -1, -1, -1])
+    # a later success overwrites what it visits and keeps the rest
+    agent = play_trial(cfg, agent, [1, 5], [0, 1], [0.0, 1.0], True)
+    np.testing.assert_array_equal(tables(agent)[0], [3, 0, -1, -1, -1, 1])
+    assert int(agent.trial) == 3 and np.asarray(agent.outcomes)[:3].tolist() == [True, False, True]
+
+
+def test_memory_applies_only_after_the_trial():
+    """Algorithm 1 writes memories after a trial: within the trial, lookups see the old memory."""
+    cfg = algorithm("eac")
+    agent = init_agent(cfg, 6, 4, 4, 10)
+    agent = record_step(cfg, agent, 2, 1, 0.0, jnp.bool_(True))
+    assert int(select_action(cfg, agent, 2, 0.9, hyper())[0]) == 3  # softmax, not the pending 1
+    agent = end_trial(cfg, agent, jnp.bool_(True), jnp.bool_(True))
+    assert int(select_action(cfg, agent, 2, 0.9, hyper())[0]) == 1
 
 
 def test_ac_has_no_memory_and_greedy_policy():
     ac = algorithm("ac")
-    agent = init_agent(ac, 2, 3, 1)
+    agent = init_agent(ac, 2, 3, 1, 1)
     assert agent.memory is None and not ac.uses_memory
     agent = agent.replace(preferences=jnp.array([[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]]))
     np.testing.assert_array_equal(greedy_policy(ac, agent), [1, 0])
     eac = algorithm("eac")
-    e = init_agent(eac, 2, 3, 1).replace(preferences=agent.preferences)
-    e = e.replace(memory=mem.write_success(e.memory, jnp.array([1]), jnp.array([2]), jnp.array([True])))
+    e = with_tables(init_agent(eac, 2, 3, 1, 1).replace(preferences=agent.preferences), [-1, 2],
+                    np.zeros((2, 3), bool))
     np.testing.assert_array_equal(greedy_policy(eac, e), [1, 2])  # G7: memory first
 
 

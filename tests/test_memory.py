@@ -5,7 +5,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from envs.grid import GridWorld, get_map
 from jaxeac import memory as mem
@@ -13,41 +12,60 @@ from jaxeac.agent import algorithm
 from jaxeac.runner import RunConfig, run_seeds
 
 
-def test_last_occurrence():
-    states = jnp.array([3, 5, 3, 7, 5])
-    valid = jnp.array([True, True, True, True, False])
-    np.testing.assert_array_equal(mem.last_occurrence(states, valid), [False, True, True, True, False])
+def buffer(capacity=16):
+    return mem.init_memory("buffer", 100, 4, capacity)
 
 
-@pytest.mark.parametrize("layout", ["dense", "buffer"])
-def test_success_write_last_wins_e4(layout):
-    m = mem.init_memory(layout, 10, 4, 16)
-    m = mem.write_success(m, jnp.array([3, 5, 3, 7]), jnp.array([0, 1, 2, 3]), jnp.array([1, 1, 1, 0], bool))
-    assert [int(mem.success_action(m, s)) for s in (3, 5, 7, 0)] == [2, 1, -1, -1]
+def test_buffer_success_write_last_wins_e4():
+    m = mem.write_success(buffer(), jnp.array([3, 5, 3, 7]), jnp.array([0, 1, 2, 3]),
+                          jnp.array([1, 1, 1, 0], bool))
+    look = [int(mem.success_action(m, s, 0, jnp.zeros(1, bool))) for s in (3, 5, 7, 0)]
+    assert look == [2, 1, -1, -1]
     m = mem.write_success(m, jnp.array([5, 9]), jnp.array([3, 0]), jnp.array([True, True]))
-    assert [int(mem.success_action(m, s)) for s in (3, 5, 9)] == [2, 3, 0]  # later success overwrites
+    assert [int(mem.success_action(m, s, 0, jnp.zeros(1, bool))) for s in (3, 5, 9)] == [2, 3, 0]
 
 
-@pytest.mark.parametrize("layout", ["dense", "buffer"])
-def test_failure_write_and_flags_e6(layout):
-    m = mem.init_memory(layout, 10, 4, 16)
-    m = mem.write_failure(m, jnp.array([2, 2, 4, 2]), jnp.array([1, 3, 0, 1]), jnp.array([1, 1, 0, 1], bool))
-    np.testing.assert_array_equal(mem.failure_flags(m, 2, 4), [False, True, False, True])
-    np.testing.assert_array_equal(mem.failure_flags(m, 4, 4), [False] * 4)
-    if layout == "buffer":
-        assert int(m.failure_count) == 2  # the repeated pair (2, 1) is stored once
+def test_buffer_failure_write_and_flags_e6():
+    m = mem.write_failure(buffer(), jnp.array([2, 2, 4, 2]), jnp.array([1, 3, 0, 1]),
+                          jnp.array([1, 1, 0, 1], bool))
+    flags = mem.failure_flags(m, 2, 0, jnp.zeros(1, bool), 4)
+    np.testing.assert_array_equal(flags, [False, True, False, True])
+    assert int(m.failure_count) == 2  # the repeated pair (2, 1) is stored once
 
 
 def test_buffer_full_policy_is_fifo():
-    m = mem.init_memory("buffer", 100, 4, 2)
-    m = mem.write_success(m, jnp.array([10, 11]), jnp.array([0, 1]), jnp.ones(2, bool))
+    none = jnp.zeros(1, bool)
+    m = mem.write_success(buffer(2), jnp.array([10, 11]), jnp.array([0, 1]), jnp.ones(2, bool))
     m = mem.write_success(m, jnp.array([10]), jnp.array([3]), jnp.ones(1, bool))  # update in place
     assert int(m.success_count) == 2
     m = mem.write_success(m, jnp.array([12]), jnp.array([2]), jnp.ones(1, bool))  # evicts 10 (oldest)
-    assert [int(mem.success_action(m, s)) for s in (10, 11, 12)] == [-1, 1, 2]
-    f = mem.init_memory("buffer", 100, 4, 2)
-    f = mem.write_failure(f, jnp.array([1, 2, 3]), jnp.array([0, 0, 0]), jnp.ones(3, bool))
-    assert [bool(mem.failure_flags(f, s, 4)[0]) for s in (1, 2, 3)] == [False, True, True]
+    assert [int(mem.success_action(m, s, 0, none)) for s in (10, 11, 12)] == [-1, 1, 2]
+    f = mem.write_failure(buffer(2), jnp.array([1, 2, 3]), jnp.array([0, 0, 0]), jnp.ones(3, bool))
+    assert [bool(mem.failure_flags(f, s, 0, none, 4)[0]) for s in (1, 2, 3)] == [False, True, True]
+
+
+def test_dense_pending_entries_follow_trial_outcomes():
+    m = mem.init_memory("dense", 10, 4, 0)
+    outcomes = jnp.array([True, False, False])
+    yes = jnp.bool_(True)
+    # trial 0 (a success) visits state 3 with actions 1 then 2: pending, effective from trial 1
+    m = mem.record_visit(m, 3, 1, 0, outcomes, yes)
+    m = mem.record_visit(m, 3, 2, 0, outcomes, yes)
+    assert int(mem.success_action(m, 3, 0, outcomes)) == -1  # not during its own trial
+    assert int(mem.success_action(m, 3, 1, outcomes)) == 2
+    # trial 1 (fails) visits state 3 with action 0: the committed 2 survives
+    m = mem.record_visit(m, 3, 0, 1, outcomes, yes)
+    assert int(mem.success_action(m, 3, 2, outcomes)) == 2
+    assert int(m.success[3]) == 2 and int(m.pending_trial[3]) == 1
+    # an inactive step writes nothing
+    m2 = mem.record_visit(m, 4, 1, 1, outcomes, jnp.bool_(False))
+    assert int(m2.pending_trial[4]) == -1
+    # failure candidates count only for failed trials
+    f = mem.record_failure_candidate(m, 5, 2, 0, outcomes, yes)  # trial 0 succeeded
+    f = mem.record_failure_candidate(f, 6, 1, 1, outcomes, yes)  # trial 1 failed
+    np.testing.assert_array_equal(mem.failure_flags(f, 5, 2, outcomes, 4), [False] * 4)
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 2, outcomes, 4), [False, True, False, False])
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 1, outcomes, 4), [False] * 4)
 
 
 def paper_results(layout, capacity=1024, seeds=16):
@@ -71,7 +89,7 @@ def test_small_buffer_changes_runs():
 
 
 def test_memory_jit_matches_eager():
-    m = mem.init_memory("buffer", 10, 4, 3)
+    m = buffer(3)
     args = (jnp.array([1, 2, 3, 4]), jnp.array([0, 1, 2, 3]), jnp.ones(4, bool))
     eager = mem.write_success(m, *args)
     jitted = jax.jit(mem.write_success)(m, *args)

@@ -17,7 +17,7 @@ from reference import reference_run
 
 from envs.grid import GridWorld, get_map, parse_map
 from jaxeac.agent import algorithm
-from jaxeac.memory import BufferMemory
+from jaxeac.memory import BufferMemory, dense_tables
 from jaxeac.runner import RunConfig, seed_key, trace_run
 
 VARIANTS = {
@@ -54,21 +54,22 @@ def check_against_reference(grid, agent_cfg, *, trials, chances, seed, root=7, *
     np.testing.assert_allclose(agent.values, ref.values, rtol=0, atol=1e-10)
     np.testing.assert_allclose(agent.preferences, ref.preferences, rtol=0, atol=1e-10)
     if agent_cfg.uses_memory:
-        assert memory_contents(agent.memory, grid.n_cells) == (ref.success_memory, ref.failure_memory)
+        assert memory_contents(agent, grid.n_cells) == (ref.success_memory, ref.failure_memory)
     return ref
 
 
-def memory_contents(memory, n_states):
+def memory_contents(agent, n_states):
     """(success dict, failure set) of either layout, for comparison with the reference."""
+    memory = agent.memory
     if isinstance(memory, BufferMemory):
         k = memory.success_states.shape[0]
         ns, nf = min(int(memory.success_count), k), min(int(memory.failure_count), k)
-        success = {int(s): int(a) for s, a in zip(memory.success_states[:ns], memory.success_actions[:ns])}
-        failure = {(int(s), int(a)) for s, a in zip(memory.failure_states[:nf], memory.failure_actions[:nf])}
+        success = {int(s): int(a) for s, a in zip(memory.success_states[:ns], memory.success_actions[:ns], strict=False)}
+        failure = {(int(s), int(a)) for s, a in zip(memory.failure_states[:nf], memory.failure_actions[:nf], strict=False)}
         return success, failure
-    success = {s: int(a) for s, a in enumerate(memory.success) if a >= 0}
-    failure = {(int(s), int(a)) for s, a in zip(*np.nonzero(memory.failure))}
-    return success, failure
+    success, failed = jax.device_get(dense_tables(memory, agent.trial, agent.outcomes))
+    return ({s: int(a) for s, a in enumerate(success) if a >= 0},
+            {(int(s), int(a)) for s, a in zip(*np.nonzero(failed), strict=False)})
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))

@@ -82,3 +82,48 @@ def test_bad_counts():
         run_seeds(ENV, cfg, root_key=0, n_seeds=0)
     with pytest.raises(UsageError, match="chunk size must be a positive integer"):
         run_seeds(ENV, cfg, root_key=0, n_seeds=2, chunk_size=0)
+
+
+LOOP_CASES = [  # (algorithm, variant, map seed: 0 = paper map, else a random small map)
+    ("ac", {}, 0),
+    ("eac", {}, 0),
+    ("eac", {"learn_on_memory_steps": True}, 1),
+    ("eac", {"failure_rule": "within_trial"}, 2),
+    ("eac_success_only", {}, 3),
+    ("eac_failure_only", {}, 4),
+]
+
+
+@pytest.mark.parametrize(("algo", "variant", "map_seed"), LOOP_CASES)
+def test_flat_loop_equals_trials_loop(algo, variant, map_seed):
+    """The fast flat loop and the literal trials loop give bit-identical runs."""
+    from conftest import random_map_text
+
+    from envs.grid import parse_map
+
+    rng = np.random.default_rng(map_seed)
+    env = ENV if map_seed == 0 else GridWorld(parse_map(random_map_text(rng)), int(rng.integers(1, 12)))
+    agent = algorithm(algo, **variant)
+    results = [
+        run_seeds(env, RunConfig(trials=30, agent=agent, loop=loop), root_key=map_seed,
+                  n_seeds=24, chunk_size=8)
+        for loop in ("flat", "trials")
+    ]
+    np.testing.assert_array_equal(results[0].success, results[1].success)
+    np.testing.assert_array_equal(results[0].steps, results[1].steps)
+    np.testing.assert_array_equal(results[0].policy, results[1].policy)
+
+
+def test_step_uniform_is_uniform_and_decorrelated():
+    from scipy import stats
+
+    from jaxeac.runner import action_counter, seed_words, step_uniform
+
+    words = jax.vmap(seed_words)(jax.vmap(lambda i: seed_key(jax.random.key(0), i))(np.arange(64)))
+    counters = action_counter(np.arange(200)[:, None], np.arange(41)[None, :], 40).reshape(-1)
+    u = np.asarray(jax.vmap(lambda w: jax.vmap(lambda c: step_uniform(w, c))(counters))(words))
+    assert u.min() >= 0 and u.max() < 1
+    assert stats.kstest(u.reshape(-1), "uniform").pvalue > 1e-3
+    # neighbouring counters and neighbouring seeds are uncorrelated
+    assert abs(np.corrcoef(u[:, :-1].reshape(-1), u[:, 1:].reshape(-1))[0, 1]) < 0.01
+    assert abs(np.corrcoef(u[:-1].reshape(-1), u[1:].reshape(-1))[0, 1]) < 0.01
