@@ -151,7 +151,8 @@ def play_trial(cfg, agent, states, actions, rtilde, success):
 
 def tables(agent):
     success, failed = dense_tables(agent.memory, agent.trial, agent.outcomes)
-    return np.asarray(success), {(int(s), int(a)) for s, a in zip(*np.nonzero(np.asarray(failed)), strict=False)}
+    rows, cols = np.nonzero(np.asarray(failed))
+    return np.asarray(success), {(int(s), int(a)) for s, a in zip(rows, cols, strict=True)}
 
 
 def test_failure_rule_previous_trial_golden_e6():

@@ -64,12 +64,14 @@ def memory_contents(agent, n_states):
     if isinstance(memory, BufferMemory):
         k = memory.success_states.shape[0]
         ns, nf = min(int(memory.success_count), k), min(int(memory.failure_count), k)
-        success = {int(s): int(a) for s, a in zip(memory.success_states[:ns], memory.success_actions[:ns], strict=False)}
-        failure = {(int(s), int(a)) for s, a in zip(memory.failure_states[:nf], memory.failure_actions[:nf], strict=False)}
+        pairs = zip(memory.success_states[:ns], memory.success_actions[:ns], strict=True)
+        success = {int(s): int(a) for s, a in pairs}
+        pairs = zip(memory.failure_states[:nf], memory.failure_actions[:nf], strict=True)
+        failure = {(int(s), int(a)) for s, a in pairs}
         return success, failure
     success, failed = jax.device_get(dense_tables(memory, agent.trial, agent.outcomes))
     return ({s: int(a) for s, a in enumerate(success) if a >= 0},
-            {(int(s), int(a)) for s, a in zip(*np.nonzero(failed), strict=False)})
+            {(int(s), int(a)) for s, a in zip(*np.nonzero(failed), strict=True)})
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
