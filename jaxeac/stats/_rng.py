@@ -100,24 +100,18 @@ def random_subsets(key: jax.Array, n: int, k: int, reps: int) -> jax.Array:
 
     Selection sampling (Knuth Algorithm S): unit i is taken with probability
     need/(n - i), so every column holds exactly k ones and all C(n, k) subsets
-    are equally likely. Two units per scan step use both threefry outputs.
+    are equally likely. The words are drawn up front in one fused pass; the scan
+    over units only compares and counts.
     """
     if not 0 <= k <= n:
         raise ValueError(f"subset size {k} not in [0, {n}]")
-    k0, k1 = key_words(key)
-    cols = lax.iota(jnp.uint32, reps)
-    steps = (n + 1) // 2
+    words = random_words(key, (n, reps))
+    remaining = jnp.uint32(n) - lax.iota(jnp.uint32, n)
 
-    def body(need, i):
-        w0, w1 = threefry2x32(k0, k1, cols, jnp.full((reps,), i, jnp.uint32))
-        u0 = 2 * i
-        rem0 = jnp.uint32(n) - u0
-        take0 = mulhi32(w0, rem0) < need
-        need = need - take0.astype(jnp.uint32)
-        rem1 = jnp.maximum(rem0, jnp.uint32(1)) - jnp.uint32(1)
-        take1 = (mulhi32(w1, jnp.maximum(rem1, jnp.uint32(1))) < need) & (rem1 > 0)
-        need = need - take1.astype(jnp.uint32)
-        return need, jnp.stack([take0, take1])
+    def body(need, x):
+        w, rem = x
+        take = mulhi32(w, rem) < need  # uniform integer in [0, rem) < need
+        return need - take.astype(jnp.uint32), take
 
-    _, takes = lax.scan(body, jnp.full((reps,), k, jnp.uint32), lax.iota(jnp.uint32, steps))
-    return takes.reshape(2 * steps, reps)[:n]
+    _, takes = lax.scan(body, jnp.full((reps,), k, jnp.uint32), (words, remaining))
+    return takes

@@ -29,7 +29,7 @@ from jaxeac.stats.bootstrap import (
     jackknife_iqm,
 )
 from jaxeac.stats.curves import curve_columns, curve_results, is_binary, welch_t_stat
-from jaxeac.stats.resample import bootstrap_sums, permutation_sums, subset_masks
+from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums, subset_masks
 
 POWER_DS = (0.2, 0.5, 0.8)
 
@@ -57,7 +57,7 @@ def _perm_p(t_obs, t_star):
 
 
 def permutation_test(
-    x_baseline, x_treatment, key, *, resamples: int = 10_000, chunk: int = 2000
+    x_baseline, x_treatment, key, *, resamples: int = 10_000, chunk: int = 1000
 ) -> cf.TestResult:
     """Permutation test of the studentised (Welch) t over random relabellings of the pooled seeds.
 
@@ -95,7 +95,6 @@ def _analyse(
     chunk: int,
     perm_chunk: int,
     higher_is_better: Mapping | None,
-    progress: bool,
 ) -> dict:
     """Measures (and optionally curves) from one shared bootstrap and permutation draw."""
     names = list(mb)
@@ -120,13 +119,11 @@ def _analyse(
     zb, zt = np.concatenate(zb, 1), np.concatenate(zt, 1)
     k_b, k_t, k_p = jax.random.split(as_key(key), 3)
     t0 = time.perf_counter()
-    boot_b, iqm_b = bootstrap_sums(
-        k_b, zb, resamples, chunk=chunk, iqm=True, progress=progress, desc="bootstrap baseline"
-    )
-    boot_t, iqm_t = bootstrap_sums(
-        k_t, zt, resamples, chunk=chunk, iqm=True, progress=progress, desc="bootstrap treatment"
-    )
-    perm = permutation_sums(k_p, np.concatenate([zb, zt]), nt, resamples, chunk=perm_chunk, progress=progress)
+    # dispatch all three before waiting on any, so XLA can overlap them
+    wait_b = dispatch_bootstrap(k_b, zb, resamples, chunk=chunk, iqm=True)
+    wait_t = dispatch_bootstrap(k_t, zt, resamples, chunk=chunk, iqm=True)
+    wait_p = dispatch_permutation(k_p, np.concatenate([zb, zt]), nt, resamples, chunk=perm_chunk)
+    (boot_b, iqm_b), (boot_t, iqm_t), perm = wait_b(), wait_t(), wait_p()
     t_resample = time.perf_counter() - t0
     tot = zb.sum(0) + zt.sum(0)
     out = {}
@@ -206,8 +203,7 @@ def compare_measures(
     alpha: float = 0.05,
     higher_is_better: Mapping | None = None,
     chunk: int = 1000,
-    perm_chunk: int = 2000,
-    progress: bool = False,
+    perm_chunk: int = 1000,
 ) -> dict:
     """Compare per-seed measures of two methods (treatment − baseline).
 
@@ -225,7 +221,6 @@ def compare_measures(
         chunk=chunk,
         perm_chunk=perm_chunk,
         higher_is_better=higher_is_better,
-        progress=progress,
     )
     return res["measures"]
 

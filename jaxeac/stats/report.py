@@ -138,8 +138,8 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
             ax2.legend(loc="best", fontsize=8)
         ax2.set_ylabel(f"{t.upper()} − {b.upper()}")
         ax2.set_xlabel("trial")
-        fig.tight_layout()
-        fig.savefig(out / FIGURES["curves"], dpi=90)
+        fig.subplots_adjust(left=0.12, right=0.97, top=0.94, bottom=0.09, hspace=0.08)
+        fig.savefig(out / FIGURES["curves"], dpi=80)
         plt.close(fig)
     names = list(data["measures"])
     fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3))
@@ -153,8 +153,8 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
         ax.set_ylabel("share of seeds ≤ x", fontsize=8)
     np.atleast_1d(axes)[0].legend(fontsize=8)
     fig.suptitle("Per-seed distributions (ECDF)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / FIGURES["distributions"], dpi=90)
+    fig.subplots_adjust(left=0.06, right=0.98, top=0.82, bottom=0.15, wspace=0.3)
+    fig.savefig(out / FIGURES["distributions"], dpi=80)
     plt.close(fig)
     res = [stats["primary"], *stats["secondary"].values()]
     fig, ax = plt.subplots(figsize=(6, 0.6 * len(res) + 1.2))
@@ -167,8 +167,8 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
     ax.set_yticks(y, [r["measure"] for r in res])
     ax.set_xlim(0, 1)
     ax.set_xlabel(f"P({t.upper()} better than {b.upper()}) with 95 % CI")
-    fig.tight_layout()
-    fig.savefig(out / FIGURES["improvement"], dpi=90)
+    fig.subplots_adjust(left=0.3, right=0.96, top=0.95, bottom=0.25)
+    fig.savefig(out / FIGURES["improvement"], dpi=80)
     plt.close(fig)
 
 

@@ -11,8 +11,9 @@ resampling weights serves all of them:
 
 Draws are made `chunk` resamples at a time under one jitted function with
 static shapes, so memory stays bounded (≈ chunk · n floats) for any R;
-chunk c uses `jax.random.fold_in(key, c)`, so results depend only on
-(key, R, chunk).
+chunk c uses `jax.random.fold_in(key, c)` (inside the jitted function, so
+dispatching the next chunk never waits for the last), and results depend only
+on (key, R, chunk).
 """
 
 from __future__ import annotations
@@ -25,93 +26,106 @@ import numpy as np
 
 from jaxeac.stats._rng import random_subsets, uniform_index
 
+IQM_BLOCK = 128
+
+
+def _smallest_sum(k, counts_b, values_b, bc, bcv_cum, h_cum):
+    """Sum of the k smallest values of each resample, from counts over value-sorted units.
+
+    counts_b / values_b: [C, nb, B] counts and values in blocks; bc: block counts;
+    h_cum / bcv_cum: inclusive cumulative block counts / count-weighted sums.
+    """
+    chunk = counts_b.shape[0]
+    j = jnp.sum(h_cum < k, axis=1)  # block holding position k (0-based, 1 per row)
+    j = jnp.minimum(j, bc.shape[1] - 1)
+    rows = jnp.arange(chunk)
+    before_c = h_cum[rows, j] - bc[rows, j]
+    before_s = jnp.where(j > 0, bcv_cum[rows, jnp.maximum(j - 1, 0)], 0.0)
+    c = counts_b[rows, j]  # [C, B]
+    v = values_b[j]  # [C, B]
+    need = (k - before_c)[:, None]
+    cc = jnp.cumsum(c, axis=1) - c
+    part = jnp.clip(need - cc, 0.0, c)
+    return before_s + jnp.sum(part * v, axis=1)
+
 
 @partial(jax.jit, static_argnames=("chunk", "iqm"))
-def _boot_chunk(key, z, bins, values, chunk: int, iqm: bool):
+def _boot_chunk(key, c, z, chunk: int, iqm: bool):
     n = z.shape[0]
-    idx = uniform_index(key, (chunk, n), n)
+    idx = uniform_index(jax.random.fold_in(key, c), (chunk, n), n)
     rows = jnp.broadcast_to(jnp.arange(chunk)[:, None], idx.shape)
     counts = jnp.zeros((chunk, n), jnp.float32).at[rows, idx].add(1.0)
     sums = counts @ z
     if not iqm:
         return sums, jnp.zeros((chunk,), jnp.float32)
-    # IQM of each resample without sorting it: histogram the drawn values over the
-    # sorted distinct values; distinct value u fills positions [C_{u-1}, C_u) of the
-    # sorted resample, of which [g, n - g) are kept (g = floor(n/4)).
-    hist = jnp.zeros((chunk, values.shape[0]), jnp.float32).at[rows, bins[idx]].add(1.0)
+    # IQM of each resample without sorting it (rows of z sorted by column 0): the kept
+    # positions [g, n - g) of the sorted resample sum to F(n - g) - F(g), F(k) = sum of
+    # the k smallest; F comes from block sums plus one within-block cumsum per row.
     g = n // 4
-    hi = jnp.cumsum(hist, axis=1)
-    w = jnp.clip(jnp.minimum(hi, n - g) - jnp.maximum(hi - hist, g), 0.0)
-    return sums, (w @ values) / (n - 2 * g)
+    pad = (-n) % IQM_BLOCK
+    nb = (n + pad) // IQM_BLOCK
+    counts_b = jnp.pad(counts, ((0, 0), (0, pad))).reshape(chunk, nb, IQM_BLOCK)
+    values_b = jnp.pad(z[:, 0], (0, pad)).reshape(nb, IQM_BLOCK)
+    bc = counts_b.sum(-1)
+    bcv_cum = jnp.cumsum((counts_b * values_b).sum(-1), axis=1)
+    h_cum = jnp.cumsum(bc, axis=1)
+    args = (counts_b, values_b, bc, bcv_cum, h_cum)
+    trimmed = _smallest_sum(n - g, *args) - _smallest_sum(g, *args)
+    return sums, trimmed / (n - 2 * g)
 
 
 @partial(jax.jit, static_argnames=("chunk", "n_treat"))
-def _perm_chunk(key, z, chunk: int, n_treat: int):
-    labels = random_subsets(key, z.shape[0], n_treat, chunk)
+def _perm_chunk(key, c, z, chunk: int, n_treat: int):
+    labels = random_subsets(jax.random.fold_in(key, c), z.shape[0], n_treat, chunk)
     return labels.astype(jnp.float32).T @ z
 
 
-def _chunks(resamples: int, chunk: int, progress: bool, desc: str):
-    n_chunks = -(-resamples // chunk)
-    it = range(n_chunks)
-    if progress:
-        from tqdm.auto import tqdm
+def dispatch_bootstrap(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = False):
+    """Start the bootstrap chunks without waiting (JAX dispatches asynchronously).
 
-        it = tqdm(it, desc=desc, leave=False)
-    return it
+    Returns a function that waits and gives (sums [R, K] float64, iqm [R] float64 or None).
+    """
+    z = np.asarray(z)
+    if iqm:  # sums do not depend on the order of rows; the IQM needs them sorted by column 0
+        z = z[np.argsort(z[:, 0], kind="stable")]
+    z = jnp.asarray(z, jnp.float32)
+    chunk = max(1, min(chunk, resamples))
+    parts = [_boot_chunk(key, c, z, chunk, iqm) for c in range(-(-resamples // chunk))]
+
+    def result():
+        sums = np.concatenate([np.asarray(s, np.float64) for s, _ in parts])[:resamples]
+        q = np.concatenate([np.asarray(q, np.float64) for _, q in parts])[:resamples] if iqm else None
+        return sums, q
+
+    return result
 
 
-def bootstrap_sums(
-    key,
-    z,
-    resamples: int,
-    *,
-    chunk: int = 1000,
-    iqm: bool = False,
-    progress: bool = False,
-    desc: str = "bootstrap",
-):
+def bootstrap_sums(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = False):
     """Column sums of `resamples` bootstrap resamples of the rows of z [n, K].
 
     Returns (sums [R, K] float64, iqm [R] float64 or None). With iqm=True the IQM
     (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of column 0 of each
     resample is returned too.
     """
-    values, bins = np.unique(np.asarray(z)[:, 0], return_inverse=True)
-    values = jnp.asarray(values, jnp.float32)
-    bins = jnp.asarray(bins.reshape(-1), jnp.int32)
-    z = jnp.asarray(z, jnp.float32)
-    chunk = max(1, min(chunk, resamples))
-    sums, iqms = [], []
-    for c in _chunks(resamples, chunk, progress, desc):
-        s, q = _boot_chunk(jax.random.fold_in(key, c), z, bins, values, chunk, iqm)
-        sums.append(s)
-        iqms.append(q)
-    sums = np.asarray(jnp.concatenate(sums), np.float64)[:resamples]
-    q = np.asarray(jnp.concatenate(iqms), np.float64)[:resamples] if iqm else None
-    return sums, q
+    return dispatch_bootstrap(key, z, resamples, chunk=chunk, iqm=iqm)()
 
 
-def permutation_sums(
-    key,
-    z_pool,
-    n_treat: int,
-    resamples: int,
-    *,
-    chunk: int = 2000,
-    progress: bool = False,
-    desc: str = "permutation",
-):
-    """Treatment-group column sums [R, K] under `resamples` random relabellings of z_pool [N, K]."""
+def dispatch_permutation(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 1000):
+    """Start the permutation chunks without waiting; returns a function giving sums [R, K]."""
     z = jnp.asarray(z_pool, jnp.float32)
     chunk = max(1, min(chunk, resamples))
-    out = [
-        _perm_chunk(jax.random.fold_in(key, c), z, chunk, int(n_treat))
-        for c in _chunks(resamples, chunk, progress, desc)
-    ]
-    return np.asarray(jnp.concatenate(out), np.float64)[:resamples]
+    parts = [_perm_chunk(key, c, z, chunk, int(n_treat)) for c in range(-(-resamples // chunk))]
+    return lambda: np.concatenate([np.asarray(p, np.float64) for p in parts])[:resamples]
+
+
+def permutation_sums(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 1000):
+    """Treatment-group column sums [R, K] under `resamples` random relabellings of z_pool [N, K]."""
+    return dispatch_permutation(key, z_pool, n_treat, resamples, chunk=chunk)()
+
+
+_subsets = jax.jit(random_subsets, static_argnums=(1, 2, 3))
 
 
 def subset_masks(key, n: int, k: int, reps: int) -> np.ndarray:
     """bool [reps, n]: uniform random k-of-n subsets (for splits)."""
-    return np.asarray(jax.jit(random_subsets, static_argnums=(1, 2, 3))(key, n, k, reps)).T
+    return np.asarray(_subsets(key, n, k, reps)).T

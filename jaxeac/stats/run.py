@@ -68,8 +68,7 @@ def compare_experiment(
     calibration_splits: int = 200,
     calibration_resamples: int = 200,
     chunk: int = 1000,
-    perm_chunk: int = 2000,
-    progress: bool = False,
+    perm_chunk: int = 1000,
 ) -> tuple[dict, dict]:
     """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures)."""
     t0 = time.perf_counter()
@@ -101,7 +100,6 @@ def compare_experiment(
         chunk=chunk,
         perm_chunk=perm_chunk,
         higher_is_better=hib,
-        progress=progress,
     )
     measures = res["measures"]
     for k in names:
@@ -217,6 +215,17 @@ def compare_run_dir(
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
     data = load_run_dir(run_dir, baseline, treatment)
     bowling = data.experiment == "bowling"
+    expected = "return" if bowling else "successes"
+    if data.primary_measure != expected:
+        raise UsageError(
+            f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
+            f"(expected {expected!r}); fix summary.json or re-run the experiment"
+        )
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False)
     stats, plot = compare_experiment(
         data.success[baseline],
         data.success[treatment],
@@ -231,12 +240,10 @@ def compare_run_dir(
         calibration_splits=calibration_splits,
         calibration_resamples=calibration_resamples,
         chunk=chunk,
-        progress=progress,
     )
-    if data.primary_measure not in stats["primary"]["measure"]:
-        raise UsageError(
-            f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run"
-        )
+    if bar is not None:
+        bar.set_description(f"compare {treatment} vs {baseline}: report")
+        bar.update()
     stats["run_dir"] = str(Path(run_dir))
     stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
     with staged_dir(run_dir) as stage:
@@ -245,4 +252,7 @@ def compare_run_dir(
         clean = to_jsonable(stats)
         (stage / "report.md").write_text(render_markdown(clean), encoding="utf-8")
         (stage / "stats.json").write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
+    if bar is not None:
+        bar.update()
+        bar.close()
     return clean
