@@ -85,6 +85,35 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    b = sub.add_parser("bowling", help="run AC and EAC learning to bowl in MuJoCo over many seeds")
+    b.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
+    b.add_argument("--trials", type=positive_int, default=10, metavar="T", help="trials (default 10, B5)")
+    b.add_argument("--angles", type=int, default=21, metavar="K", help="shoulder angles K >= 2 (B2)")
+    b.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X", help="largest |θ| in rad")
+    b.add_argument("--noise-angle", type=finite_float, default=0.003, metavar="S",
+                   help="s.d. of the angle noise in rad (B3)")
+    b.add_argument("--noise-speed", type=finite_float, default=0.1, metavar="S",
+                   help="s.d. of the release-speed noise in m/s (B3)")
+    b.add_argument("--backend", default="c", metavar="c|mjx", help="physics backend (B7; default c)")
+    b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO")
+    b.add_argument("--alpha", type=finite_float, default=0.1, metavar="A", help="critic step size α")
+    b.add_argument("--beta", type=finite_float, default=0.3, metavar="B", help="actor step size β")
+    b.add_argument("--gamma", type=finite_float, default=1.0, metavar="G", help="discount γ (B5: 1)")
+    b.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="root PRNG key (R1)")
+    b.add_argument("--chunk-size", type=positive_int, default=1000, metavar="M", help="seeds per batch")
+    b.add_argument("--out", default="runs/bowling", metavar="DIR")
+    b.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    t = sub.add_parser("throw", help="throw balls at a fresh rack and print what fell (JSON)")
+    t.add_argument("--angles", nargs="+", type=finite_float, required=True, metavar="A",
+                   help="shoulder angles in rad, within ±theta-max")
+    t.add_argument("--noise", type=finite_float, default=0.0, help="noise scale (0: deterministic)")
+    t.add_argument("--backend", default="c", metavar="c|mjx")
+    t.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X")
+    t.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="noise PRNG key")
+    t.add_argument("--render", metavar="FILE.png", help="save a picture of the pin deck after the throw")
+
     c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder")
     c.add_argument("dir", metavar="DIR", help="a run folder written by `jaxeac grid` or `jaxeac bowling`")
     add_compare_flags(c)
@@ -149,7 +178,54 @@ def cmd_compare(args: argparse.Namespace) -> int:
                        resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key)
 
 
-COMMANDS = {"grid": cmd_grid, "compare": cmd_compare}
+def cmd_bowling(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from jaxeac.bowling import BowlingSettings, run_bowling, table_one, write_bowling_outputs
+    from jaxeac.io import check_writable_dir
+
+    settings = BowlingSettings(
+        seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
+        noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
+        algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
+        beta=args.beta, gamma=args.gamma,
+    )
+    settings.validate()
+    out = check_writable_dir(args.out)
+    with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
+              desc=f"bowling ({settings.backend})", file=sys.stderr) as bar:
+        run = run_bowling(settings, progress=bar.update)
+    summary = write_bowling_outputs(run, out)
+    print("\n".join(line for line in table_one(run).splitlines() if line.startswith("- ")))
+    if "eac_minus_ac" in summary:
+        d = summary["eac_minus_ac"]
+        print(f"EAC - AC: {d['diff']:+.2f} pins of {10 * settings.trials} "
+              f"(95% CI [{d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}], Welch)")
+    print(f"{sum(r.throws for r in run.results.values())} throws, compile {summary['compile_seconds']:.1f} s, "
+          f"run {summary['run_seconds']:.1f} s; results in {out}/")
+    if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2:
+        return run_compare(out, quiet=args.quiet)
+    return 0
+
+
+def cmd_throw(args: argparse.Namespace) -> int:
+    import json
+
+    from envs.bowling import BowlingConfig, throw_command
+
+    cfg = BowlingConfig(theta_max=args.theta_max)
+    if args.render:
+        from pathlib import Path
+
+        from jaxeac.io import check_writable_dir
+
+        check_writable_dir(Path(args.render).resolve().parent)
+    result = throw_command(args.angles, args.noise, args.backend, args.render, cfg, seed=args.key)
+    print(json.dumps(result))
+    return 0
+
+
+COMMANDS = {"grid": cmd_grid, "bowling": cmd_bowling, "throw": cmd_throw, "compare": cmd_compare}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -114,3 +114,27 @@ def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
     policy_figure(run.grid_map, {a: r.policy[seed] for a, r in run.results.items()},
                   folder / "fig2_policies.png", seed=seed, max_steps=run.settings.chances)
     return ["fig3_cumulative_successes.png", "fig2_policies.png"]
+
+
+def angle_figure(angles: dict[str, np.ndarray], path: Path, *, seed: int = 0):
+    """Fig. 5: chance-1 and chance-2 shoulder angles per trial: mean, 5–95 % band over seeds, one seed."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for c, ax in enumerate(axes):
+        for algo, theta in angles.items():
+            a = theta[:, :, c]
+            t = np.arange(1, a.shape[1] + 1)
+            color = COLORS.get(algo)
+            ax.plot(t, np.nanmean(a, axis=0), color=color, lw=2, label=f"{LABELS.get(algo, algo)} mean")
+            lo, hi = np.nanpercentile(a, [5, 95], axis=0)
+            ax.fill_between(t, lo, hi, color=color, alpha=0.15, lw=0)
+            ax.plot(t, a[seed], color=color, lw=1, ls="--", marker="o", ms=3,
+                    label=f"{LABELS.get(algo, algo)} seed {seed}")
+        ax.axhline(0, color="0.5", lw=0.8)
+        ax.set_title(f"chance {c + 1} (band: 5–95% of seeds)", fontsize=9)
+        ax.set_xlabel("trial")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("shoulder angle θ (rad); < 0 targets the right pins")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)

@@ -14,11 +14,15 @@ meant for accelerators. Compile takes 6-18 s per batch shape on a 2-core CPU.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
+
+with contextlib.redirect_stdout(io.StringIO()):  # MJX prints "Failed to import warp" (optional GPU path)
+    from mujoco import mjx
 
 from .backend_c import load_model
 from .scene import (

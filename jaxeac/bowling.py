@@ -1,0 +1,422 @@
+"""AC and EAC learning to bowl (paper §V-B, SPEC B1–B7) with the grid's agent code.
+
+The agent is the same `jaxeac.agent` code as on the grid (no copy): states are
+the 1,024 masks of standing pins (B5; chance 1 always starts from all ten =
+1023), actions the K shoulder angles (B2), the TD reward and the immediate
+reward r̃ are the pins a throw knocks (E5), a trial is 2 chances, a strike ends
+it early (E3) and it succeeds when all ten pins are down at its end (B5).
+Pinned here: a trial's end is terminal for (3) (the frame is over, V(s') = 0).
+
+Two physics backends (B7):
+
+* ``c`` — MuJoCo's C engine batched over threads: learning steps are jit-compiled
+  and vmapped over seeds; the batched physics runs between them on the host.
+* ``mjx`` — the whole run (learning and physics) is one jit-compiled function.
+
+Both consume the same random numbers: E1 uniforms from `step_uniform` and throw
+noise from ``fold_in(fold_in(fold_in(root, seed), trial), chance)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs.bowling import BowlingConfig, initial_pins, throw, throw_noise
+from envs.bowling import angles as angle_grid
+from jaxeac.agent import (
+    AgentState,
+    Hyper,
+    algorithm,
+    end_trial,
+    init_agent,
+    learn_step,
+    rate_at,
+    record_step,
+    select_action,
+)
+from jaxeac.errors import UsageError
+from jaxeac.pytree import pytree_dataclass
+from jaxeac.runner import RunConfig, action_counter, chunks, seed_key, seed_words, step_uniform
+
+N_PINS = 10
+N_MASKS = 1 << N_PINS  # B5: states are the sets of standing pins
+FULL_RACK = N_MASKS - 1
+CHANCES = 2  # B5
+BACKENDS = ("c", "mjx")
+
+
+def mask_index(standing) -> jax.Array:
+    """The state of a set of standing pins: bit i set ⇔ pin i+1 standing (B5)."""
+    return (jnp.asarray(standing).astype(jnp.int32) << jnp.arange(N_PINS)).sum(-1)
+
+
+@pytree_dataclass
+class BowlingRecord:
+    """Per seed: angle index [T, 2] (−1 = not thrown), pins per chance [T, 2], success [T]."""
+
+    action: jax.Array
+    knocked: jax.Array
+    success: jax.Array
+
+
+def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper):
+    """E1 at `state` with the uniform of (trial, chance); returns (angle index, learns)."""
+    u = step_uniform(words, action_counter(agent.trial, agent.chance, CHANCES))
+    return select_action(cfg.agent, agent, state, u, hyper)
+
+
+def learn_from_throw(cfg: RunConfig, agent: AgentState, state, action, learns, knocked, next_state,
+                     last_chance, active, hyper: Hyper) -> AgentState:
+    """(2)–(4) with r = pins knocked, E5 r̃ = pins knocked, and E4/E6 when the trial ends."""
+    reward = knocked.astype(agent.values.dtype)
+    cleared = next_state == 0
+    ends = active & (cleared | last_chance)
+    trial = jnp.minimum(agent.trial, cfg.trials - 1)
+    agent = learn_step(
+        agent, state, action, reward, next_state, ends, learns & active,
+        rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
+    )
+    agent = record_step(cfg.agent, agent, state, action, reward, active)
+    return end_trial(cfg.agent, agent, cleared, ends)
+
+
+def noise_normals(key: jax.Array, trial, chance) -> jax.Array:
+    """B3: the standard-normal noise draws [angle, speed] of one throw."""
+    return throw_noise(jax.random.fold_in(jax.random.fold_in(key, trial), chance))
+
+
+@functools.lru_cache(maxsize=8)
+def _learning_steps(cfg: RunConfig):
+    """jit(vmap) versions of `choose`, `learn_from_throw` and `noise_normals` over seeds."""
+    pick = jax.jit(jax.vmap(functools.partial(choose, cfg), in_axes=(0, 0, 0, None)))
+    learn = jax.jit(jax.vmap(functools.partial(learn_from_throw, cfg),
+                             in_axes=(0, 0, 0, 0, 0, 0, None, 0, None)))
+    noise = jax.jit(jax.vmap(noise_normals, in_axes=(0, None, None)))
+    return pick, learn, noise
+
+
+def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyper) -> BowlingRecord:
+    """One chunk of seeds with the C backend: compiled learning, batched C physics in between."""
+    pick, learn, noise = _learning_steps(cfg)
+    m = keys.shape[0]
+    words = jax.vmap(seed_words)(keys)
+    agents = jax.vmap(lambda _: init_agent(cfg.agent, N_MASKS, phys.n_angles, CHANCES, cfg.trials))(keys)
+    grid = angle_grid(phys)
+    action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
+    knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
+    for t in range(cfg.trials):
+        pins = initial_pins(m)
+        state = np.full(m, FULL_RACK, np.int32)
+        active = np.ones(m, bool)
+        for c in range(CHANCES):
+            action, learns = jax.device_get(pick(agents, words, jnp.asarray(state), hyper))
+            eps = np.asarray(noise(keys, t, c))
+            knocked = np.zeros(m, np.int32)
+            after = state.copy()
+            idx = np.flatnonzero(active)
+            if idx.size:
+                sub = jax.tree.map(lambda x, i=idx: np.asarray(x)[i], pins)
+                res = throw(sub, grid[action[idx]], eps[idx], backend="c", cfg=phys)
+                knocked[idx] = res.knocked
+                after[idx] = np.asarray(mask_index(res.standing))
+                pins = jax.tree.map(lambda full, part, i=idx: _set_rows(full, i, part), pins, res.pins_after)
+                action_rec[idx, t, c] = action[idx]
+                knocked_rec[idx, t, c] = res.knocked
+            agents = learn(agents, jnp.asarray(state), jnp.asarray(action), jnp.asarray(learns),
+                           jnp.asarray(knocked), jnp.asarray(after), c == CHANCES - 1,
+                           jnp.asarray(active), hyper)
+            active &= after != 0
+            state = after
+    return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes))
+
+
+def _set_rows(full, rows, part):
+    out = np.array(full, copy=True)
+    out[rows] = np.asarray(part)
+    return out
+
+
+def make_run_mjx(cfg: RunConfig, phys: BowlingConfig) -> Callable:
+    """The whole chunk with MJX as one jit-compiled function: ``(keys [M], hyper) -> BowlingRecord``."""
+    from envs.bowling import make_mjx_throw
+
+    throw_one = make_mjx_throw(phys)
+    grid = jnp.asarray(angle_grid(phys), jnp.float32)
+
+    def physics(pins, action, key, trial, chance):
+        eps_key = jax.random.fold_in(jax.random.fold_in(key, trial), chance)
+        return throw_one(pins, grid[action], eps_key)
+
+    def batch(keys, hyper):
+        m = keys.shape[0]
+        words = jax.vmap(seed_words)(keys)
+        agents = jax.vmap(lambda _: init_agent(cfg.agent, N_MASKS, phys.n_angles, CHANCES, cfg.trials))(keys)
+
+        def trial_step(agents, t):
+            pins = jax.tree.map(jnp.asarray, initial_pins(m))
+            state = jnp.full((m,), FULL_RACK, jnp.int32)
+            active = jnp.ones((m,), bool)
+            actions, knocks = [], []
+            for c in range(CHANCES):
+                action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None))(cfg, agents, words, state,
+                                                                                  hyper)
+                res = jax.vmap(physics, in_axes=(0, 0, 0, None, None))(pins, action, keys, t, c)
+                knocked = jnp.where(active, res.knocked, 0)
+                after = jnp.where(active, mask_index(res.standing), state)
+                agents = jax.vmap(learn_from_throw, in_axes=(None, 0, 0, 0, 0, 0, 0, None, 0, None))(
+                    cfg, agents, state, action, learns, knocked, after, c == CHANCES - 1, active, hyper)
+                actions.append(jnp.where(active, action, -1))
+                knocks.append(knocked)
+                pins = res.pins_after
+                active = active & (after != 0)
+                state = after
+            return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1))
+
+        agents, (actions, knocks) = jax.lax.scan(trial_step, agents, jnp.arange(cfg.trials))
+        return BowlingRecord(jnp.swapaxes(actions, 0, 1).astype(jnp.int8),
+                             jnp.swapaxes(knocks, 0, 1).astype(jnp.int8), agents.outcomes)
+
+    return jax.jit(batch)
+
+
+@dataclasses.dataclass(frozen=True)
+class BowlingSettings:
+    """Everything that defines a bowling run (defaults: paper's T = 10, K = 21, γ = 1; B2, B5)."""
+
+    seeds: int = 1000
+    trials: int = 10
+    angles: int = 21
+    theta_max: float = 0.1
+    noise_angle: float = 0.003
+    noise_speed: float = 0.1
+    backend: str = "c"
+    algos: tuple[str, ...] = ("ac", "eac")
+    key: int = 0
+    chunk_size: int = 1000
+    alpha: float = 0.1
+    beta: float = 0.3
+    gamma: float = 1.0
+    temperature: float = 1.0
+
+    def validate(self) -> None:
+        from jaxeac.experiment import _positive_int, _rate
+
+        for name in ("seeds", "trials", "chunk_size"):
+            _positive_int(name.replace("_", " "), getattr(self, name))
+        if isinstance(self.angles, bool) or not isinstance(self.angles, int) or self.angles < 2:
+            raise UsageError(f"angles must be an integer K >= 2 (got {self.angles!r})")
+        if self.backend not in BACKENDS:
+            raise UsageError(f"unknown backend {self.backend!r}; choose one of {', '.join(BACKENDS)}")
+        _rate("alpha", self.alpha)
+        _rate("beta", self.beta)
+        _rate("gamma", self.gamma, upper=1.0)
+        _rate("temperature", self.temperature, positive=True)
+        if not self.algos:
+            raise UsageError("algos is empty; pass at least one of ac, eac")
+        for name in self.algos:
+            algorithm(name)
+        if len(set(self.algos)) != len(self.algos):
+            raise UsageError(f"algos lists an algorithm twice ({' '.join(self.algos)}); list each once")
+        self.physics()  # BowlingConfig validates θ_max and the noise levels
+
+    def physics(self) -> BowlingConfig:
+        return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
+                             noise_angle=self.noise_angle, noise_speed=self.noise_speed)
+
+    def run_config(self, algo: str) -> RunConfig:
+        return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,
+                         gamma=self.gamma, temperature=self.temperature)
+
+
+@dataclasses.dataclass
+class BowlingResult:
+    """All seeds of one algorithm: per-chance actions and pins, per-trial success; timings."""
+
+    action: np.ndarray  # int8 [N, T, 2], −1 = not thrown (strike on chance 1)
+    knocked: np.ndarray  # int8 [N, T, 2]
+    success: np.ndarray  # bool [N, T]
+    angles: np.ndarray  # float [K], the angle grid
+    compile_seconds: float
+    run_seconds: float
+
+    @property
+    def returns(self) -> np.ndarray:
+        """Pins per trial [N, T] (0–10)."""
+        return self.knocked.sum(axis=2, dtype=np.int32)
+
+    @property
+    def total_return(self) -> np.ndarray:
+        return self.returns.sum(axis=1)
+
+    @property
+    def throws(self) -> int:
+        return int((self.action >= 0).sum())
+
+    @property
+    def angle_values(self) -> np.ndarray:
+        """Angles in rad [N, T, 2], NaN where no throw was made."""
+        return np.where(self.action >= 0, self.angles[np.maximum(self.action, 0)], np.nan)
+
+    def best_path(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """B6: per seed, (θ₁, θ₂, return) of its highest-return trial (the first on ties)."""
+        best = self.returns.argmax(axis=1)
+        rows = np.arange(best.size)
+        theta = self.angle_values[rows, best]
+        return theta[:, 0], theta[:, 1], self.returns[rows, best]
+
+    @property
+    def first_success(self) -> np.ndarray:
+        return np.where(self.success.any(axis=1), self.success.argmax(axis=1) + 1, -1)
+
+
+def run_bowling_algo(settings: BowlingSettings, algo: str, *,
+                     progress: Callable[[int], None] | None = None) -> BowlingResult:
+    """Seeds 0..N−1 of one algorithm (R1: seed i uses fold_in(root, i)), in chunks."""
+    cfg, phys = settings.run_config(algo), settings.physics()
+    hyper = cfg.hyper()
+    root = jax.random.key(settings.key)
+    chunk = min(settings.chunk_size, settings.seeds)
+    parts: list[BowlingRecord] = []
+    compile_seconds = 0.0
+    run_mjx = None
+    t0 = time.perf_counter()
+    for seeds in chunks(settings.seeds, chunk):
+        padded = np.pad(seeds, (0, chunk - seeds.size), mode="edge")
+        keys = jax.vmap(seed_key, in_axes=(None, 0))(root, jnp.asarray(padded))
+        if settings.backend == "mjx":
+            if run_mjx is None:
+                c0 = time.perf_counter()
+                run_mjx = make_run_mjx(cfg, phys).lower(keys, hyper).compile()
+                compile_seconds = time.perf_counter() - c0
+            rec = jax.device_get(run_mjx(keys, hyper))
+        else:
+            rec = run_chunk_c(cfg, phys, keys, hyper)
+        parts.append(jax.tree.map(lambda x, n=seeds.size: np.asarray(x)[:n], rec))
+        if progress is not None:
+            progress(seeds.size)
+    elapsed = time.perf_counter() - t0
+    cat = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    return BowlingResult(cat.action, cat.knocked, cat.success.astype(bool), angle_grid(phys),
+                         compile_seconds, elapsed - compile_seconds)
+
+
+@dataclasses.dataclass
+class BowlingRun:
+    """A finished bowling experiment: settings and per-algorithm results."""
+
+    settings: BowlingSettings
+    results: dict[str, BowlingResult]
+
+
+#: Paper's Table I (one run each): cumulative pins over 10 trials.
+PAPER_TOTALS = {"ac": 67, "eac": 81}
+
+
+def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | None = None) -> BowlingRun:
+    """Run every algorithm of (validated) `settings`."""
+    return BowlingRun(settings, {a: run_bowling_algo(settings, a, progress=progress) for a in settings.algos})
+
+
+def summarize_bowling(run: BowlingRun) -> dict:
+    """summary.json content, as the grid's, with `return` (pins over T trials) as the primary measure."""
+    from jaxeac.experiment import mean_ci95, versions, welch_diff_ci95
+
+    s = run.settings
+    per_algo = {}
+    for algo, r in run.results.items():
+        mean, sd, lo, hi = mean_ci95(r.total_return)
+        per_algo[algo] = {
+            "mean_return": mean, "sd_return": sd, "ci95_return": [lo, hi],
+            "mean_successes": float(r.success.sum(axis=1).mean()), "throws": r.throws,
+            "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds,
+            "throws_per_second": r.throws / r.run_seconds if r.run_seconds > 0 else None,
+        }
+    out = {
+        "experiment": "bowling", "primary_measure": "return", "algos": list(s.algos),
+        "trials": s.trials, "seeds": s.seeds, "key": s.key, "config": dataclasses.asdict(s),
+        "physics": dataclasses.asdict(s.physics()), "versions": versions(),
+        "devices": [str(d) for d in jax.devices()],
+        "compile_seconds": sum(r.compile_seconds for r in run.results.values()),
+        "run_seconds": sum(r.run_seconds for r in run.results.values()),
+        "per_algo": per_algo, "paper_totals": PAPER_TOTALS,
+    }
+    if "ac" in run.results and "eac" in run.results:
+        diff, lo, hi = welch_diff_ci95(run.results["ac"].total_return, run.results["eac"].total_return)
+        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
+    return out
+
+
+def table_one(run: BowlingRun, seed: int = 0) -> str:
+    """Table I: per-chance pins of one seed per algorithm, and means (95 % CI) over seeds."""
+    from jaxeac.experiment import mean_ci95
+
+    algos = list(run.results)
+    lines = [f"### Table I — pins per chance, seed {seed}", "",
+             "| trial | " + " | ".join(f"{a.upper()} chance 1 | {a.upper()} chance 2" for a in algos) + " |",
+             "|---|" + "---|---|" * len(algos)]
+    for t in range(run.settings.trials):
+        cells = []
+        for a in algos:
+            k, act = run.results[a].knocked[seed, t], run.results[a].action[seed, t]
+            cells += [str(k[0]), str(k[1]) if act[1] >= 0 else "–"]
+        lines.append(f"| {t + 1} | " + " | ".join(cells) + " |")
+    totals = " | ".join(f"**{int(run.results[a].total_return[seed])}** |" for a in algos)
+    lines += [f"| total | {totals}", ""]
+    n = run.settings.seeds
+    lines += [f"### Means over {n} seeds (95% CI)", "", "| trial | "
+              + " | ".join(f"{a.upper()} chance 1 | {a.upper()} chance 2" for a in algos) + " |",
+              "|---|" + "---|---|" * len(algos)]
+    for t in range(run.settings.trials):
+        cells = [f"{run.results[a].knocked[:, t, c].mean():.2f}" for a in algos for c in range(CHANCES)]
+        lines.append(f"| {t + 1} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for a in algos:
+        mean, _, lo, hi = mean_ci95(run.results[a].total_return)
+        paper = PAPER_TOTALS.get(a)
+        lines.append(f"- {a.upper()}: mean total {mean:.2f} of {10 * run.settings.trials} "
+                     f"(95% CI [{lo:.2f}, {hi:.2f}])" + (f"; paper's single run: {paper}" if paper else ""))
+    return "\n".join(lines) + "\n"
+
+
+def per_seed_csv(run: BowlingRun) -> str:
+    """per_seed.csv: algo, seed, return (pins over all T trials), successes, first success, B6 best path."""
+    rows = ["algo,seed,return,successes,first_success,best_theta1,best_theta2,best_return"]
+    for algo, r in run.results.items():
+        th1, th2, best = r.best_path()
+        for i in range(r.success.shape[0]):
+            t2 = "" if np.isnan(th2[i]) else f"{th2[i]:.6g}"
+            rows.append(f"{algo},{i},{r.total_return[i]},{int(r.success[i].sum())},{r.first_success[i]},"
+                        f"{th1[i]:.6g},{t2},{best[i]}")
+    return "\n".join(rows) + "\n"
+
+
+def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True) -> dict:
+    """per_seed.csv, curves.npz, bowling.npz, table1.md, summary.json and figures, all or nothing."""
+    from jaxeac.io import atomic_write_json, staged_dir
+
+    summary = summarize_bowling(run)
+    with staged_dir(out) as stage:
+        (stage / "per_seed.csv").write_text(per_seed_csv(run))
+        np.savez_compressed(stage / "curves.npz",
+                            **{a: r.success for a, r in run.results.items()},
+                            **{f"{a}_return": r.returns.astype(np.int16) for a, r in run.results.items()})
+        np.savez_compressed(stage / "bowling.npz",
+                            **{f"{a}_knocked": r.knocked for a, r in run.results.items()},
+                            **{f"{a}_action": r.action for a, r in run.results.items()},
+                            **{f"{a}_angle": r.angle_values for a, r in run.results.items()},
+                            angles=angle_grid(run.settings.physics()))
+        (stage / "table1.md").write_text(table_one(run))
+        if figures:
+            from jaxeac.plots import angle_figure
+
+            angle_figure({a: r.angle_values for a, r in run.results.items()}, stage / "fig5_angles.png")
+            summary["figures"] = ["fig5_angles.png"]
+        atomic_write_json(stage / "summary.json", summary)
+    return summary
