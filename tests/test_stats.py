@@ -416,3 +416,15 @@ def test_bootstrap_iqm_equals_trimmed_mean_of_each_resample():
     _, q = bootstrap_sums(key, x[:, None], 50, chunk=50, iqm=True)
     idx = np.asarray(uniform_index(jax.random.fold_in(key, 0), (50, x.size), x.size))
     np.testing.assert_allclose(q, stats.trim_mean(x[idx], 0.25, axis=1), rtol=1e-5)
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_constant_groups_give_defined_results():
+    r = compare_measures(np.zeros(10), np.ones(10), 0, resamples=300)["value"]
+    assert r["p_welch"] == 0.0 and r["p_permutation"] == pytest.approx(1 / 301)
+    assert r["a12"] == 1.0 and r["diff_ci95"] == [1.0, 1.0]
+    same = compare_measures(np.ones(10), np.ones(10), 0, resamples=300)["value"]
+    assert same["p_welch"] == 1.0 and same["p_permutation"] == 1.0 and same["seeds_for_80pct_power"] is None
+    cb, ct = np.zeros((10, 5)), np.zeros((10, 5))
+    ct[:, 2] = 1
+    assert curve_bands(cb, ct, 0, resamples=300)["significant_trials"] == [3]

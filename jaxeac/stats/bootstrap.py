@@ -23,12 +23,17 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     jackknife: a list with one 1-D array of leave-one-out estimates per sample.
     """
     theta_star = np.asarray(theta_star, np.float64)
+    if not np.isfinite(theta_hat):  # e.g. Hedges' g of two constant samples
+        return float(theta_hat), float(theta_hat)
     b = theta_star.size
     pct = ((theta_star < theta_hat).sum() + (theta_star <= theta_hat).sum()) / (2 * b)
     z0 = special.ndtri(pct)
     nums, dens = 0.0, 0.0
     for jk in jackknife:
         jk = np.asarray(jk, np.float64)
+        if not np.isfinite(jk).all():
+            nums, dens = 0.0, 0.0  # undefined influence values: no acceleration
+            break
         n = jk.size
         u = (n - 1) * (jk.mean() - jk)
         nums += (u**3).sum() / n**3
@@ -39,7 +44,8 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     hi_q = special.ndtr(z0 + (z0 - za) / (1 - a * (z0 - za)))
     if not np.isfinite(z0):  # all replicates on one side: fall back to the percentile interval
         lo_q, hi_q = alpha / 2, 1 - alpha / 2
-    lo, hi = np.percentile(theta_star, [100 * lo_q, 100 * hi_q])
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.percentile(theta_star, [100 * lo_q, 100 * hi_q])
     return float(lo), float(hi)
 
 

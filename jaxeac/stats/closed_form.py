@@ -62,10 +62,13 @@ def welch_from_moments(n1, s1, ss1, n2, s2, ss2):
     v2 = np.maximum(ss2 - n2 * m2**2, 0.0) / (n2 - 1)
     a, b = v1 / n1, v2 / n2
     se = np.sqrt(a + b)
+    pos = se > 0
+    gap = m2 - m1
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(se > 0, (m2 - m1) / np.where(se > 0, se, 1.0), 0.0)
-        df = np.where(se > 0, (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1)), np.nan)
-    p = np.where(se > 0, 2 * stats.t.sf(np.abs(t), np.where(se > 0, df, 1.0)), 1.0)
+        # zero variance in both groups: t = ±inf (p = 0) if the means differ, else t = 0 (p = 1)
+        t = np.where(pos, gap / np.where(pos, se, 1.0), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
+        df = np.where(pos, (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1)), np.nan)
+    p = np.where(pos, 2 * stats.t.sf(np.abs(t), np.where(pos, df, 1.0)), np.where(gap == 0, 1.0, 0.0))
     return t, df, p
 
 
@@ -91,8 +94,9 @@ def hedges_from_moments(n1, s1, ss1, n2, s2, ss2):
     m1, m2 = s1 / n1, s2 / n2
     pooled = (np.maximum(ss1 - n1 * m1**2, 0) + np.maximum(ss2 - n2 * m2**2, 0)) / (n1 + n2 - 2)
     sd = np.sqrt(pooled)
+    gap = m2 - m1
     with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.where(sd > 0, (m2 - m1) / np.where(sd > 0, sd, 1.0), 0.0)
+        d = np.where(sd > 0, gap / np.where(sd > 0, sd, 1.0), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
     return d * hedges_correction(n1, n2)
 
 

@@ -52,8 +52,14 @@ def _as_measures(x, name: str) -> dict:
 
 def _perm_p(t_obs, t_star):
     """Two-sided Monte-Carlo permutation p = (1 + #{|t*| ≥ |t|}) / (P + 1) (Phipson & Smyth 2010)."""
-    tol = 1e-6 * np.maximum(np.abs(t_obs), 1e-12)
-    return (1 + (np.abs(t_star) >= np.abs(t_obs) - tol).sum(0)) / (t_star.shape[0] + 1)
+    return (1 + (np.abs(t_star) >= _threshold(t_obs)).sum(0)) / (t_star.shape[0] + 1)
+
+
+def _threshold(t_obs):
+    """|t| less a relative 1e-6, so float32 sums of the same labelling count as ties."""
+    a = np.abs(np.asarray(t_obs, np.float64))
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(a), a - 1e-6 * np.maximum(a, 1e-12), a)
 
 
 def permutation_test(

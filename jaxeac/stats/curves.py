@@ -27,12 +27,13 @@ def _mean_var(n, s, ss):
 
 
 def welch_t_stat(nb, sb, ssb, nt, st, sst):
-    """Welch t (treatment − baseline) from sums; 0 where both variances are 0."""
+    """Welch t (treatment − baseline) from sums; 0 or ±inf where both variances are 0."""
     mb, vb = _mean_var(nb, sb, ssb)
     mt, vt = _mean_var(nt, st, sst)
     se = np.sqrt(vb / nb + vt / nt)
+    gap = mt - mb
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(se > 0, (mt - mb) / np.where(se > 0, se, 1), 0.0)
+        return np.where(se > 0, gap / np.where(se > 0, se, 1), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
 
 
 def _sup_t(star, est, se, alpha):
@@ -99,8 +100,10 @@ def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
     tot, tot2 = sb + st, (None if binary else ssb + sst)
     t_star = welch_t_stat(nb, tot - pt, None if binary else tot2 - pst, nt, pt, pst)
     max_star = np.abs(t_star).max(1)
-    tol = 1e-6 * np.maximum(np.abs(t_obs), 1e-12)
-    p_adj = (1 + (max_star[:, None] >= np.abs(t_obs)[None] - tol).sum(0)) / (max_star.size + 1)
+    thr = np.abs(t_obs)
+    with np.errstate(invalid="ignore"):
+        thr = np.where(np.isfinite(thr), thr - 1e-6 * np.maximum(thr, 1e-12), thr)
+    p_adj = (1 + (max_star[:, None] >= thr[None]).sum(0)) / (max_star.size + 1)
     sig = p_adj <= alpha
     trial = np.arange(1, T + 1)
     sustained = None

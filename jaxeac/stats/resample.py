@@ -27,6 +27,12 @@ import numpy as np
 from jaxeac.stats._rng import random_subsets, uniform_index
 
 IQM_BLOCK = 128
+MAX_CHUNK_ELEMENTS = 20_000_000  # chunk x units per draw: ~80 MB per [chunk, n] float32 buffer
+
+
+def _cap(chunk: int, resamples: int, n: int) -> int:
+    """Chunk size, lowered for very many seeds so one chunk's buffers stay bounded."""
+    return max(1, min(chunk, resamples, MAX_CHUNK_ELEMENTS // max(n, 1)))
 
 
 def _smallest_sum(k, counts_b, values_b, bc, bcv_cum, h_cum):
@@ -89,7 +95,7 @@ def dispatch_bootstrap(key, z, resamples: int, *, chunk: int = 1000, iqm: bool =
     if iqm:  # sums do not depend on the order of rows; the IQM needs them sorted by column 0
         z = z[np.argsort(z[:, 0], kind="stable")]
     z = jnp.asarray(z, jnp.float32)
-    chunk = max(1, min(chunk, resamples))
+    chunk = _cap(chunk, resamples, z.shape[0])
     parts = [_boot_chunk(key, c, z, chunk, iqm) for c in range(-(-resamples // chunk))]
 
     def result():
@@ -113,7 +119,7 @@ def bootstrap_sums(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = Fal
 def dispatch_permutation(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 1000):
     """Start the permutation chunks without waiting; returns a function giving sums [R, K]."""
     z = jnp.asarray(z_pool, jnp.float32)
-    chunk = max(1, min(chunk, resamples))
+    chunk = _cap(chunk, resamples, z.shape[0])
     parts = [_perm_chunk(key, c, z, chunk, int(n_treat)) for c in range(-(-resamples // chunk))]
     return lambda: np.concatenate([np.asarray(p, np.float64) for p in parts])[:resamples]
 
