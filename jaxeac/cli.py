@@ -166,9 +166,13 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
     lo, hi = p["diff_ci95"]
     print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
           f"(95% BCa CI [{lo:+.3f}, {hi:+.3f}]), "
-          f"Welch p = {p['p_welch']:.3g}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
+          f"Welch p = {_p(p['p_welch'])}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
     print(f"report in {run_dir}/report.md")
     return 0
+
+
+def _p(value: float) -> str:
+    return f"{value:.3g}" if value >= 1e-16 else "< 1e-16"
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -201,7 +205,8 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         d = summary["eac_minus_ac"]
         print(f"EAC - AC: {d['diff']:+.2f} pins of {10 * settings.trials} "
               f"(95% CI [{d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}], Welch)")
-    print(f"{sum(r.throws for r in run.results.values())} throws, compile {summary['compile_seconds']:.1f} s, "
+    throws = sum(r.throws for r in run.results.values())
+    print(f"{throws} throws, compile {summary['compile_seconds']:.1f} s, "
           f"run {summary['run_seconds']:.1f} s; results in {out}/")
     if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2:
         return run_compare(out, quiet=args.quiet)
