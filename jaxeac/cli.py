@@ -114,6 +114,15 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="noise PRNG key")
     t.add_argument("--render", metavar="FILE.png", help="save a picture of the pin deck after the throw")
 
+    w = sub.add_parser("sweep", help="resumable sweep over grid settings, AC and EAC at each point")
+    add_grid_flags(w)
+    w.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="values of one swept key: alpha, beta, gamma, temperature, trials, chances, "
+                        "preset, map (repeat for a product)")
+    w.add_argument("--out", default="runs/sweep", metavar="DIR")
+    w.add_argument("--compare", action="store_true", help="also run `jaxeac compare` at every point")
+    w.add_argument("--quiet", action="store_true", help="no progress bar")
+
     c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder")
     c.add_argument("dir", metavar="DIR", help="a run folder written by `jaxeac grid` or `jaxeac bowling`")
     add_compare_flags(c)
@@ -134,15 +143,10 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
 def cmd_grid(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.experiment import GridSettings, run_grid, summary_table, write_grid_outputs
+    from jaxeac.experiment import run_grid, summary_table, write_grid_outputs
     from jaxeac.io import check_writable_dir
 
-    settings = GridSettings(
-        preset=args.preset, map_file=args.map_file, trials=args.trials, chances=args.chances,
-        alpha=args.alpha, beta=args.beta, gamma=args.gamma, temperature=args.temperature,
-        algos=tuple(args.algos), seeds=args.seeds, key=args.key, chunk_size=args.chunk_size,
-        memory=args.memory, capacity=args.capacity,
-    ).resolved()
+    settings = _grid_settings(args).resolved()
     settings.grid_map()  # a bad map fails here, before any compute
     out = check_writable_dir(args.out)
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
@@ -230,7 +234,34 @@ def cmd_throw(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"grid": cmd_grid, "bowling": cmd_bowling, "throw": cmd_throw, "compare": cmd_compare}
+def _grid_settings(args: argparse.Namespace):
+    from jaxeac.experiment import GridSettings
+
+    return GridSettings(
+        preset=args.preset, map_file=args.map_file, trials=args.trials, chances=args.chances,
+        alpha=args.alpha, beta=args.beta, gamma=args.gamma, temperature=args.temperature,
+        algos=tuple(args.algos), seeds=args.seeds, key=args.key, chunk_size=args.chunk_size,
+        memory=args.memory, capacity=args.capacity,
+    )
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from jaxeac.sweep import Sweep, run_sweep
+
+    base = _grid_settings(args)
+    base.resolved()  # validate the flags before the swept values
+    sweep = Sweep.build(base, args.sets)
+    total = len(sweep.points()) * base.seeds * len(base.algos)
+    with tqdm(total=total, unit="run", disable=args.quiet, desc="sweep", file=sys.stderr) as bar:
+        rows = run_sweep(sweep, args.out, progress=bar.update, compare=args.compare)
+    print(f"{len(sweep.points())} points x {len(base.algos)} algorithms x {base.seeds} seeds; "
+          f"{len(rows)} rows in {args.out}/results.csv")
+    return 0
+
+
+COMMANDS = {"grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw, "compare": cmd_compare}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -138,3 +138,31 @@ def angle_figure(angles: dict[str, np.ndarray], path: Path, *, seed: int = 0):
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def sweep_heatmap(rows: list[dict], key_x: str, key_y: str, path: Path):
+    """EAC − AC mean successes over two swept keys (averaged over any other swept keys)."""
+    diffs: dict[tuple, list[float]] = {}
+    for row in rows:
+        if row["algo"] == "eac" and "eac_minus_ac" in row:
+            diffs.setdefault((row[key_x], row[key_y]), []).append(row["eac_minus_ac"])
+    xs = sorted({k[0] for k in diffs})
+    ys = sorted({k[1] for k in diffs})
+    grid = np.array([[np.mean(diffs.get((x, y), [np.nan])) for x in xs] for y in ys])
+    fig, ax = plt.subplots(figsize=(1.2 * len(xs) + 3, 0.8 * len(ys) + 2.2))
+    im = ax.imshow(grid, cmap="RdBu_r", origin="lower", aspect="auto",
+                   vmin=-np.nanmax(np.abs(grid)), vmax=np.nanmax(np.abs(grid)))
+    for (j, i), v in np.ndenumerate(grid):
+        ax.text(i, j, f"{v:+.1f}", ha="center", va="center", fontsize=8)
+    ax.set_xticks(range(len(xs)), [str(x) for x in xs])
+    ax.set_yticks(range(len(ys)), [str(y) for y in ys])
+    ax.set_xlabel(key_x)
+    ax.set_ylabel(key_y)
+    others = {k for row in rows for k in row} & {"alpha", "beta", "gamma", "temperature", "trials",
+                                                   "chances", "preset", "map_file"} - {key_x, key_y}
+    note = f" (mean over {', '.join(sorted(others))})" if others else ""
+    ax.set_title(f"EAC − AC mean successes{note}", fontsize=9)
+    fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)

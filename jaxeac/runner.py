@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Literal, Protocol
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, PartitionSpec
 
 from jaxeac.agent import (
     AgentConfig,
@@ -292,8 +293,20 @@ def _trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> SeedResult:
     return jax.vmap(make_run(env, cfg))(keys, hyper)
 
 
-def make_batch_run(env: Env, cfg: RunConfig) -> Callable:
-    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> SeedResult [M, ...]``."""
+SEEDS_AXIS = "seeds"
+
+
+def seed_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
+    """A 1-D device mesh whose only axis, ``seeds``, the seed batch is split over."""
+    return Mesh(np.array(list(devices) if devices is not None else jax.devices()), (SEEDS_AXIS,))
+
+
+def make_batch_run(env: Env, cfg: RunConfig, mesh: Mesh | None = None) -> Callable:
+    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> SeedResult [M, ...]``.
+
+    With a `mesh`, the chunk is split over its ``seeds`` axis with `shard_map`: each
+    device runs its own seeds with no communication (seeds are independent, R1).
+    """
     loop = cfg.resolved_loop
 
     def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper) -> SeedResult:
@@ -302,6 +315,10 @@ def make_batch_run(env: Env, cfg: RunConfig) -> Callable:
             return _trials_batch(env, cfg, keys, hyper)
         return _flat_batch(env, cfg, jax.vmap(seed_words)(keys), hyper)
 
+    if mesh is not None:
+        split = PartitionSpec(SEEDS_AXIS)
+        batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), split, split), out_specs=split,
+                              check_vma=False)  # per-seed loops: no collectives to check
     return jax.jit(batch)
 
 
@@ -337,51 +354,97 @@ def chunks(n_seeds: int, chunk_size: int) -> Iterator[np.ndarray]:
         yield np.arange(start, min(start + chunk_size, n_seeds), dtype=np.int32)
 
 
+_COMPILED: dict = {}
+
+
+def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
+    """The compiled chunk program for this env object, config, devices and chunk shape (cached)."""
+    key = (env, cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
+    if key not in _COMPILED:
+        if len(_COMPILED) >= 64:
+            _COMPILED.clear()
+        mesh = seed_mesh(devices) if len(devices) > 1 else None
+        _COMPILED[key] = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
+    return _COMPILED[key]
+
+
+def run_entries(
+    env: Env,
+    cfg: RunConfig,
+    *,
+    root_key: int,
+    seeds: np.ndarray,
+    hyper: Hyper,
+    chunk_size: int = 1024,
+    devices: Sequence[jax.Device] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[SeedResult, float, float]:
+    """Run entries (seed i, hyper i) in fixed-size chunks: one compile, bounded memory.
+
+    `hyper` leaves have one value per entry, so a hyperparameter sweep shares one
+    compiled program. Chunks are split over `devices` (all local devices by default);
+    the chunk size is rounded up to a multiple of their number, and the last chunk is
+    padded with copies of its final entry whose results are dropped. Returns
+    (results as numpy, compile seconds, run seconds).
+    """
+    n = int(seeds.size)
+    if n < 1:
+        raise UsageError(f"seeds must be a positive integer (got {n})")
+    if chunk_size < 1:
+        raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
+    devices = list(devices) if devices is not None else jax.local_devices()
+    n_dev = len(devices)
+    chunk_size = -(-min(chunk_size, n) // n_dev) * n_dev
+    root = jax.random.key(root_key)
+    hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
+
+    def chunk_inputs(start: int):
+        stop = min(start + chunk_size, n)
+        take = np.pad(np.arange(start, stop), (0, chunk_size - (stop - start)), mode="edge")
+        return stop - start, seeds[take].astype(np.int32), jax.tree.map(lambda x: x[take], hyper)
+
+    t0 = time.perf_counter()
+    _, seeds0, hyper0 = chunk_inputs(0)
+    compiled = _compiled(env, cfg, tuple(devices), root, seeds0, hyper0)
+    compile_seconds = time.perf_counter() - t0
+
+    parts: list[SeedResult] = []
+    t0 = time.perf_counter()
+    for start in range(0, n, chunk_size):
+        size, chunk_seeds, chunk_hyper = chunk_inputs(start)
+        out = jax.device_get(compiled(root, chunk_seeds, chunk_hyper))
+        parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], out))
+        if progress is not None:
+            progress(size)
+    run_seconds = time.perf_counter() - t0
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts), compile_seconds, run_seconds
+
+
 def run_seeds(
     env: Env,
     cfg: RunConfig,
     *,
     root_key: int,
     n_seeds: int,
+    first_seed: int = 0,
     chunk_size: int = 1024,
     hyper: Hyper | None = None,
+    devices: Sequence[jax.Device] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> SeedsResult:
-    """Run seeds 0..N−1 of one algorithm in fixed-size chunks (one compile, bounded memory).
-
-    The last chunk is padded with copies of its final seed so every chunk has the
-    same shape; padded results are dropped. `progress(n)` is called after each
-    chunk with the number of seeds it finished.
-    """
-    if n_seeds < 1:
+    """Run seeds first_seed … first_seed+N−1 of one algorithm (see `run_entries`)."""
+    if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
-    if chunk_size < 1:
-        raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
-    chunk_size = min(chunk_size, n_seeds)
-    hyper = cfg.hyper() if hyper is None else hyper
-    hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (chunk_size,)), hyper)
-    batch = make_batch_run(env, cfg)
-    root = jax.random.key(root_key)
-
-    t0 = time.perf_counter()
-    compiled = batch.lower(root, jnp.zeros((chunk_size,), jnp.int32), hyper).compile()
-    compile_seconds = time.perf_counter() - t0
-
-    parts: list[SeedResult] = []
-    t0 = time.perf_counter()
-    for seeds in chunks(n_seeds, chunk_size):
-        padded = np.pad(seeds, (0, chunk_size - seeds.size), mode="edge")
-        out = jax.device_get(compiled(root, padded, hyper))
-        parts.append(jax.tree.map(lambda x, n=seeds.size: np.asarray(x)[:n], out))
-        if progress is not None:
-            progress(seeds.size)
-    run_seconds = time.perf_counter() - t0
-    cat = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
+    out, compile_seconds, run_seconds = run_entries(
+        env, cfg, root_key=root_key, seeds=seeds, hyper=cfg.hyper() if hyper is None else hyper,
+        chunk_size=chunk_size, devices=devices, progress=progress,
+    )
     return SeedsResult(
-        seeds=np.arange(n_seeds, dtype=np.int64),
-        success=cat.success.astype(bool),
-        steps=cat.steps.astype(np.int32),
-        policy=cat.policy.astype(np.int32),
+        seeds=seeds,
+        success=out.success.astype(bool),
+        steps=out.steps.astype(np.int32),
+        policy=out.policy.astype(np.int32),
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
     )

@@ -95,8 +95,9 @@ def uniform_index(key: jax.Array, shape: tuple[int, ...], n: int) -> jax.Array:
     return mulhi32(b, jnp.uint32(n)).astype(jnp.int32)
 
 
-def random_subsets(key: jax.Array, n: int, k: int, reps: int) -> jax.Array:
-    """bool [n, reps]: column r marks a uniform random k-subset of n units.
+def random_subsets(key: jax.Array, n: int, k: int, reps: int, dtype=jnp.bool_) -> jax.Array:
+    """[n, reps] of `dtype` (bool, or 0/1 floats for a matmul): column r marks a
+    uniform random k-subset of n units.
 
     Selection sampling (Knuth Algorithm S): unit i is taken with probability
     need/(n - i), so every column holds exactly k ones and all C(n, k) subsets
@@ -111,7 +112,7 @@ def random_subsets(key: jax.Array, n: int, k: int, reps: int) -> jax.Array:
     def body(need, x):
         w, rem = x
         take = mulhi32(w, rem) < need  # uniform integer in [0, rem) < need
-        return need - take.astype(jnp.uint32), take
+        return need - take.astype(jnp.uint32), take.astype(dtype)
 
     _, takes = lax.scan(body, jnp.full((reps,), k, jnp.uint32), (words, remaining))
     return takes

@@ -29,7 +29,7 @@ from jaxeac.stats.bootstrap import (
     jackknife_iqm,
 )
 from jaxeac.stats.curves import curve_columns, curve_results, is_binary, welch_t_stat
-from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums, subset_masks
+from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
 
 POWER_DS = (0.2, 0.5, 0.8)
 
@@ -238,6 +238,15 @@ def _rate(p, alpha):
     return {"rate": k / n if n else math.nan, "ci95": [lo, hi], "rejections": k, "splits": n}
 
 
+def dispatch_calibration(key, n: int, splits: int, resamples: int):
+    """Start drawing the calibration's random halves of n seeds: `splits` splits, then
+    `resamples` reference relabellings, all uniform k-of-N subsets with N = 2·(n // 2)."""
+    h = n // 2
+    if h < 2:
+        return lambda: None
+    return dispatch_subsets(as_key(key), 2 * h, h, splits + resamples)
+
+
 def calibrate(
     measures: dict,
     curves: np.ndarray | None,
@@ -247,12 +256,15 @@ def calibrate(
     resamples: int = 200,
     alpha: float = 0.05,
     time_event=None,
+    labels=None,
 ) -> dict:
     """False-positive rates of each test on random disjoint halves of one method's seeds.
 
     measures: {name: [n]} of a single method; curves [n, T] or None; time_event:
     (time, event) for the log-rank test. Each split is a uniform random half; the
     permutation reference set (`resamples` relabellings) is shared by all splits.
+    labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
+    already started (the draws then overlap other work).
     """
     names = list(measures)
     n = measures[names[0]].size
@@ -270,10 +282,12 @@ def calibrate(
         binary = is_binary(c)
         z.append(curve_columns(c, binary))
     z = np.concatenate(z, 1)
-    k_s, k_p = jax.random.split(as_key(key))
-    masks = subset_masks(k_s, N, h, splits)  # [S, N], True = pseudo-treatment
-    split_sums = masks.astype(np.float64) @ z
-    ref_sums = permutation_sums(k_p, z, h, resamples)
+    if labels is None:
+        labels = dispatch_calibration(key, n, splits, resamples)
+    drawn = labels()  # [S + R, N]: the first S rows are the splits, the rest the reference
+    masks = drawn[:splits]  # True = pseudo-treatment
+    sums = drawn.astype(np.float64) @ z
+    split_sums, ref_sums = sums[:splits], sums[splits:]
     tot = z.sum(0)
 
     def tstats(sums, cols, sq):

@@ -27,7 +27,8 @@ import numpy as np
 from jaxeac.stats._rng import random_subsets, uniform_index
 
 IQM_BLOCK = 128
-MAX_CHUNK_ELEMENTS = 20_000_000  # chunk x units per draw: ~80 MB per [chunk, n] float32 buffer
+# chunk x units per draw: ~80 MB per [chunk, n] float32 buffer; keeps the flat int32 index < 2^31
+MAX_CHUNK_ELEMENTS = 20_000_000
 
 
 def _cap(chunk: int, resamples: int, n: int) -> int:
@@ -59,8 +60,9 @@ def _smallest_sum(k, counts_b, values_b, bc, bcv_cum, h_cum):
 def _boot_chunk(key, c, z, chunk: int, iqm: bool):
     n = z.shape[0]
     idx = uniform_index(jax.random.fold_in(key, c), (chunk, n), n)
-    rows = jnp.broadcast_to(jnp.arange(chunk)[:, None], idx.shape)
-    counts = jnp.zeros((chunk, n), jnp.float32).at[rows, idx].add(1.0)
+    flat = (idx + (jnp.arange(chunk, dtype=jnp.int32) * n)[:, None]).reshape(-1)
+    counts = jnp.zeros((chunk * n,), jnp.float32).at[flat].add(1.0, mode="promise_in_bounds")
+    counts = counts.reshape(chunk, n)
     sums = counts @ z
     if not iqm:
         return sums, jnp.zeros((chunk,), jnp.float32)
@@ -132,6 +134,7 @@ def permutation_sums(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 
 _subsets = jax.jit(random_subsets, static_argnums=(1, 2, 3))
 
 
-def subset_masks(key, n: int, k: int, reps: int) -> np.ndarray:
-    """bool [reps, n]: uniform random k-of-n subsets (for splits)."""
-    return np.asarray(_subsets(key, n, k, reps)).T
+def dispatch_subsets(key, n: int, k: int, reps: int):
+    """Start drawing `reps` uniform k-of-n subsets; returns a function giving bool [reps, n]."""
+    out = _subsets(key, n, k, reps)
+    return lambda: np.asarray(out).T

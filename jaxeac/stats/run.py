@@ -18,7 +18,7 @@ from jaxeac.errors import UsageError
 from jaxeac.io import staged_dir, to_jsonable
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.compare import _analyse, calibrate
+from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
 from jaxeac.stats.report import FIGURES, render_markdown, write_figures
 from jaxeac.stats.rundir import MEASURES, describe, load_run_dir, per_seed_measures
 
@@ -89,6 +89,12 @@ def compare_experiment(
         cf.check_sample(v, name)
     curves = (np.asarray(returns_baseline), np.asarray(returns_treatment)) if bowling else (sb, st)
     k_main, k_cal = jax.random.split(as_key(key))
+    # start the calibration draws now so they overlap the main comparison's host work
+    cal_labels = (
+        dispatch_calibration(k_cal, sb.shape[0], calibration_splits, calibration_resamples)
+        if calibration_splits > 0
+        else None
+    )
     hib = {k: MEASURES[k][0] for k in names}
     res = _analyse(
         vb,
@@ -143,6 +149,7 @@ def compare_experiment(
             resamples=calibration_resamples,
             alpha=alpha,
             time_event=(mb["_time"], mb["_event"]),
+            labels=cal_labels,
         )
     else:
         cal = {"skipped": "calibration_splits = 0"}
@@ -176,7 +183,9 @@ def compare_experiment(
             "key": key if isinstance(key, int) else None,
             "key_record": _key_record(key),
             "key_derivation": "main, calibration = split(key); bootstrap baseline, bootstrap treatment, "
-            "permutation = split(main); chunk c uses fold_in(subkey, c)",
+            "permutation = split(main); chunk c uses fold_in(subkey, c); calibration splits and "
+            "reference relabellings are the first and remaining columns of one subset draw under the "
+            "calibration key",
             "resamples": resamples,
             "permutations": resamples,
             "alpha": alpha,

@@ -1,0 +1,232 @@
+"""Resumable hyperparameter sweeps: the Cartesian product of grid settings, AC and EAC at each point.
+
+Traced settings (α, β, γ, τ) of one shape share one compiled program: all points
+of a group run vmapped together, one value per (point, seed) entry. Static
+settings (trials, chances, map) form separate groups. Work is done in units of
+(group, algorithm, seed chunk); as each unit finishes, one file per (point,
+algorithm, chunk) is written atomically, so a sweep killed at any moment and
+rerun with the same command skips finished work and ends with the same
+``results.csv`` as an uninterrupted run (R1, R2). A rerun with other settings
+into the same folder is refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import itertools
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from envs.grid import GridWorld
+from jaxeac.agent import Hyper
+from jaxeac.errors import UsageError
+from jaxeac.experiment import GridSettings, mean_ci95, welch_diff_ci95
+from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, check_writable_dir
+from jaxeac.runner import run_entries
+
+TRACED = ("alpha", "beta", "gamma", "temperature")
+STATIC = ("trials", "chances", "preset", "map_file")
+KEYS = {"alpha": float, "beta": float, "gamma": float, "temperature": float,
+        "trials": int, "chances": int, "preset": str, "map_file": str}
+ALIASES = {"map": "map_file"}
+
+
+def parse_set(text: str) -> tuple[str, list]:
+    """``KEY=V1,V2,…`` → (key, values); a bad key, value or empty list is a `UsageError`."""
+    if "=" not in text:
+        raise UsageError(f"--set {text!r}: write KEY=V1,V2,... (e.g. alpha=0.05,0.1)")
+    key, _, values = text.partition("=")
+    key = ALIASES.get(key.strip(), key.strip())
+    if key not in KEYS:
+        raise UsageError(f"--set: unknown key {key!r}; sweepable keys: {', '.join(sorted(KEYS))}")
+    items = [v.strip() for v in values.split(",") if v.strip()]
+    if not items:
+        raise UsageError(f"--set {key}: empty list of values; give at least one value")
+    parsed = []
+    for item in items:
+        try:
+            value = KEYS[key](item)
+        except ValueError:
+            raise UsageError(f"--set {key}: cannot read {item!r} as {KEYS[key].__name__}") from None
+        if isinstance(value, float) and not math.isfinite(value):
+            raise UsageError(f"--set {key}: {item!r} is not a finite number")
+        parsed.append(value)
+    if len(set(parsed)) != len(parsed):
+        raise UsageError(f"--set {key}: a value is listed twice ({values}); list each once")
+    return key, parsed
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A validated sweep: base settings and the lists of values per swept key."""
+
+    base: GridSettings
+    grid: tuple[tuple[str, tuple], ...]  # ((key, values), ...) in the order given
+
+    @staticmethod
+    def build(base: GridSettings, sets: list[str]) -> Sweep:
+        grid: dict[str, list] = {}
+        for text in sets:
+            key, values = parse_set(text)
+            if key in grid:
+                raise UsageError(f"--set {key} given twice; put all its values in one --set")
+            grid[key] = values
+        if not grid:
+            raise UsageError("nothing to sweep: give at least one --set KEY=V1,V2,...")
+        sweep = Sweep(base, tuple((k, tuple(v)) for k, v in grid.items()))
+        for point in sweep.points():  # validate every point before any compute
+            settings = sweep.settings(point)
+            settings.grid_map()
+        return sweep
+
+    @property
+    def keys(self) -> list[str]:
+        return [k for k, _ in self.grid]
+
+    def points(self) -> list[dict]:
+        """All points of the product, in a fixed order (the point id is the index)."""
+        return [dict(zip(self.keys, combo, strict=True))
+                for combo in itertools.product(*(v for _, v in self.grid))]
+
+    def settings(self, point: dict) -> GridSettings:
+        """The resolved, validated settings at one point."""
+        return dataclasses.replace(self.base, **point).resolved()
+
+    def manifest(self) -> dict:
+        """What identifies this sweep; a resume must match it exactly."""
+        base = dataclasses.asdict(self.base)
+        return {"base": base, "grid": [[k, list(v)] for k, v in self.grid], "format": 1}
+
+
+def _unit_files(out: Path, point_id: int, algo: str, chunk: int) -> Path:
+    return out / "parts" / f"p{point_id:05d}-{algo}-c{chunk:05d}.npz"
+
+
+def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] | None = None,
+              compare: bool = False) -> list[dict]:
+    """Run (or resume) the sweep into `out`; returns the rows of results.csv."""
+    out = check_writable_dir(out)
+    manifest_path = out / "sweep.json"
+    manifest = sweep.manifest()
+    if manifest_path.exists():
+        if json.loads(manifest_path.read_text()) != json.loads(json.dumps(manifest)):
+            raise UsageError(f"{out} holds a different sweep (see {manifest_path}); "
+                             "rerun with the same settings or choose another --out")
+    else:
+        atomic_write_json(manifest_path, manifest)
+    (out / "parts").mkdir(exist_ok=True)
+    for stale in (out / "parts").glob(".*.tmp"):  # left by a run killed mid-write
+        stale.unlink(missing_ok=True)
+
+    points = sweep.points()
+    base = sweep.base
+    n_chunks = -(-base.seeds // base.chunk_size)
+    groups: dict[tuple, list[int]] = {}
+    for i, point in enumerate(points):
+        s = sweep.settings(point)
+        groups.setdefault((s.trials, s.chances, s.preset, s.map_file), []).append(i)
+
+    for ids in groups.values():
+        first = sweep.settings(points[ids[0]])
+        env = GridWorld(first.grid_map(), first.chances)
+        for algo in base.algos:
+            cfg = first.run_config(algo)
+            for chunk in range(n_chunks):
+                todo = [i for i in ids if not _unit_files(out, i, algo, chunk).exists()]
+                if not todo:
+                    continue
+                seeds = np.arange(chunk * base.chunk_size, min((chunk + 1) * base.chunk_size, base.seeds))
+                hyper = _entry_hyper([sweep.settings(points[i]) for i in todo], seeds.size)
+                res, _, _ = run_entries(env, cfg, root_key=base.key, seeds=np.tile(seeds, len(todo)),
+                                        hyper=hyper, chunk_size=min(len(todo) * seeds.size, 16384))
+                for j, i in enumerate(todo):
+                    part = slice(j * seeds.size, (j + 1) * seeds.size)
+                    buf = io.BytesIO()
+                    np.savez(buf, seeds=seeds, success=res.success[part], steps=res.steps[part])
+                    atomic_write_bytes(_unit_files(out, i, algo, chunk), buf.getvalue())
+                if progress is not None:
+                    progress(len(todo) * seeds.size)
+
+    rows = _results(sweep, out, points, n_chunks)
+    _write_results(sweep, out, rows)
+    if compare:
+        _compare_points(sweep, out, points, n_chunks)
+    return rows
+
+
+def _entry_hyper(settings: list[GridSettings], per_point: int) -> Hyper:
+    """Per-entry traced values: each point's α, β, γ, τ repeated for its seeds."""
+    def column(name):
+        return jnp.asarray(np.repeat([getattr(s, name) for s in settings], per_point), dtype=float)
+
+    return Hyper(column("alpha"), column("beta"), column("gamma"), column("temperature"))
+
+
+def _load(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarray, np.ndarray]:
+    parts = [np.load(_unit_files(out, point_id, algo, c)) for c in range(n_chunks)]
+    return (np.concatenate([p["success"] for p in parts]), np.concatenate([p["steps"] for p in parts]))
+
+
+def _results(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) -> list[dict]:
+    rows = []
+    for i, point in enumerate(points):
+        successes = {a: _load(out, i, a, n_chunks)[0].sum(axis=1) for a in sweep.base.algos}
+        diff = None
+        if "ac" in successes and "eac" in successes:
+            diff = welch_diff_ci95(successes["ac"], successes["eac"])
+        for algo, x in successes.items():
+            mean, sd, lo, hi = mean_ci95(x)
+            row = {"point": i, **point, "algo": algo, "n": x.size, "mean_successes": mean, "sd": sd,
+                   "ci95_lo": lo, "ci95_hi": hi}
+            if diff is not None:
+                row |= {"eac_minus_ac": diff[0], "diff_ci95_lo": diff[1], "diff_ci95_hi": diff[2]}
+            rows.append(row)
+    return rows
+
+
+def _fmt(v) -> str:
+    return f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+def _write_results(sweep: Sweep, out: Path, rows: list[dict]) -> None:
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    lines = [",".join(columns)] + [",".join(_fmt(row.get(c, "")) for c in columns) for row in rows]
+    atomic_write_text(out / "results.csv", "\n".join(lines) + "\n")
+    multi = [k for k, v in sweep.grid if len(v) > 1]
+    if len(multi) >= 2 and "ac" in sweep.base.algos and "eac" in sweep.base.algos:
+        from jaxeac.plots import sweep_heatmap
+
+        sweep_heatmap(rows, multi[0], multi[1], out / "heatmap.png")
+
+
+def _compare_points(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) -> None:
+    """`jaxeac compare` per point: a run folder under points/pNNNNN/ with its report."""
+    from jaxeac.io import staged_dir
+    from jaxeac.stats import compare_run_dir
+
+    for i, point in enumerate(points):
+        folder = out / "points" / f"p{i:05d}"
+        if (folder / "stats.json").exists():
+            continue
+        s = sweep.settings(point)
+        data = {a: _load(out, i, a, n_chunks) for a in s.algos}
+        with staged_dir(folder) as stage:
+            lines = ["algo,seed,successes,steps,first_success"]
+            for a, (success, steps) in data.items():
+                first = np.where(success.any(1), success.argmax(1) + 1, -1)
+                lines += [f"{a},{j},{int(success[j].sum())},{int(steps[j].sum())},{first[j]}"
+                          for j in range(success.shape[0])]
+            (stage / "per_seed.csv").write_text("\n".join(lines) + "\n")
+            np.savez_compressed(stage / "curves.npz", **{a: d[0] for a, d in data.items()})
+            atomic_write_json(stage / "summary.json", {
+                "experiment": "grid", "primary_measure": "successes", "algos": list(s.algos),
+                "trials": s.trials, "seeds": s.seeds, "key": s.key, "point": point,
+                "config": dataclasses.asdict(s)})
+        if {"ac", "eac"} <= set(s.algos):
+            compare_run_dir(folder, progress=False)
