@@ -261,7 +261,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw, "compare": cmd_compare}
+COMMANDS = {
+    "grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
+    "compare": cmd_compare,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
