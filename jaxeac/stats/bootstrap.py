@@ -113,10 +113,10 @@ def bca_ci(
     kb, kt = _split2(key)
     sb, _ = bootstrap_sums(kb, np.stack([x, x**2], 1), resamples, chunk=chunk)
     st, _ = bootstrap_sums(kt, np.stack([y, y**2], 1), resamples, chunk=chunk)
-    return _bca_two_sample(statistic, x, y, sb[:, 0], sb[:, 1], st[:, 0], st[:, 1], alpha)
+    return bca_two_sample(statistic, x, y, sb[:, 0], sb[:, 1], st[:, 0], st[:, 1], alpha)
 
 
-def _bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
+def bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
     nx, ny = x.size, y.size
     est = float(_two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), ny, y.sum(), (y**2).sum()))
     star = _two_sample_stat(statistic, nx, sb1, sb2, ny, st1, st2)
