@@ -57,6 +57,7 @@ def main() -> None:
     t_start = time.perf_counter()
     import jax
     import numpy as np
+    import scipy
 
     from jaxeac.stats import compare_run_dir
 
@@ -67,7 +68,13 @@ def main() -> None:
         "resamples": args.resamples,
         "import_seconds": t_import,
         "runs": [],
-        "versions": {"python": sys.version.split()[0], "jax": jax.__version__, "numpy": np.__version__},
+        "versions": {
+            "python": sys.version.split()[0],
+            "jax": jax.__version__,
+            "jaxlib": jax.lib.__version__,
+            "numpy": np.__version__,
+            "scipy": scipy.__version__,
+        },
         "machine": {
             "platform": platform.platform(),
             "cpus": os.cpu_count(),
@@ -107,6 +114,13 @@ def main() -> None:
                 record["rliable_iqm_ci_seconds"] = time.perf_counter() - t0
             except ImportError as exc:
                 record["rliable_iqm_ci_seconds"] = f"not installed ({exc})"
+    runs = record["runs"]
+    record["first_run_seconds"] = runs[0]["wall_seconds"]  # compile included
+    record["first_run_plus_import_seconds"] = runs[0]["wall_seconds"] + t_import
+    if len(runs) > 1:
+        warm = min(r["wall_seconds"] for r in runs[1:])
+        record["warm_run_seconds"] = warm
+        record["compile_and_warmup_seconds"] = runs[0]["wall_seconds"] - warm
     record["machine"]["loadavg_after"] = os.getloadavg()
     text = json.dumps(record, indent=2, default=float)
     print(text)
