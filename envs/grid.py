@@ -42,7 +42,27 @@ PAPER_MAP = """\
 ...........
 """
 
-MAPS = {"paper": PAPER_MAP}
+
+
+def paper_like_map(size: int) -> str:
+    """The paper's layout scaled to a size × size grid (goal at the centre, the two walls at the
+    same relative places); ``paper_like_map(11) == PAPER_MAP``. For calibration sweeps over size."""
+    if size < 5:
+        raise UsageError(f"map size must be at least 5 (got {size})")
+
+    def at(frac):  # a fraction of the 11×11 layout's 0..10 span
+        return round(frac * (size - 1) / 10)
+
+    cells = [["."] * size for _ in range(size)]
+    for y in range(at(3), at(7) + 1):
+        cells[y][at(3)] = "#"
+    for x in range(at(5), at(8) + 1):
+        cells[at(8)][x] = "#"
+    cells[size // 2][size // 2] = "G"
+    return "\n".join("".join(row) for row in cells) + "\n"
+
+
+MAPS = {"paper": PAPER_MAP, **{f"paper{n}": paper_like_map(n) for n in (7, 9, 13, 15, 21)}}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -66,6 +66,8 @@ ALGORITHMS: dict[str, AgentConfig] = {
     "eac": AgentConfig(),
     "eac_success_only": AgentConfig(failure_memory=False),
     "eac_failure_only": AgentConfig(success_memory=False),
+    "eac_learn_on_memory": AgentConfig(learn_on_memory_steps=True),  # E2 variant
+    "eac_within_trial": AgentConfig(failure_rule="within_trial"),  # E6 variant
 }
 
 

@@ -394,7 +394,9 @@ def run_entries(
         raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
     devices = list(devices) if devices is not None else jax.local_devices()
     n_dev = len(devices)
-    chunk_size = -(-min(chunk_size, n) // n_dev) * n_dev
+    n_chunks = -(-n // chunk_size)
+    chunk_size = -(-n // n_chunks)  # split evenly: no chunk is mostly padding
+    chunk_size = -(-chunk_size // n_dev) * n_dev
     root = jax.random.key(root_key)
     hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
 

@@ -103,3 +103,15 @@ def test_shaped_reward_e5():
 def test_bad_chances():
     with pytest.raises(UsageError, match="chances must be a positive integer"):
         GridWorld(get_map("paper"), 0)
+
+
+def test_paper_like_maps_scale_the_paper_layout():
+    from envs.grid import PAPER_MAP, paper_like_map
+
+    assert paper_like_map(11) == PAPER_MAP
+    for n in (7, 15, 21):
+        grid = parse_map(paper_like_map(n))
+        assert (grid.height, grid.width, grid.goal) == (n, n, (n // 2, n // 2))
+        assert grid.obstacles.any(axis=0).sum() >= 2  # both walls present
+    with pytest.raises(UsageError, match="at least 5"):
+        paper_like_map(3)

@@ -1,0 +1,152 @@
+"""Grid-world throughput of jaxeac against a hand-vectorised NumPy peer, in the same run.
+
+Measures, for AC and EAC on the paper preset (SPEC G6) and each seed count:
+compile seconds, run seconds, *useful* agent-steps per second (steps actually
+taken, learning and memories included), bytes of state per seed, and the NumPy
+peer's rate on the same work (a ratio, since machines are noisy). Writes JSON;
+``--render`` turns one or more JSON files into the tables of BENCHMARKS.md.
+
+    python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 --out scripts/bench_results/cpu.json
+    python scripts/bench.py --render scripts/bench_results/*.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def environment() -> dict:
+    """Machine, devices and versions, stated with every row."""
+    import jax
+
+    devices = jax.devices()
+    info = {
+        "machine": platform.machine(), "processor": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+        "jax": jax.__version__, "numpy": np.__version__, "backend": jax.default_backend(),
+        "devices": [str(d) for d in devices], "device_kind": devices[0].device_kind,
+    }
+    try:
+        import jaxeac
+
+        info["jaxeac"] = jaxeac.__version__
+    except ImportError:  # pragma: no cover
+        pass
+    return info
+
+
+def state_bytes_per_seed(env, cfg) -> int:
+    """Bytes of the per-seed loop state (agent, memories, env state, per-trial records)."""
+    import jax
+
+    from jaxeac.runner import _flat_init
+
+    shapes = jax.eval_shape(lambda w: _flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
+    return int(sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
+
+
+def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, loop: str = "auto") -> dict:
+    """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
+    from envs.grid import GridWorld, get_map
+    from jaxeac.agent import algorithm
+    from jaxeac.runner import RunConfig, run_seeds
+
+    env = GridWorld(get_map("paper"), 40)
+    cfg = RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3, gamma=0.9, loop=loop)
+    best, compile_s, steps, mean = float("inf"), None, 0, 0.0
+    for _ in range(repeats):
+        r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk)
+        compile_s = r.compile_seconds if compile_s is None else compile_s  # the first is the real one
+        best = min(best, r.run_seconds)
+        steps, mean = r.agent_steps, float(r.successes.mean())
+    return {
+        "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds), "loop": cfg.resolved_loop,
+        "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
+        "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
+    }
+
+
+def bench_numpy(algo: str, n_seeds: int) -> dict:
+    """The hand-vectorised NumPy peer on the same work (SPEC-equal in distribution)."""
+    from jaxeac.numpy_peer import run_numpy
+
+    t0 = time.perf_counter()
+    out = run_numpy("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
+                    temperature=1.0, n_seeds=n_seeds, seed=0)
+    run_s = time.perf_counter() - t0
+    steps = int(out["steps"].sum())
+    return {"impl": "numpy", "algo": algo, "seeds": n_seeds, "run_s": run_s, "agent_steps": steps,
+            "steps_per_s": steps / run_s, "mean_successes": float(out["success"].sum(1).mean())}
+
+
+def measure(args) -> dict:
+    record = {"environment": environment(), "command": " ".join([sys.executable, *sys.argv]), "rows": []}
+    for n in args.seeds:
+        for algo in ("ac", "eac"):
+            row = bench_grid(algo, n, args.chunk, args.repeats)
+            print(json.dumps(row), flush=True)
+            record["rows"].append(row)
+    for n in args.numpy_seeds:
+        for algo in ("ac", "eac"):
+            row = bench_numpy(algo, n)
+            print(json.dumps(row), flush=True)
+            record["rows"].append(row)
+    return record
+
+
+def render(paths: list[Path]) -> str:
+    """Markdown tables from benchmark JSON files."""
+    out = []
+    for path in paths:
+        rec = json.loads(path.read_text())
+        env = rec["environment"]
+        out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
+                   f"jax {env['jax']}, numpy {env['numpy']}, Python {env['python']}\n")
+        out.append(f"Command: `{rec['command']}`\n")
+        out.append("| impl | algo | seeds | chunk | compile s | run s | useful agent-steps/s | "
+                   "state bytes/seed | mean successes |")
+        out.append("|---|---|---|---|---|---|---|---|---|")
+        for r in rec["rows"]:
+            compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else "–"
+            out.append(f"| {r['impl']} | {r['algo']} | {r['seeds']:,} | {r.get('chunk', '–')} | {compile_s} | "
+                       f"{r['run_s']:.2f} | {r['steps_per_s']:.3g} | {r.get('state_bytes_per_seed', '–')} | "
+                       f"{r['mean_successes']:.2f} |")
+        peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
+        ratios = [(r["algo"], r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
+                  for r in rec["rows"] if r["impl"] == "jaxeac" and (r["algo"], r["seeds"]) in peers]
+        if ratios:
+            out.append("")
+            out.append("jaxeac / NumPy peer (same run, same seeds): "
+                       + "; ".join(f"{a.upper()} at {n:,} seeds: **{x:.1f}×**" for a, n, x in ratios))
+        out.append("")
+    return "\n".join(out)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, nargs="+", default=[100, 1000, 10_000, 100_000])
+    p.add_argument("--numpy-seeds", type=int, nargs="*", default=[10_000])
+    p.add_argument("--chunk", type=int, default=8192, help="seeds per compiled chunk")
+    p.add_argument("--repeats", type=int, default=2, help="runs per row; the best run time is kept")
+    p.add_argument("--out", type=Path, help="write the JSON record here")
+    p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
+    args = p.parse_args()
+    if args.render:
+        print(render(args.render))
+        return
+    record = measure(args)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(record, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
