@@ -123,6 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--compare", action="store_true", help="also run `jaxeac compare` at every point")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    r = sub.add_parser("reproduce", help="re-run both of the paper's experiments at scale, with a verdict")
+    r.add_argument("--quick", action="store_true", help="fewer seeds: a few minutes on a laptop CPU")
+    r.add_argument("--out", default="runs/reproduce", metavar="DIR")
+    r.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="root PRNG key (R1)")
+    r.add_argument("--quiet", action="store_true", help="no progress bars")
+
     c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder")
     c.add_argument("dir", metavar="DIR", help="a run folder written by `jaxeac grid` or `jaxeac bowling`")
     add_compare_flags(c)
@@ -261,7 +267,16 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from jaxeac.reproduce import reproduce
+
+    report = reproduce(args.out, quick=args.quick, key=args.key, progress=not args.quiet)
+    print(f"report in {report}")
+    return 0
+
+
 COMMANDS = {
+    "reproduce": cmd_reproduce,
     "grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
     "compare": cmd_compare,
 }
