@@ -106,9 +106,11 @@ class AgentState:
 
 def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, n_trials: int) -> AgentState:
     """Preferences and values at 0 (uniform "random" policy, Alg. 1 line 1), empty memories."""
-    memory = (
-        mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity) if cfg.uses_memory else None
-    )
+    memory = None
+    if cfg.uses_memory:
+        if cfg.memory == "dense":
+            mem.check_dense_limits(n_actions, n_trials)
+        memory = mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity)
     path = None
     if cfg.uses_memory and cfg.memory == "buffer":
         path = (jnp.zeros((n_chances,), jnp.int32), jnp.zeros((n_chances,), jnp.int32),
@@ -208,8 +210,8 @@ def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, acti
     flag = None
     if cfg.failure_memory:  # only E6 reads r̃ back
         flag = active & failure_condition(cfg, agent, rtilde)
-        c_safe = jnp.minimum(c, kept.shape[1] - 1)
-        kept = kept.at[parity, c_safe].set(jnp.where(active, rtilde, kept[parity, c_safe]))
+        # an inactive step writes out of range (dropped): the update never reads the buffer it writes
+        kept = kept.at[parity, jnp.where(active, c, kept.shape[1])].set(rtilde, mode="drop")
     memory, path = agent.memory, agent.path
     if isinstance(memory, mem.DenseMemory):
         if cfg.success_memory:
@@ -239,8 +241,8 @@ def end_trial(cfg: AgentConfig, agent: AgentState, success, ends) -> AgentState:
             memory = mem.write_success(memory, states, actions, valid & success)
         if cfg.failure_memory:
             memory = mem.write_failure(memory, states, actions, flags & valid & ~success)
-    t = jnp.minimum(agent.trial, agent.outcomes.shape[0] - 1)
-    outcomes = agent.outcomes.at[t].set(jnp.where(ends, success, agent.outcomes[t]))
+    t = jnp.where(ends, agent.trial, agent.outcomes.shape[0])  # not ending: dropped write
+    outcomes = agent.outcomes.at[t].set(success, mode="drop")
     return agent.replace(
         memory=memory, outcomes=outcomes,
         prev_length=jnp.where(ends, length, agent.prev_length),

@@ -9,13 +9,18 @@ ends cost that on *every* step. The dense layout instead records each step as a
 *pending* entry stamped with its trial index, and a pending entry takes effect
 once the trial's outcome (``outcomes[trial]``) says so:
 
-* success: ``pending[s]`` is the last action taken at s in trial ``pending_trial[s]``;
-  it is the remembered action iff that trial is over and succeeded (E4: a state
-  visited twice keeps its last action). Before overwriting it, a step commits
-  it to ``success[s]`` if it was effective, so older successes survive failed trials.
-* failure: ``candidate_trial[s, a]`` is the latest trial in which (s, a) met the
-  E6 condition; the flag is effective iff that trial is over and failed.
+* success: per state, the committed action, the last action taken there in trial
+  ``stamp`` (pending) and ``stamp``; the pending action is the remembered one iff
+  that trial is over and succeeded (E4: a state visited twice keeps its last
+  action). Before a newer trial overwrites it, an effective pending action is
+  committed, so older successes survive failed trials.
+* failure: per state, the committed failed actions (a bit set), the actions that
+  met the E6 condition in trial ``stamp`` (pending bits) and ``stamp``; pending
+  bits count iff that trial is over and failed.
 
+Each is packed into one int32 word per state, so a step costs one gather and one
+scatter per memory. Limits: A ≤ 24 actions, fewer than 2^(31 − A) trials, and at
+most 254 actions and 32,766 trials for the success word (checked at init).
 Lookups during trial t see exactly the memory after trial t − 1, as in Algorithm 1.
 
 **buffer** (K slots, O(K) bytes per seed): (state, action) slots written at the
@@ -36,28 +41,24 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from jaxeac.pytree import pytree_dataclass
+from jaxeac.errors import UsageError
+from jaxeac.pytree import pytree_dataclass, static_field
 
 Layout = Literal["dense", "buffer"]
 LAYOUTS = ("dense", "buffer")
 
 
-def action_dtype(n_actions: int):
-    """Smallest signed integer type holding −1 … A−1."""
-    return jnp.int8 if n_actions <= 127 else jnp.int32
+MAX_DENSE_ACTIONS = 24
 
 
 @pytree_dataclass
 class DenseMemory:
     """E7 dense layout with lazily committed pending entries (see module docstring)."""
 
-    success: jax.Array  # int8 [S], committed success action, −1 = none
-    pending: jax.Array  # int8 [S], last action at s in trial pending_trial[s]
-    pending_trial: jax.Array  # int32 [S], −1 = none
-    failed: jax.Array  # bool [S, A], committed failure flags
-    candidate_trial: jax.Array  # int32 [S, A], latest trial where (s, a) met E6, −1 = none
-
-
+    success: jax.Array  # int32 [S]: (stamp + 1) << 16 | (pending + 1) << 8 | (committed + 1)
+    failed: jax.Array  # int32 [S]: bit a set ⇔ action a committed as failed
+    failure_pending: jax.Array  # int32 [S]: (stamp + 1) << A | pending failure bits
+    n_actions: int = static_field()
 @pytree_dataclass
 class BufferMemory:
     """E7 buffer layout: K (state, action) slots per memory, FIFO when full."""
@@ -73,16 +74,20 @@ class BufferMemory:
 Memory = DenseMemory | BufferMemory
 
 
+def check_dense_limits(n_actions: int, n_trials: int) -> None:
+    """The dense layout's packed words hold A ≤ 24 actions and a bounded trial count."""
+    if n_actions > MAX_DENSE_ACTIONS or n_trials >= min(1 << (31 - n_actions), 32_767):
+        raise UsageError(
+            f"the dense memory layout holds at most {MAX_DENSE_ACTIONS} actions and fewer than "
+            f"min(2^(31-A), 32767) trials (got A={n_actions}, T={n_trials}); use the buffer layout"
+        )
+
+
 def init_memory(layout: Layout, n_states: int, n_actions: int, capacity: int) -> Memory:
     """Empty memories: no success action anywhere, no failure flag."""
     if layout == "dense":
-        none = jnp.full((n_states,), -1, action_dtype(n_actions))
-        never = jnp.full((n_states,), -1, jnp.int32)
-        return DenseMemory(
-            success=none, pending=none, pending_trial=never,
-            failed=jnp.zeros((n_states, n_actions), bool),
-            candidate_trial=jnp.full((n_states, n_actions), -1, jnp.int32),
-        )
+        zeros = jnp.zeros((n_states,), jnp.int32)  # every field stored + 1: 0 = none
+        return DenseMemory(success=zeros, failed=zeros, failure_pending=zeros, n_actions=n_actions)
     if layout == "buffer":
         empty = jnp.full((capacity,), -1, jnp.int32)
         zero = jnp.int32(0)
@@ -106,8 +111,8 @@ def _slot_valid(count: jax.Array, capacity: int) -> jax.Array:
 def success_action(memory: Memory, state, trial, outcomes) -> jax.Array:
     """E1(a): the remembered successful action at `state` during `trial`, or −1."""
     if isinstance(memory, DenseMemory):
-        live = _ended(memory.pending_trial[state], trial, outcomes, success=True)
-        return jnp.where(live, memory.pending[state], memory.success[state]).astype(jnp.int32)
+        stamp, pending, committed = _unpack_success(memory.success[state])
+        return jnp.where(_ended(stamp, trial, outcomes, success=True), pending, committed)
     capacity = memory.success_states.shape[0]
     match = _slot_valid(memory.success_count, capacity) & (memory.success_states == state)
     return jnp.where(match.any(), memory.success_actions[jnp.argmax(match)], -1)
@@ -116,40 +121,61 @@ def success_action(memory: Memory, state, trial, outcomes) -> jax.Array:
 def failure_flags(memory: Memory, state, trial, outcomes, n_actions: int) -> jax.Array:
     """E1(b): bool [A], the actions flagged failed at `state` during `trial`."""
     if isinstance(memory, DenseMemory):
-        live = _ended(memory.candidate_trial[state], trial, outcomes, success=False)
-        return memory.failed[state] | live
+        bits = _failure_bits(memory, state, trial, outcomes)
+        return (bits >> jnp.arange(n_actions)) & 1 == 1
     capacity = memory.failure_states.shape[0]
     match = _slot_valid(memory.failure_count, capacity) & (memory.failure_states == state)
     actions = jnp.arange(n_actions)
     return (match[:, None] & (memory.failure_actions[:, None] == actions[None, :])).any(0)
 
 
-# --- dense layout: per-step pending writes ---------------------------------------------------
+# --- dense layout: packed words and per-step pending writes ---------------------------------
+
+
+def _unpack_success(word):
+    """(stamp, pending action, committed action) of a success word; −1 = none."""
+    return (word >> 16) - 1, ((word >> 8) & 0xFF) - 1, (word & 0xFF) - 1
+
+
+def _pack_success(stamp, pending, committed):
+    return ((stamp + 1) << 16) | ((pending + 1) << 8) | (committed + 1)
+
+
+def _unpack_pending(word, n_actions: int):
+    """(stamp, pending failure bits) of a failure_pending word."""
+    return (word >> n_actions) - 1, word & ((1 << n_actions) - 1)
+
+
+def _failure_bits(memory: DenseMemory, state, trial, outcomes):
+    """int32 bit set of the actions flagged failed at `state` during `trial`."""
+    stamp, pending = _unpack_pending(memory.failure_pending[state], memory.n_actions)
+    live = _ended(stamp, trial, outcomes, success=False)
+    return memory.failed[state] | jnp.where(live, pending, 0)
 
 
 def record_visit(memory: DenseMemory, state, action, trial, outcomes, active) -> DenseMemory:
     """E4, lazily: make `action` the pending success action of `state` for `trial`."""
-    commit = _ended(memory.pending_trial[state], trial, outcomes, success=True)
-    committed = jnp.where(active & commit, memory.pending[state], memory.success[state])
-    return memory.replace(
-        success=memory.success.at[state].set(committed, unique_indices=True),
-        pending=memory.pending.at[state].set(
-            jnp.where(active, action, memory.pending[state]).astype(memory.pending.dtype),
-            unique_indices=True),
-        pending_trial=memory.pending_trial.at[state].set(
-            jnp.where(active, trial, memory.pending_trial[state]), unique_indices=True),
-    )
+    word = memory.success[state]
+    stamp, pending, committed = _unpack_success(word)
+    committed = jnp.where(_ended(stamp, trial, outcomes, success=True), pending, committed)
+    row = jnp.where(active, state, memory.success.shape[0])  # inactive: dropped write
+    return memory.replace(success=memory.success.at[row].set(
+        _pack_success(trial, action, committed), mode="drop", unique_indices=True))
 
 
 def record_failure_candidate(memory: DenseMemory, state, action, trial, outcomes, flag) -> DenseMemory:
     """E6, lazily: (state, action) met the failure condition in `trial` (effective if it fails)."""
-    stamp = memory.candidate_trial[state, action]
+    n_actions = memory.n_actions
+    word = memory.failure_pending[state]
+    stamp, pending = _unpack_pending(word, n_actions)
     commit = flag & _ended(stamp, trial, outcomes, success=False)
+    failed = memory.failed[state] | jnp.where(commit, pending, 0)
+    pending = jnp.where(stamp == trial, pending, 0) | (1 << action)
+    row = jnp.where(flag, state, memory.failed.shape[0])  # no candidate: dropped writes
     return memory.replace(
-        failed=memory.failed.at[state, action].set(memory.failed[state, action] | commit,
-                                                   unique_indices=True),
-        candidate_trial=memory.candidate_trial.at[state, action].set(
-            jnp.where(flag, trial, stamp), unique_indices=True),
+        failed=memory.failed.at[row].set(failed, mode="drop", unique_indices=True),
+        failure_pending=memory.failure_pending.at[row].set(
+            ((trial + 1) << n_actions) | pending, mode="drop", unique_indices=True),
     )
 
 
@@ -158,8 +184,8 @@ def dense_tables(memory: DenseMemory, trial, outcomes) -> tuple[jax.Array, jax.A
     memory, outcomes = jax.tree.map(jnp.asarray, (memory, outcomes))
     states = jnp.arange(memory.success.shape[0])
     success = jax.vmap(lambda s: success_action(memory, s, trial, outcomes))(states)
-    live = _ended(memory.candidate_trial, trial, outcomes, success=False)
-    return success, memory.failed | live
+    failed = jax.vmap(lambda s: failure_flags(memory, s, trial, outcomes, memory.n_actions))(states)
+    return success, failed
 
 
 # --- buffer layout: end-of-trial writes -----------------------------------------------------

@@ -166,3 +166,106 @@ def sweep_heatmap(rows: list[dict], key_x: str, key_y: str, path: Path):
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict | None = None,
+                           band_label: str = "simultaneous 95% band"):
+    """Fig. 3 with a band that holds over all trials at once.
+
+    curves[algo] = {"mean": [T], "band": ([T], [T]), "spread": ([T], [T]), "n": seeds}: the mean
+    cumulative successes, its simultaneous band (computed by the caller, e.g. a sup-t bootstrap
+    band from `jaxeac.stats.curve_bands`) and the seeds' 5–95 % spread. `paper` marks the paper's
+    single-run end points at the last trial.
+    """
+    fig, ax = plt.subplots(figsize=(6.8, 4.6))
+    for algo, c in curves.items():
+        mean = np.asarray(c["mean"], float)
+        t = mean.size
+        trials = np.arange(1, t + 1)
+        color = COLORS.get(algo)
+        name = LABELS.get(algo, algo)
+        ax.plot(trials, mean, color=color, lw=2, label=f"{name}: mean of {c['n']} seeds")
+        lo, hi = (np.asarray(b, float) for b in c["band"])
+        ax.fill_between(trials, lo, hi, color=color, alpha=0.35, lw=0, label=f"{name}: {band_label}")
+        slo, shi = (np.asarray(b, float) for b in c["spread"])
+        ax.fill_between(trials, slo, shi, color=color, alpha=0.08, lw=0)
+        ax.plot(trials, slo, color=color, lw=0.7, ls=":")
+        ax.plot(trials, shi, color=color, lw=0.7, ls=":", label=f"{name}: 5-95% of seeds")
+        if paper and algo in paper:
+            ax.plot([t], [paper[algo]], marker="*", ms=14, color=color, mec="black", ls="none",
+                    label=f"paper's single {name} run: {paper[algo]}")
+    ax.set_xlabel("trial")
+    ax.set_ylabel("successful trials so far")
+    ax.set_title("Cumulative successes: mean with a band over all trials at once,\n"
+                 "spread of seeds (dotted) and the paper's single runs (stars)", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, str] = ("preset", "chances"),
+                          axes: tuple[str, str] = ("alpha", "beta"), target: float = 56.0,
+                          tolerance: float = 5.0):
+    """EAC − AC mean successes over a sweep: one small heatmap per (facet values), axes[0] × axes[1].
+
+    points: one dict per sweep point with the swept keys, `ac` and `eac` mean successes and
+    `diff`. Each cell shows EAC − AC and AC's mean; cells with |AC − target| ≤ tolerance are boxed.
+    """
+    rows_v = sorted({p.get(facet[0]) for p in points}, key=str)
+    cols_v = sorted({p.get(facet[1]) for p in points}, key=lambda v: (str(type(v)), v))
+    xs = sorted({p.get(axes[0]) for p in points}, key=lambda v: (str(type(v)), v))
+    ys = sorted({p.get(axes[1]) for p in points}, key=lambda v: (str(type(v)), v))
+    vmax = max((abs(p["diff"]) for p in points), default=1.0) or 1.0
+    fig, grid = plt.subplots(len(rows_v), len(cols_v), squeeze=False,
+                             figsize=(1.0 * len(xs) * len(cols_v) + 2.4, 0.8 * len(ys) * len(rows_v) + 1.6))
+    im = None
+    for r, rv in enumerate(rows_v):
+        for c, cv in enumerate(cols_v):
+            ax = grid[r, c]
+            cells = {(p.get(axes[0]), p.get(axes[1])): p for p in points
+                     if p.get(facet[0]) == rv and p.get(facet[1]) == cv}
+            z = np.array([[cells[(x, y)]["diff"] if (x, y) in cells else np.nan for x in xs] for y in ys])
+            im = ax.imshow(z, cmap="RdBu_r", origin="lower", aspect="auto", vmin=-vmax, vmax=vmax)
+            for (j, i), v in np.ndenumerate(z):
+                p = cells.get((xs[i], ys[j]))
+                if p is None:
+                    continue
+                ax.text(i, j, f"{v:+.0f}\nAC {p['ac']:.0f}", ha="center", va="center", fontsize=6,
+                        color="white" if abs(v) > 0.6 * vmax else "black")
+                if abs(p["ac"] - target) <= tolerance:
+                    ax.add_patch(plt.Rectangle((i - 0.5, j - 0.5), 1, 1, fill=False, ec="black", lw=2))
+            ax.set_xticks(range(len(xs)), [str(x) for x in xs], fontsize=7)
+            ax.set_yticks(range(len(ys)), [str(y) for y in ys], fontsize=7)
+            ax.set_title(", ".join(f"{k}={v}" for k, v in zip(facet, (rv, cv), strict=True) if v is not None)
+                         or "all points", fontsize=7)
+            if r == len(rows_v) - 1:
+                ax.set_xlabel(axes[0], fontsize=8)
+            if c == 0:
+                ax.set_ylabel(axes[1], fontsize=8)
+    fig.suptitle(f"EAC − AC mean successes (cell text: difference, AC mean)\n"
+                 f"boxed: AC within ±{tolerance:g} of the paper's {target:g}", fontsize=8)
+    fig.tight_layout(rect=(0, 0, 0.9, 0.93))
+    if im is not None:
+        fig.colorbar(im, ax=grid.ravel().tolist(), shrink=0.6)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def forest_figure(rows: list[dict], path: Path, *, title: str, xlabel: str):
+    """Differences with 95 % CIs, one row per comparison: rows = [{"label", "diff", "ci": (lo, hi)}]."""
+    fig, ax = plt.subplots(figsize=(6.4, 0.42 * len(rows) + 1.4))
+    y = np.arange(len(rows))[::-1]
+    for yi, row in zip(y, rows, strict=True):
+        lo, hi = row["ci"]
+        ax.plot([lo, hi], [yi, yi], color="0.2", lw=2)
+        ax.plot([row["diff"]], [yi], marker="o", color="tab:red", ms=6)
+    ax.axvline(0, color="0.5", lw=0.8)
+    ax.set_yticks(y, [r["label"] for r in rows], fontsize=8)
+    ax.set_xlabel(xlabel, fontsize=9)
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, axis="x")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)

@@ -75,6 +75,7 @@ class RunConfig:
     gamma: float = 0.9
     temperature: float = 1.0
     loop: Loop = "auto"
+    lanes: int | None = None  # flat loop: seeds in flight per device; None: 512 on CPU, all on GPU
 
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
@@ -265,7 +266,7 @@ def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper)
     u = step_uniform(words, action_counter(trial, agent.chance, env.n_chances))
     agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, u, hyper, active)
     ends = active & (step.terminated | step.truncated)
-    steps = carry.steps.at[trial].set(jnp.where(ends, agent.chance, carry.steps[trial]))
+    steps = carry.steps.at[jnp.where(ends, trial, cfg.trials)].set(agent.chance, mode="drop")
     agent = end_trial(cfg.agent, agent, step.terminated, ends)
     nxt = jnp.minimum(agent.trial, cfg.trials - 1)
     start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
@@ -276,17 +277,62 @@ def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper)
     return _FlatCarry(agent, env_state, steps)
 
 
+@pytree_dataclass
+class _Lane:
+    """One lane of the flat loop: the run of the seed it holds, and which entry that is."""
+
+    run: _FlatCarry
+    words: jax.Array  # uint32 [2]
+    hyper: Hyper
+    entry: jax.Array  # int32 [], index into the batch; ≥ M once the lane is idle
+
+
+def _where(mask: jax.Array, new, old):
+    """Per-lane select over pytrees whose leaves have a leading lane axis."""
+    return jax.tree.map(lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b),
+                        new, old)
+
+
 def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
-    """All seeds of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) until each ran T trials."""
-    carry = jax.vmap(lambda w: _flat_init(env, cfg, w))(words)
+    """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
+
+    Lanes advance one chance per iteration. Every C iterations, lanes whose seed has
+    run T trials write its result and take the next waiting seed, so lanes stay busy
+    until the queue is empty (a seed's result does not depend on its lane, R1).
+    """
+    m = words.shape[0]
+    lanes = cfg.lanes if cfg.lanes is not None else (512 if jax.default_backend() == "cpu" else m)
+    n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
 
-    def block(c: _FlatCarry) -> _FlatCarry:
-        return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, words, hyper), c)
+    def start(entry) -> _Lane:
+        entry = jnp.minimum(entry, m - 1)
+        w, h = words[entry], jax.tree.map(lambda x: x[entry], hyper)
+        return _Lane(_flat_init(env, cfg, w), w, h, entry)
 
-    carry = jax.lax.while_loop(lambda c: (c.agent.trial < cfg.trials).any(), block, carry)
-    policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(carry.agent)
-    return SeedResult(carry.agent.outcomes, carry.steps, policy)
+    lanes = jax.vmap(start)(jnp.arange(n_lanes))
+    out = SeedResult(jnp.zeros((m, cfg.trials), bool), jnp.zeros((m, cfg.trials), jnp.int32),
+                     jnp.zeros((m, env.n_states), jnp.int32))
+
+    def block(carry):
+        lanes, out, queued = carry
+        run = jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, lanes.words, lanes.hyper), lanes.run)
+        done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
+        row = jnp.where(done, lanes.entry, m)  # rows ≥ M are dropped
+        policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(run.agent)
+        out = SeedResult(
+            out.success.at[row].set(run.agent.outcomes, mode="drop"),
+            out.steps.at[row].set(run.steps, mode="drop"),
+            out.policy.at[row].set(policy, mode="drop"),
+        )
+        nxt = queued + jnp.cumsum(done) - 1
+        refill = done & (nxt < m)
+        lanes = _where(refill, jax.vmap(start)(nxt), lanes.replace(run=run))
+        lanes = lanes.replace(entry=jnp.where(done, jnp.where(refill, nxt, m), lanes.entry))
+        return lanes, out, queued + done.sum()
+
+    _, out, _ = jax.lax.while_loop(lambda c: (c[0].entry < m).any(), block, (lanes, out, jnp.int32(n_lanes)))
+    return out
 
 
 def _trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> SeedResult:

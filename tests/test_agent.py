@@ -104,10 +104,11 @@ def hyper(temperature=1.0):
 
 
 def with_tables(agent, success, failed):
-    """An EAC agent whose dense memory holds these committed tables."""
+    """An EAC agent whose dense memory holds these committed entries."""
     m = agent.memory
-    return agent.replace(memory=m.replace(success=jnp.asarray(success, m.success.dtype),
-                                          failed=jnp.asarray(failed)))
+    success = jnp.asarray(success, jnp.int32)
+    bits = (jnp.asarray(failed, jnp.int32) << jnp.arange(m.n_actions)).sum(axis=1)
+    return agent.replace(memory=m.replace(success=success + 1, failed=bits))  # stored + 1, no stamp
 
 
 def test_select_action_e1_order():

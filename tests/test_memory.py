@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from envs.grid import GridWorld, get_map
 from jaxeac import memory as mem
@@ -56,16 +57,32 @@ def test_dense_pending_entries_follow_trial_outcomes():
     # trial 1 (fails) visits state 3 with action 0: the committed 2 survives
     m = mem.record_visit(m, 3, 0, 1, outcomes, yes)
     assert int(mem.success_action(m, 3, 2, outcomes)) == 2
-    assert int(m.success[3]) == 2 and int(m.pending_trial[3]) == 1
+    assert int(m.success[3]) == (2 << 16) | (1 << 8) | 3  # stamp 1, pending 0, committed 2 (all + 1)
     # an inactive step writes nothing
     m2 = mem.record_visit(m, 4, 1, 1, outcomes, jnp.bool_(False))
-    assert int(m2.pending_trial[4]) == -1
+    assert int(m2.success[4]) == 0
     # failure candidates count only for failed trials
     f = mem.record_failure_candidate(m, 5, 2, 0, outcomes, yes)  # trial 0 succeeded
     f = mem.record_failure_candidate(f, 6, 1, 1, outcomes, yes)  # trial 1 failed
+    f = mem.record_failure_candidate(f, 6, 3, 1, outcomes, yes)
     np.testing.assert_array_equal(mem.failure_flags(f, 5, 2, outcomes, 4), [False] * 4)
-    np.testing.assert_array_equal(mem.failure_flags(f, 6, 2, outcomes, 4), [False, True, False, False])
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 2, outcomes, 4), [False, True, False, True])
     np.testing.assert_array_equal(mem.failure_flags(f, 6, 1, outcomes, 4), [False] * 4)
+    # a later candidate at state 6 commits trial 1's flags before replacing the pending ones
+    f = mem.record_failure_candidate(f, 6, 0, 2, outcomes, yes)
+    assert int(f.failed[6]) == 0b1010
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 3, jnp.array([True, False, False, False]), 4),
+                                  [True, True, False, True])
+
+
+def test_dense_limits():
+    from jaxeac.errors import UsageError
+
+    mem.check_dense_limits(21, 1000)
+    with pytest.raises(UsageError, match="use the buffer layout"):
+        mem.check_dense_limits(25, 10)
+    with pytest.raises(UsageError, match="use the buffer layout"):
+        mem.check_dense_limits(21, 1024)
 
 
 def paper_results(layout, capacity=1024, seeds=16):

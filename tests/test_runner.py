@@ -105,7 +105,7 @@ def test_flat_loop_equals_trials_loop(algo, variant, map_seed):
     env = ENV if map_seed == 0 else GridWorld(parse_map(random_map_text(rng)), int(rng.integers(1, 12)))
     agent = algorithm(algo, **variant)
     results = [
-        run_seeds(env, RunConfig(trials=30, agent=agent, loop=loop), root_key=map_seed,
+        run_seeds(env, RunConfig(trials=30, agent=agent, loop=loop, lanes=3), root_key=map_seed,
                   n_seeds=24, chunk_size=8)
         for loop in ("flat", "trials")
     ]
