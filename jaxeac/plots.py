@@ -186,7 +186,9 @@ def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict |
         name = LABELS.get(algo, algo)
         ax.plot(trials, mean, color=color, lw=2, label=f"{name}: mean of {c['n']} seeds")
         lo, hi = (np.asarray(b, float) for b in c["band"])
-        ax.fill_between(trials, lo, hi, color=color, alpha=0.35, lw=0, label=f"{name}: {band_label}")
+        half = float(np.nanmax(hi - lo)) / 2
+        ax.fill_between(trials, lo, hi, color=color, alpha=0.35, lw=0,
+                        label=f"{name}: {band_label} (half-width ≤ {half:.2g})")
         slo, shi = (np.asarray(b, float) for b in c["spread"])
         ax.fill_between(trials, slo, shi, color=color, alpha=0.08, lw=0)
         ax.plot(trials, slo, color=color, lw=0.7, ls=":")
@@ -211,12 +213,10 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
     """EAC − AC mean successes over a sweep: one small heatmap per (facet values), axes[0] × axes[1].
 
     points: one dict per sweep point with the swept keys, `ac` and `eac` mean successes and
-    `diff`. Each cell shows EAC − AC and AC's mean; cells with |AC − target| ≤ tolerance are boxed.
+    `diff`; values appear in the order of `points` (a sweep's order). Each cell shows EAC − AC
+    and AC's mean; cells with |AC − target| ≤ tolerance are boxed.
     """
-    rows_v = sorted({p.get(facet[0]) for p in points}, key=str)
-    cols_v = sorted({p.get(facet[1]) for p in points}, key=lambda v: (str(type(v)), v))
-    xs = sorted({p.get(axes[0]) for p in points}, key=lambda v: (str(type(v)), v))
-    ys = sorted({p.get(axes[1]) for p in points}, key=lambda v: (str(type(v)), v))
+    rows_v, cols_v, xs, ys = (list(dict.fromkeys(p.get(k) for p in points)) for k in (*facet, *axes))
     vmax = max((abs(p["diff"]) for p in points), default=1.0) or 1.0
     fig, grid = plt.subplots(len(rows_v), len(cols_v), squeeze=False,
                              figsize=(1.0 * len(xs) * len(cols_v) + 2.4, 0.8 * len(ys) * len(rows_v) + 1.6))

@@ -505,7 +505,8 @@ def _supported(c: dict, p_key: str = "p_welch") -> int:
 
 
 def _outside(pos: dict) -> str:
-    far = [f"the paper's {a.upper()} {pos[a]['value']} lies at our {pos[a]['percentile']:.1f}th percentile"
+    far = [f"the paper's {a.upper()} {pos[a]['value']} lies at percentile {pos[a]['percentile']:.1f} "
+           "of our seeds"
            for a in ("ac", "eac") if not pos[a]["within_5_95"]]
     return "; " + ", ".join(far) + " (outside the 5-95% range)"
 
@@ -603,7 +604,8 @@ def claims(grid: dict, gstats: dict, bowl: dict, bstats: dict) -> list[dict]:
         "paper": "Fig. 5: AC's angles keep wandering", "measure": "sd_theta1", "stats": c,
         "verdict": "holds" if d < 0 else "does not hold",
         "why": (f"EAC's chance-1 angle varies less over trials {lo_t}-{hi_t} than AC's" if d < 0 else
-                f"EAC's chance-1 angle does not vary less than AC's over trials {lo_t}-{hi_t}"),
+                f"EAC's chance-1 angle varies more than AC's over trials {lo_t}-{hi_t} (reversed)" if d > 0
+                else f"EAC's chance-1 angle does not vary less than AC's over trials {lo_t}-{hi_t}"),
     })
     return out
 
@@ -781,7 +783,7 @@ def render_report(rec: dict, out: Path) -> str:
           f"EAC {_f(cc['eac'])} {_ci(cc['eac_ci95'])}, EAC − AC {_f(cc['contrast']['diff'], 2, True)} "
           f"{_ci(cc['contrast']['diff_ci95'], 2, True)}, g {_f(cc['contrast']['hedges_g'], 3)}, "
           f"A12 {_f(cc['contrast']['a12'], 3)}; the paper's 163 lies at EAC's "
-          f"{cc['eac_paper_position']['percentile']:.1f}th percentile there "
+          f"percentile {cc['eac_paper_position']['percentile']:.1f} there "
           f"({'inside' if cc['eac_paper_position']['within_5_95'] else 'outside'} the seeds' 5–95 % range).",
           f"- Points with AC within ±{cal['tolerance']:g} of 56: {near['count']}"
           + (f"; EAC's mean there ranges over [{_f(near['eac_range'][0])}, {_f(near['eac_range'][1])}], "
@@ -789,8 +791,8 @@ def render_report(rec: dict, out: Path) -> str:
              f"{len(near['eac_ci_contains_163'])} of them have 163 inside EAC's 95 % CI."
              if near["count"] else "."),
           f"- Best joint match to (56, 163): {where(cj)} — AC {_f(cj['ac'])}, EAC {_f(cj['eac'])}; "
-          f"the paper's 56 and 163 lie at our {cj['ac_paper_position']['percentile']:.1f}th and "
-          f"{cj['eac_paper_position']['percentile']:.1f}th percentiles there.",
+          f"the paper's 56 and 163 lie at percentiles {cj['ac_paper_position']['percentile']:.1f} (AC) and "
+          f"{cj['eac_paper_position']['percentile']:.1f} (EAC) of our seeds there.",
           f"- Over the whole sweep EAC − AC ranges over [{_f(cal['eac_minus_ac_range'][0], 2, True)}, "
           f"{_f(cal['eac_minus_ac_range'][1], 2, True)}]; at {len(cal['points_eac_not_better'])} of "
           f"{cal['n_points']} points EAC is not better than AC (Welch CI of the difference includes "
@@ -843,7 +845,7 @@ def render_report(rec: dict, out: Path) -> str:
 def _position_line(algo: str, s: dict, pp: dict) -> str:
     return (f"- {algo.upper()}: mean {_f(s['mean'])} {_ci(s['ci95'])}, sd {_f(s['sd'])}, "
             f"seeds' 5–95 % range [{_f(s['q05'], 0)}, {_f(s['q95'], 0)}]; the paper's single run "
-            f"({pp['value']}) lies at our {pp['percentile']:.1f}th percentile "
+            f"({pp['value']}) lies at percentile {pp['percentile']:.1f} of our seeds "
             f"({100 * pp['share_at_least']:.1f} % of seeds reach at least {pp['value']}).")
 
 
@@ -877,16 +879,16 @@ def _plain(cls: list[dict], grid: dict, bowl: dict) -> str:
         f"On the grid, EAC {'beats' if g1['diff'] > 0 else 'does not beat'} AC by "
         f"{_f(g1['diff'], 1, True)} successes of 200 ({_ci(g1['diff_ci95'], 1, True)}), a "
         f"{'large' if abs(g1['hedges_g']) >= 0.8 else 'moderate' if abs(g1['hedges_g']) >= 0.5 else 'small'} "
-        f"effect (g = {_f(g1['hedges_g'], 2)}); the paper's single EAC run (163) lies at our "
-        f"{gp['eac']['percentile']:.0f}th percentile of EAC seeds and its AC run (56) at the "
-        f"{gp['ac']['percentile']:.0f}th of AC seeds.",
+        f"effect (g = {_f(g1['hedges_g'], 2)}); the paper's single EAC run (163) lies at percentile "
+        f"{gp['eac']['percentile']:.1f} of our EAC seeds and its AC run (56) at percentile "
+        f"{gp['ac']['percentile']:.1f} of our AC seeds.",
         f"In bowling, EAC − AC is {_f(b1['diff'], 2, True)} pins of 100 ({_ci(b1['diff_ci95'], 2, True)}, "
         f"g = {_f(b1['hedges_g'], 2)}, A12 = {_f(b1['a12'], 2)}): "
         + ("EAC knocks reliably more pins." if _supported(b1, "p_holm") > 0 else
            "EAC knocks reliably fewer pins than AC." if _supported(b1, "p_holm") < 0 else
            "no reliable difference, unlike the paper's +14.")
-        + f" The paper's totals 81 (EAC) and 67 (AC) lie at our {bp['eac']['percentile']:.0f}th and "
-        f"{bp['ac']['percentile']:.0f}th percentiles.",
+        + f" The paper's totals 81 (EAC) and 67 (AC) lie at percentiles {bp['eac']['percentile']:.1f} and "
+        f"{bp['ac']['percentile']:.1f} of our seeds.",
         "Claims that do not hold here: " + (", ".join(f"{x['id']} ({x['claim']})" for x in cls
                                                    if x["verdict"] == "does not hold") or "none") + ".",
     ]
@@ -894,26 +896,40 @@ def _plain(cls: list[dict], grid: dict, bowl: dict) -> str:
 
 
 def _calibration_answer(cal: dict) -> str:
-    cc = cal["closest"]
+    """Does 163 come out: EAC's typical result where AC ≈ 56, and how likely a single run of 163 is there."""
+    cc, cj, near, tol = cal["closest"], cal["joint"], cal["near"], cal["tolerance"]
+    target = PAPER_GRID["eac"]
+    parts = []
+    if near["count"]:
+        lo, hi = near["eac_range"]
+        typical = lo - tol <= target <= hi + tol
+        parts.append(f"Among the {near['count']} sweep points where AC's mean is within ±{tol:g} of 56, "
+                     f"EAC's mean ranges over [{_f(lo)}, {_f(hi)}]: "
+                     + ("163 is within reach of EAC's mean there." if typical else
+                        "as a mean, 163 does not come out there."))
+    else:
+        parts.append(f"No sweep point has AC's mean within ±{tol:g} of 56.")
     pos = cc["eac_paper_position"]
-    if pos["within_5_95"]:
-        return (f"Yes, as a single run: where AC's mean is closest to 56, a single EAC seed scores 163 "
-                f"or more with probability {pos['share_at_least']:.2f} (the paper's 163 lies at the "
-                f"{pos['percentile']:.0f}th percentile), although EAC's mean there is {_f(cc['eac'])}.")
-    return (f"No: where AC's mean is closest to 56, EAC's mean is {_f(cc['eac'])} and 163 lies at the "
-            f"{pos['percentile']:.0f}th percentile of EAC seeds (outside their 5–95 % range).")
+    parts.append(f"At the point closest to AC = 56, a single EAC seed scores 163 or more with probability "
+                 f"{pos['share_at_least']:.2f} (163 at percentile {pos['percentile']:.1f}, "
+                 f"{'inside' if pos['within_5_95'] else 'outside'} the seeds' 5–95 % range).")
+    pj = cj["eac_paper_position"]
+    parts.append("At the best joint match to (56, 163), a single EAC run of 163 is "
+                 + ("plausible" if pj["within_5_95"] else "unlikely")
+                 + f" (percentile {pj['percentile']:.1f} of EAC seeds there).")
+    return " ".join(parts)
 
 
 def _ablation_answer(abl: dict) -> str:
     v = {x["algo"]: x for x in abl["variants"]}
     if not v:
         return ""
-    parts = []
-    for name, what in (("eac_success_only", "the success memory alone"),
-                       ("eac_failure_only", "the failure memory alone")):
-        if name in v and v[name]["share_of_eac_effect"] is not None:
-            parts.append(f"{what} gives {100 * v[name]['share_of_eac_effect']:.0f} % of full EAC's gain "
-                         f"over AC ({_f(v[name]['diff'], 2, True)} {_ci(v[name]['diff_ci95'], 2, True)})")
+    what = {"eac_success_only": "the success memory alone", "eac_failure_only": "the failure memory alone",
+            "eac_learn_on_memory": "the E2 variant (learning on every step)",
+            "eac_within_trial": "the E6 variant (within-trial failure rule)"}
+    parts = [f"{what.get(name, name)} gives {100 * x['share_of_eac_effect']:.0f} % of full EAC's gain "
+             f"over AC ({_f(x['diff'], 2, True)} {_ci(x['diff_ci95'], 2, True)})"
+             for name, x in v.items() if name != "eac" and x["share_of_eac_effect"] is not None]
     text = "; ".join(parts)
     if text:
         text = "Which part does the work: " + text + "."
