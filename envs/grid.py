@@ -169,6 +169,9 @@ class GridWorld:
         self._next_state = next_state
         self._reward = reward
         self._bumped = bumped
+        # One gather per step: next cell and the bump flag packed as 2·s' + bumped (the reward
+        # follows from them: −1 on a bump, +1 on entering the goal, else 0).
+        self._moves = (2 * next_state + bumped).reshape(-1).astype(np.int32)
         self._start_cells = grid_map.start_cells
         gx, gy = grid_map.goal
         ys, xs = np.divmod(np.arange(self.n_states), grid_map.width)
@@ -200,11 +203,11 @@ class GridWorld:
     def step(self, state: GridState, action: jax.Array) -> GridStep:
         """G4/G5: apply `action`; terminated on reaching the goal, truncated after C chances."""
         s = state.position
-        s_next = jnp.asarray(self._next_state)[s, action]
-        reward = jnp.asarray(self._reward)[s, action]
-        bumped = jnp.asarray(self._bumped)[s, action]
+        move = jnp.asarray(self._moves)[s * self.n_actions + action]
+        s_next, bumped = move >> 1, (move & 1) == 1
         chance = state.chance + 1
         terminated = s_next == self.map.goal_index
+        reward = jnp.where(bumped, -1.0, jnp.where(terminated, 1.0, 0.0))
         truncated = (~terminated) & (chance >= self.n_chances)
         return GridStep(GridState(s_next, chance), reward, terminated, truncated, bumped)
 

@@ -174,12 +174,12 @@ def td_error(reward, value, next_value, gamma, terminated) -> jax.Array:
 
 def critic_update(values: jax.Array, state, delta, alpha, learn) -> jax.Array:
     """(2): V(s) ← V(s) + α·δ (only when `learn`)."""
-    return values.at[state].add(jnp.where(learn, alpha * delta, 0.0))
+    return values.at[state].add(jnp.where(learn, alpha * delta, 0.0), unique_indices=True)
 
 
 def actor_update(preferences: jax.Array, state, action, delta, beta, learn) -> jax.Array:
     """(4): p(s,a) ← p(s,a) + β·δ for the taken action only (only when `learn`)."""
-    return preferences.at[state, action].add(jnp.where(learn, beta * delta, 0.0))
+    return preferences.at[state, action].add(jnp.where(learn, beta * delta, 0.0), unique_indices=True)
 
 
 def learn_step(agent: AgentState, state, action, reward, next_state, terminated, learn, alpha, beta, gamma):
