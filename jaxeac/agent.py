@@ -99,7 +99,7 @@ class AgentState:
     trial: jax.Array  # int32 [], 0-based index of the current trial
     chance: jax.Array  # int32 [], chances taken so far in the current trial
     outcomes: jax.Array  # bool [T], success of each finished trial
-    rtilde: jax.Array  # float [2, C], r̃ per chance of trials of even / odd index (E5, E6)
+    rtilde: jax.Array  # float [C], the latest r̃ per chance index: trial t−1's until trial t writes it
     prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
     path: tuple[jax.Array, jax.Array, jax.Array] | None  # buffer layout: states, actions, E6 flags [C]
 
@@ -123,7 +123,7 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, 
         trial=jnp.int32(0),
         chance=jnp.int32(0),
         outcomes=jnp.zeros((n_trials,), bool),
-        rtilde=jnp.zeros((2, n_chances), float),
+        rtilde=jnp.zeros((n_chances,), float),
         prev_length=jnp.int32(0),
         path=path,
     )
@@ -197,21 +197,22 @@ def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde) -> jax.Array:
     ``previous_trial`` (paper): r̃(c|t) < r̃(c|t−1), for c that exists in trial t−1 too
     (never in the first trial). ``within_trial`` (variant): r̃(c|t) < r̃(c−1|t), c ≥ 2.
     """
-    c, parity = agent.chance, agent.trial % 2
-    if cfg.failure_rule == "previous_trial":
-        return (c < agent.prev_length) & (rtilde < agent.rtilde[1 - parity, c])
-    return (c >= 1) & (rtilde < agent.rtilde[parity, jnp.maximum(c - 1, 0)])
+    c = agent.chance
+    if cfg.failure_rule == "previous_trial":  # slot c still holds trial t−1's r̃ (if it got that far)
+        return (c < agent.prev_length) & (rtilde < agent.rtilde[jnp.minimum(c, agent.rtilde.shape[0] - 1)])
+    return (c >= 1) & (rtilde < agent.rtilde[jnp.maximum(c - 1, 0)])  # written one chance ago
 
 
 def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active) -> AgentState:
     """After each chance: keep r̃ (E5) and what the memories need (E4, E6); count the chance."""
-    c, parity, trial = agent.chance, agent.trial % 2, agent.trial
+    c, trial = agent.chance, agent.trial
     kept = agent.rtilde
     flag = None
     if cfg.failure_memory:  # only E6 reads r̃ back
         flag = active & failure_condition(cfg, agent, rtilde)
-        # an inactive step writes out of range (dropped): the update never reads the buffer it writes
-        kept = kept.at[parity, jnp.where(active, c, kept.shape[1])].set(rtilde, mode="drop")
+        # An inactive step writes out of range (dropped). `active | flag` equals `active`, but it
+        # makes the write depend on the read above, so XLA updates r̃ in place instead of copying it.
+        kept = kept.at[jnp.where(active | flag, c, kept.shape[0])].set(rtilde, mode="drop")
     memory, path = agent.memory, agent.path
     if isinstance(memory, mem.DenseMemory):
         if cfg.success_memory:
