@@ -379,7 +379,7 @@ def table_one(run: BowlingRun, seed: int = 0) -> str:
     lines.append("")
     for a in algos:
         mean, _, lo, hi = mean_ci95(run.results[a].total_return)
-        paper = PAPER_TOTALS.get(a)
+        paper = PAPER_TOTALS.get(a) if run.settings.trials == 10 else None
         lines.append(f"- {a.upper()}: mean total {mean:.2f} of {10 * run.settings.trials} "
                      f"(95% CI [{lo:.2f}, {hi:.2f}])" + (f"; paper's single run: {paper}" if paper else ""))
     return "\n".join(lines) + "\n"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Sequence
 
@@ -282,8 +283,22 @@ COMMANDS = {
 }
 
 
+def use_all_cpu_cores() -> None:
+    """Expose every CPU core as a JAX device (before JAX starts), so seeds run on all of them.
+
+    XLA runs one computation on one thread; with ``n`` host devices the runner splits each
+    chunk of seeds over ``n`` threads (results are identical, SPEC R1). Respects a device
+    count already set in ``XLA_FLAGS``; no effect once JAX has started or on GPU devices.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags and "jax" not in sys.modules:
+        count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count or 1}".strip()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `jaxeac` console script; returns the exit code."""
+    use_all_cpu_cores()
     try:
         args = build_parser().parse_args(argv)
         return COMMANDS[args.command](args)

@@ -22,6 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxeac.cli import use_all_cpu_cores
+
+use_all_cpu_cores()  # before JAX starts: one host device per core, as `jaxeac` does
+
 
 def environment() -> dict:
     """Machine, devices and versions, stated with every row."""
@@ -134,7 +138,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[100, 1000, 10_000, 100_000])
     p.add_argument("--numpy-seeds", type=int, nargs="*", default=[10_000])
-    p.add_argument("--chunk", type=int, default=8192, help="seeds per compiled chunk")
+    p.add_argument("--chunk", type=int, default=8192, help="seeds per compiled chunk (split over devices)")
     p.add_argument("--repeats", type=int, default=2, help="runs per row; the best run time is kept")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
