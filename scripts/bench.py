@@ -6,7 +6,8 @@ taken, learning and memories included), bytes of state per seed, and the NumPy
 peer's rate on the same work (a ratio, since machines are noisy). Writes JSON;
 ``--render`` turns one or more JSON files into the tables of BENCHMARKS.md.
 
-    python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 --out scripts/bench_results/cpu.json
+    python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 \
+        --out scripts/bench_results/cpu.json
     python scripts/bench.py --render scripts/bench_results/*.json
 """
 
@@ -72,7 +73,8 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, loop: str = "a
         best = min(best, r.run_seconds)
         steps, mean = r.agent_steps, float(r.successes.mean())
     return {
-        "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds), "loop": cfg.resolved_loop,
+        "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds),
+        "loop": cfg.resolved_loop,
         "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
         "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
     }
@@ -120,7 +122,8 @@ def render(paths: list[Path]) -> str:
         out.append("|---|---|---|---|---|---|---|---|---|")
         for r in rec["rows"]:
             compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else "–"
-            out.append(f"| {r['impl']} | {r['algo']} | {r['seeds']:,} | {r.get('chunk', '–')} | {compile_s} | "
+            chunk = r.get("chunk", "–")
+            out.append(f"| {r['impl']} | {r['algo']} | {r['seeds']:,} | {chunk} | {compile_s} | "
                        f"{r['run_s']:.2f} | {r['steps_per_s']:.3g} | {r.get('state_bytes_per_seed', '–')} | "
                        f"{r['mean_successes']:.2f} |")
         peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
