@@ -14,8 +14,13 @@ import json
 import sys
 from pathlib import Path
 
-import jax
 import numpy as np
+
+from jaxeac.cli import use_all_cpu_cores
+
+use_all_cpu_cores()  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
+
+import jax  # noqa: E402
 
 
 def main() -> None:
