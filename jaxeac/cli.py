@@ -85,6 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", default="runs/grid", metavar="DIR", help="run folder (default runs/grid)")
     g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
+    g.add_argument("--num-processes", type=positive_int, default=1, metavar="P",
+                   help="split the seeds over P processes (hosts); each writes DIR/part-I-of-P/")
+    g.add_argument("--process-id", type=nonneg_int, default=0, metavar="I", help="this process, 0..P-1")
+    g.add_argument("--coordinator", metavar="HOST:PORT",
+                   help="call jax.distributed.initialize with this coordinator (multi-host JAX)")
+
+    m = sub.add_parser("merge", help="merge the part folders of a multi-process `jaxeac grid` run")
+    m.add_argument("dir", metavar="DIR")
+    m.add_argument("--no-compare", action="store_true", help="skip the statistics report")
+    m.add_argument("--quiet", action="store_true")
 
     b = sub.add_parser("bowling", help="run AC and EAC learning to bowl in MuJoCo over many seeds")
     b.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
@@ -150,21 +160,55 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
 def cmd_grid(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.experiment import run_grid, summary_table, write_grid_outputs
+    from jaxeac.experiment import run_grid
     from jaxeac.io import check_writable_dir
 
     settings = _grid_settings(args).resolved()
     settings.grid_map()  # a bad map fails here, before any compute
+    if args.process_id >= args.num_processes:
+        raise UsageError(f"--process-id {args.process_id} must be below --num-processes {args.num_processes}")
+    if args.num_processes > settings.seeds:
+        raise UsageError(f"--num-processes {args.num_processes} exceeds --seeds {settings.seeds}")
     out = check_writable_dir(args.out)
+    if args.num_processes > 1:
+        return _grid_part(args, settings, out)
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:
         run = run_grid(settings, progress=bar.update)
+    return _finish_grid(run, out, compare=not args.no_compare, quiet=args.quiet)
+
+
+def _finish_grid(run, out, *, compare: bool, quiet: bool) -> int:
+    from jaxeac.experiment import summary_table, write_grid_outputs
+
     summary = write_grid_outputs(run, out)
     print(summary_table(summary))
     print(f"results in {out}/")
-    if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2:
-        return run_compare(out, quiet=args.quiet)
+    if compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2:
+        return run_compare(out, quiet=quiet)
     return 0
+
+
+def _grid_part(args: argparse.Namespace, settings, out) -> int:
+    """One process of a multi-process run: its block of seeds into DIR/part-I-of-P/."""
+    from jaxeac.experiment import part_folder, process_share, run_grid, write_grid_outputs
+
+    if args.coordinator:
+        import jax
+
+        jax.distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    first, n = process_share(settings.seeds, args.process_id, args.num_processes)
+    run = run_grid(settings, first_seed=first, n_seeds=n)
+    folder = part_folder(out, args.process_id, args.num_processes)
+    write_grid_outputs(run, folder, figures=False)
+    print(f"seeds {first}..{first + n - 1} in {folder}/; when every part is done: jaxeac merge {out}")
+    return 0
+
+
+def cmd_merge(args: argparse.Namespace) -> int:
+    from jaxeac.experiment import merge_parts
+
+    return _finish_grid(merge_parts(args.dir), args.dir, compare=not args.no_compare, quiet=args.quiet)
 
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
@@ -279,7 +323,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 COMMANDS = {
     "reproduce": cmd_reproduce,
     "grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
-    "compare": cmd_compare,
+    "compare": cmd_compare, "merge": cmd_merge,
 }
 
 

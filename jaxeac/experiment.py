@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import math
 import platform
 import sys
@@ -114,18 +115,81 @@ class GridRun:
     results: dict[str, SeedsResult]
 
 
-def run_grid(settings: GridSettings, *, progress: Callable[[int], None] | None = None) -> GridRun:
-    """Run every algorithm of `settings` (already `resolved()`) over its seeds."""
+def process_share(n_seeds: int, index: int, count: int) -> tuple[int, int]:
+    """(first seed, number of seeds) of process `index` of `count`: contiguous, near-equal blocks."""
+    first = index * n_seeds // count
+    return first, (index + 1) * n_seeds // count - first
+
+
+def run_grid(settings: GridSettings, *, progress: Callable[[int], None] | None = None,
+             first_seed: int = 0, n_seeds: int | None = None) -> GridRun:
+    """Run every algorithm of `settings` (already `resolved()`) over seeds first_seed… (default all).
+
+    Seed i is ``fold_in(root, i)`` whichever process or device runs it (R1), so the seeds of
+    a run can be split over processes and merged afterwards (`merge_parts`).
+    """
     grid_map = settings.grid_map()
     env = GridWorld(grid_map, settings.chances)
+    n = settings.seeds if n_seeds is None else n_seeds
     results = {
         algo: run_seeds(
-            env, settings.run_config(algo), root_key=settings.key, n_seeds=settings.seeds,
+            env, settings.run_config(algo), root_key=settings.key, n_seeds=n, first_seed=first_seed,
             chunk_size=settings.chunk_size, progress=progress,
         )
         for algo in settings.algos
     }
     return GridRun(settings, grid_map, results)
+
+
+PART_PREFIX = "part-"
+
+
+def part_folder(out: str | Path, index: int, count: int) -> Path:
+    """Where process `index` of `count` writes its seeds."""
+    return Path(out) / f"{PART_PREFIX}{index:04d}-of-{count:04d}"
+
+
+def merge_parts(out: str | Path) -> GridRun:
+    """Join the part folders of a multi-process run into one `GridRun` (seeds in order).
+
+    Refuses missing parts, parts of different runs and overlapping or missing seeds.
+    """
+    out = Path(out)
+    parts = sorted(out.glob(f"{PART_PREFIX}*-of-*"))
+    if not parts:
+        raise UsageError(f"{out} has no {PART_PREFIX}NNNN-of-NNNN folders; run `jaxeac grid --num-processes`")
+    count = int(parts[0].name.rsplit("-of-", 1)[1])
+    expected = [part_folder(out, i, count).name for i in range(count)]
+    missing = sorted(set(expected) - {p.name for p in parts})
+    if missing or len(parts) != count:
+        raise UsageError(f"{out}: parts missing or extra ({', '.join(missing) or 'mixed counts'}); "
+                         "rerun the missing processes")
+    summaries = [json.loads((p / "summary.json").read_text()) for p in parts]
+    config = summaries[0]["config"]
+    if any(s["config"] != config for s in summaries):
+        raise UsageError(f"{out}: the parts come from runs with different settings; rerun them together")
+    settings = dataclasses.replace(GridSettings(), **{k: v for k, v in config.items() if k != "map"})
+    settings = dataclasses.replace(settings, algos=tuple(settings.algos))
+    results = {}
+    for algo in settings.algos:
+        pieces = []
+        for p, summary in zip(parts, summaries, strict=True):
+            with np.load(p / "curves.npz") as c, np.load(p / "policies.npz") as pol:
+                pieces.append((pol["seeds"], c[algo], c[f"{algo}_steps"], pol[algo],
+                               summary["per_algo"][algo]))
+        seeds = np.concatenate([x[0] for x in pieces])
+        if not np.array_equal(seeds, np.arange(settings.seeds)):
+            raise UsageError(f"{out}: the parts' seeds do not cover 0..{settings.seeds - 1} exactly once")
+        results[algo] = SeedsResult(
+            seeds=seeds, success=np.concatenate([x[1] for x in pieces]),
+            steps=np.concatenate([x[2] for x in pieces]).astype(np.int32),
+            policy=np.concatenate([x[3] for x in pieces]).astype(np.int32),
+            compile_seconds=max(x[4]["compile_seconds"] for x in pieces),
+            run_seconds=max(x[4]["run_seconds"] for x in pieces),  # processes run side by side
+        )
+    from envs.grid import parse_map
+
+    return GridRun(settings, parse_map(config["map"]), results)
 
 
 def mean_ci95(x: np.ndarray) -> tuple[float, float, float, float]:
@@ -243,7 +307,8 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True) -
             **{f"{algo}_steps": r.steps.astype(np.int16) for algo, r in run.results.items()},
         )
         np.savez_compressed(
-            stage / "policies.npz", **{algo: r.policy.astype(np.int8) for algo, r in run.results.items()}
+            stage / "policies.npz", seeds=next(iter(run.results.values())).seeds,
+            **{algo: r.policy.astype(np.int8) for algo, r in run.results.items()},
         )
         if figures:
             from jaxeac import plots

@@ -48,6 +48,11 @@ def environment() -> dict:
     return info
 
 
+def command_line() -> str:
+    """The command as a user would type it (no machine-specific interpreter path)."""
+    return " ".join(["python", *sys.argv])
+
+
 def state_bytes_per_seed(env, cfg) -> int:
     """Bytes of the per-seed loop state (agent, memories, env state, per-trial records)."""
     import jax
@@ -94,7 +99,7 @@ def bench_numpy(algo: str, n_seeds: int) -> dict:
 
 
 def measure(args) -> dict:
-    record = {"environment": environment(), "command": " ".join([sys.executable, *sys.argv]), "rows": []}
+    record = {"environment": environment(), "command": command_line(), "rows": []}
     for n in args.seeds:
         for algo in ("ac", "eac"):
             row = bench_grid(algo, n, args.chunk, args.repeats)
@@ -108,11 +113,65 @@ def measure(args) -> dict:
     return record
 
 
+def _render_scale(path: Path, rec: dict) -> list[str]:
+    env = rec["environment"]
+    out = [f"#### `{path.name}`: {len(env['devices'])} × {env['device_kind']}, jax {env['jax']}\n",
+           f"Command: `{rec['command']}`\n",
+           "| algo | seeds | devices | compile s | first run s | run s (warm) | agent-steps/s | "
+           "1-device run s | scaling efficiency | first K seeds identical on 1 and n devices |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rec["rows"]:
+        one = f"{r['one_run_s']:.2f}" if "one_run_s" in r else "–"
+        eff = f"{r['scaling_efficiency']:.2f}" if "scaling_efficiency" in r else "–"
+        first = f"{r['all_first_run_s']:.2f}" if "all_first_run_s" in r else "–"
+        out.append(f"| {r['algo']} | {r['seeds']:,} | {r['devices']} | {r['all_compile_s']:.2f} | {first} | "
+                   f"{r['all_run_s']:.2f} | {r['all_steps_per_s']:.3g} | {one} | {eff} | "
+                   f"{'yes' if r['subset_identical'] else 'NO'} (K = {r['subset']:,}) |")
+    return out + [""]
+
+
+def _render_bowling(path: Path, rec: dict) -> list[str]:
+    m, v = rec["machine"], rec["versions"]
+    out = [f"#### `{path.name}`: {', '.join(m['jax_devices'])}, {m['cpu_count']} CPUs, mujoco {v['mujoco']}, "
+           f"mujoco-mjx {v.get('mujoco_mjx', '?')}, jax {v['jax']}\n",
+           "Command: `python scripts/bench_bowling.py` (flags in the text); 400 physics steps per throw.\n",
+           "| backend | batch | threads | compile s | run s | throws/s | physics steps/s | mean pins |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in rec["results"]:
+        compile_s = f"{r['compile_s']:.1f}" if "compile_s" in r else "–"
+        threads = r.get("nthread", "–")
+        out.append(f"| {r['backend']} | {r['batch']:,} | {threads} | {compile_s} | {r['run_s']:.2f} | "
+                   f"{r['throws_per_s']:.0f} | {r['steps_per_s']:.3g} | {r['mean_knocked']:.2f} |")
+    return out + [""]
+
+
+def _render_stats(path: Path, rec: dict) -> list[str]:
+    m, v = rec["machine"], rec["versions"]
+    return [f"#### `{path.name}`: {m['cpus']} CPUs, jax {v['jax']}, numpy {v['numpy']}, "
+            f"scipy {v['scipy']}\n",
+            "Command: `python scripts/bench_stats.py --repeat 2` (synthetic run folder; full `compare_run_dir`: "
+            "statistics, calibration, report and figures)\n",
+            "| seeds per method | trials | resamples | import s | first run s (compile incl.) | "
+            "compile + warm-up s | warm run s |", "|---|---|---|---|---|---|---|",
+            f"| {rec['seeds_per_method']:,} | {rec['trials']} | {rec['resamples']:,} | "
+            f"{rec['import_seconds']:.2f} | {rec['first_run_seconds']:.2f} | "
+            f"{rec['compile_and_warmup_seconds']:.2f} | {rec['warm_run_seconds']:.2f} |", ""]
+
+
 def render(paths: list[Path]) -> str:
-    """Markdown tables from benchmark JSON files."""
+    """Markdown tables from benchmark JSON files (grid, scale, bowling and stats records)."""
     out = []
     for path in paths:
         rec = json.loads(path.read_text())
+        if "first_run_seconds" in rec:
+            out += _render_stats(path, rec)
+            continue
+        if "results" in rec:
+            out += _render_bowling(path, rec)
+            continue
+        if rec["rows"] and "subset_identical" in rec["rows"][0]:
+            out += _render_scale(path, rec)
+            continue
         env = rec["environment"]
         out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
                    f"jax {env['jax']}, numpy {env['numpy']}, Python {env['python']}\n")

@@ -33,7 +33,7 @@ def main() -> None:
     args = p.parse_args()
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench import environment
+    from bench import command_line, environment
 
     from envs.grid import GridWorld, get_map
     from jaxeac.agent import algorithm
@@ -41,7 +41,7 @@ def main() -> None:
 
     env = GridWorld(get_map("paper"), 40)
     devices = jax.local_devices()
-    record = {"environment": environment(), "command": " ".join([sys.executable, *sys.argv]), "rows": []}
+    record = {"environment": environment(), "command": command_line(), "rows": []}
     for algo in ("ac", "eac"):
         cfg = RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3, gamma=0.9)
         row = {"algo": algo, "seeds": args.seeds, "chunk": args.chunk, "devices": len(devices)}

@@ -39,3 +39,33 @@ def test_one_and_two_devices_bit_identical():
                           cwd=root, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "identical on 1 and 2 devices" in proc.stdout
+
+
+def test_processes_write_parts_and_merge_to_the_single_run(tmp_path, capsys):
+    """Multi-host layout: each process writes only its seeds; the merge equals one process's run."""
+    import shutil
+
+    import numpy as np
+
+    from jaxeac.cli import main
+
+    small = ["--seeds", "7", "--trials", "12", "--chances", "15", "--quiet"]
+    for i in range(3):
+        assert main(["grid", *small, "--num-processes", "3", "--process-id", str(i),
+                     "--out", str(tmp_path / "multi")]) == 0
+    parts = sorted(p.name for p in (tmp_path / "multi").iterdir())
+    assert parts == ["part-0000-of-0003", "part-0001-of-0003", "part-0002-of-0003"]
+    rows = [(tmp_path / "multi" / p / "per_seed.csv").read_text().splitlines()[1:] for p in parts]
+    assert [len(r) for r in rows] == [4, 4, 6]  # 2 algorithms × seeds {0,1}, {2,3}, {4,5,6}
+    assert main(["merge", str(tmp_path / "multi"), "--no-compare", "--quiet"]) == 0
+    assert main(["grid", *small, "--no-compare", "--out", str(tmp_path / "single")]) == 0
+    merged, single = tmp_path / "multi", tmp_path / "single"
+    assert (merged / "per_seed.csv").read_text() == (single / "per_seed.csv").read_text()
+    with np.load(merged / "curves.npz") as a, np.load(single / "curves.npz") as b:
+        for key in b.files:
+            np.testing.assert_array_equal(a[key], b[key])
+    # a missing part is refused with a clear message
+    shutil.rmtree(merged / "part-0001-of-0003")
+    capsys.readouterr()
+    assert main(["merge", str(merged), "--no-compare"]) == 2
+    assert "part-0001-of-0003" in capsys.readouterr().err
