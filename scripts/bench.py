@@ -149,8 +149,8 @@ def _render_stats(path: Path, rec: dict) -> list[str]:
     m, v = rec["machine"], rec["versions"]
     return [f"#### `{path.name}`: {m['cpus']} CPUs, jax {v['jax']}, numpy {v['numpy']}, "
             f"scipy {v['scipy']}\n",
-            "Command: `python scripts/bench_stats.py --repeat 2` (synthetic run folder; full `compare_run_dir`: "
-            "statistics, calibration, report and figures)\n",
+            "Command: `python scripts/bench_stats.py --repeat 2` (synthetic run folder; the full "
+            "`compare_run_dir`: statistics, calibration, report and figures)\n",
             "| seeds per method | trials | resamples | import s | first run s (compile incl.) | "
             "compile + warm-up s | warm run s |", "|---|---|---|---|---|---|---|",
             f"| {rec['seeds_per_method']:,} | {rec['trials']} | {rec['resamples']:,} | "
