@@ -25,7 +25,7 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
     """Fig. 3: mean cumulative successes over trials per algorithm, with a pointwise 95 % CI band."""
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     for algo, s in success.items():
-        cum = np.cumsum(s, axis=1, dtype=np.float64)
+        cum = np.cumsum(s, axis=1, dtype=np.int32)
         n, t = cum.shape
         mean = cum.mean(axis=0)
         trials = np.arange(1, t + 1)
