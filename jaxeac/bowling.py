@@ -326,31 +326,16 @@ def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | 
 
 def summarize_bowling(run: BowlingRun) -> dict:
     """summary.json content, as the grid's, with `return` (pins over T trials) as the primary measure."""
-    from jaxeac.experiment import mean_ci95, versions, welch_diff_ci95
+    from jaxeac.experiment import summary_base
 
-    s = run.settings
-    per_algo = {}
+    out = summary_base("bowling", "return", run.settings, run.results,
+                       {a: r.total_return for a, r in run.results.items()})
     for algo, r in run.results.items():
-        mean, sd, lo, hi = mean_ci95(r.total_return)
-        per_algo[algo] = {
-            "mean_return": mean, "sd_return": sd, "ci95_return": [lo, hi],
+        out["per_algo"][algo] |= {
             "mean_successes": float(r.success.sum(axis=1).mean()), "throws": r.throws,
-            "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds,
             "throws_per_second": r.throws / r.run_seconds if r.run_seconds > 0 else None,
         }
-    out = {
-        "experiment": "bowling", "primary_measure": "return", "algos": list(s.algos),
-        "trials": s.trials, "seeds": s.seeds, "key": s.key, "config": dataclasses.asdict(s),
-        "physics": dataclasses.asdict(s.physics()), "versions": versions(),
-        "devices": [str(d) for d in jax.devices()],
-        "compile_seconds": sum(r.compile_seconds for r in run.results.values()),
-        "run_seconds": sum(r.run_seconds for r in run.results.values()),
-        "per_algo": per_algo, "paper_totals": PAPER_TOTALS,
-    }
-    if "ac" in run.results and "eac" in run.results:
-        diff, lo, hi = welch_diff_ci95(run.results["ac"].total_return, run.results["eac"].total_return)
-        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
-    return out
+    return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": PAPER_TOTALS}
 
 
 def table_one(run: BowlingRun, seed: int = 0) -> str:

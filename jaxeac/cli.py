@@ -22,26 +22,21 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
-def positive_int(text: str) -> int:
-    """An integer ≥ 1 (rejects 1.5, 0, -3, 'ten')."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a positive integer")
-    return value
+def _int_at_least(minimum: int, what: str):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"{text} must be a {what} integer")
+        return value
+
+    return parse
 
 
-def nonneg_int(text: str) -> int:
-    """An integer ≥ 0 (a PRNG key)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a non-negative integer")
-    return value
+positive_int = _int_at_least(1, "positive")  # counts: rejects 1.5, 0, -3, 'ten'
+nonneg_int = _int_at_least(0, "non-negative")  # PRNG keys, process ids
 
 
 def finite_float(text: str) -> float:

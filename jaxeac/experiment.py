@@ -230,39 +230,40 @@ def versions() -> dict[str, str]:
     }
 
 
-def summarize(run: GridRun) -> dict:
-    """summary.json content: config, versions, devices, timings, per-algorithm statistics."""
-    s = run.settings
+def summary_base(experiment: str, primary: str, settings, results: dict, measures: dict) -> dict:
+    """The summary.json fields every run folder shares (`measures`: primary measure per algorithm)."""
     per_algo = {}
-    for algo, r in run.results.items():
-        mean, sd, lo, hi = mean_ci95(r.successes)
-        per_algo[algo] = {
-            "mean_successes": mean, "sd_successes": sd, "ci95_successes": [lo, hi],
-            "mean_steps": float(r.steps.sum(axis=1).mean()),
-            "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds,
-            "agent_steps": r.agent_steps,
-            "agent_steps_per_second": r.agent_steps / r.run_seconds if r.run_seconds > 0 else None,
-        }
+    for algo, r in results.items():
+        mean, sd, lo, hi = mean_ci95(measures[algo])
+        per_algo[algo] = {f"mean_{primary}": mean, f"sd_{primary}": sd, f"ci95_{primary}": [lo, hi],
+                          "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds}
     out = {
-        "experiment": "grid",
-        "primary_measure": "successes",
-        "algos": list(s.algos),
-        "trials": s.trials,
-        "seeds": s.seeds,
-        "key": s.key,
-        "config": dataclasses.asdict(s) | {"map": run.grid_map.text},
-        "versions": versions(),
-        "devices": [str(d) for d in jax.devices()],
-        "command": " ".join(sys.argv),
-        "compile_seconds": sum(r.compile_seconds for r in run.results.values()),
-        "run_seconds": sum(r.run_seconds for r in run.results.values()),
+        "experiment": experiment, "primary_measure": primary, "algos": list(settings.algos),
+        "trials": settings.trials, "seeds": settings.seeds, "key": settings.key,
+        "config": dataclasses.asdict(settings), "versions": versions(),
+        "devices": [str(d) for d in jax.devices()], "command": " ".join(["jaxeac", *sys.argv[1:]]),
+        "compile_seconds": sum(r.compile_seconds for r in results.values()),
+        "run_seconds": sum(r.run_seconds for r in results.values()),
         "per_algo": per_algo,
     }
+    if "ac" in measures and "eac" in measures:
+        diff, lo, hi = welch_diff_ci95(measures["ac"], measures["eac"])
+        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
+    return out
+
+
+def summarize(run: GridRun) -> dict:
+    """summary.json content: config, versions, devices, timings, per-algorithm statistics."""
+    out = summary_base("grid", "successes", run.settings, run.results,
+                       {a: r.successes for a, r in run.results.items()})
+    out["config"]["map"] = run.grid_map.text
+    for algo, r in run.results.items():
+        out["per_algo"][algo] |= {
+            "mean_steps": float(r.steps.sum(axis=1).mean()), "agent_steps": r.agent_steps,
+            "agent_steps_per_second": r.agent_steps / r.run_seconds if r.run_seconds > 0 else None,
+        }
     total_steps = sum(r.agent_steps for r in run.results.values())
     out["agent_steps_per_second"] = total_steps / out["run_seconds"] if out["run_seconds"] > 0 else None
-    if "ac" in run.results and "eac" in run.results:
-        diff, lo, hi = welch_diff_ci95(run.results["ac"].successes, run.results["eac"].successes)
-        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
     return out
 
 
