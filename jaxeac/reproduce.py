@@ -1025,7 +1025,8 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
 
     rec = {
         "schema": "jaxeac.reproduce/1", "mode": mode, "key": int(key), "command": command,
-        "argv": " ".join(["jaxeac", *sys.argv[1:]]), "sizes": _normal(dataclasses.asdict(sizes)), "resamples": sizes.resamples,
+        "argv": " ".join(["jaxeac", *sys.argv[1:]]), "sizes": _normal(dataclasses.asdict(sizes)),
+        "resamples": sizes.resamples,
         "finished": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "total_seconds": time.perf_counter() - t_start, "timings": timings,
         "versions": versions(), "devices": [str(d) for d in jax.devices()],
