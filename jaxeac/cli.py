@@ -354,7 +354,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("error: interrupted; no partial result files were written", file=sys.stderr)
+        print("error: interrupted; files already finished are kept, none is half-written", file=sys.stderr)
         return 130
 
 
