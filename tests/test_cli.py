@@ -124,3 +124,14 @@ def test_console_entry_points(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "jaxeac", "--help"], capture_output=True, text=True,
                           env=env, timeout=120)
     assert proc.returncode == 0 and "grid" in proc.stdout
+
+
+def test_command_uses_every_cpu_core(tmp_path):
+    """`jaxeac` exposes each CPU core as a device before JAX starts (results stay identical, R1)."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "jaxeac", "grid", *SMALL, "--out", str(out)],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    devices = json.loads((out / "summary.json").read_text())["devices"]
+    assert len(devices) == len(os.sched_getaffinity(0))
