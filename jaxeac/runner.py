@@ -287,18 +287,13 @@ class _Lane:
     entry: jax.Array  # int32 [], index into the batch; ≥ M once the lane is idle
 
 
-def _where(mask: jax.Array, new, old):
-    """Per-lane select over pytrees whose leaves have a leading lane axis."""
-    return jax.tree.map(lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b),
-                        new, old)
-
-
 def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
 
     Lanes advance one chance per iteration. Every C iterations, lanes whose seed has
-    run T trials write its result and take the next waiting seed, so lanes stay busy
-    until the queue is empty (a seed's result does not depend on its lane, R1).
+    run T trials (up to `harvest` of them) write its result and take the next waiting
+    seed, so lanes stay busy until the queue is empty (a seed's result does not depend
+    on its lane, R1).
     """
     m = words.shape[0]
     lanes = cfg.lanes if cfg.lanes is not None else (512 if jax.default_backend() == "cpu" else m)
@@ -314,22 +309,39 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     out = SeedResult(jnp.zeros((m, cfg.trials), bool), jnp.zeros((m, cfg.trials), jnp.int32),
                      jnp.zeros((m, env.n_states), jnp.int32))
 
+    # Lanes harvested per block: all of them when every entry has a lane from the start,
+    # else a bounded number, so per-block work (policies, fresh lanes) stays small.
+    harvest = n_lanes if n_lanes == m else max(1, n_lanes // 8)
+
     def block(carry):
         lanes, out, queued = carry
         run = jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, lanes.words, lanes.hyper), lanes.run)
         done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
-        row = jnp.where(done, lanes.entry, m)  # rows ≥ M are dropped
-        policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(run.agent)
+        if harvest == n_lanes:  # every lane at once: no gather of lane states needed
+            idx, got, finished = jnp.where(done, jnp.arange(n_lanes), n_lanes), done, run
+            row = jnp.where(done, lanes.entry, m)
+        else:
+            (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
+            got = idx < n_lanes
+            lane = jnp.minimum(idx, n_lanes - 1)
+            finished = jax.tree.map(lambda x: x[lane], run)
+            row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
+        policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(finished.agent)
         out = SeedResult(
-            out.success.at[row].set(run.agent.outcomes, mode="drop"),
-            out.steps.at[row].set(run.steps, mode="drop"),
+            out.success.at[row].set(finished.agent.outcomes, mode="drop"),
+            out.steps.at[row].set(finished.steps, mode="drop"),
             out.policy.at[row].set(policy, mode="drop"),
         )
-        nxt = queued + jnp.cumsum(done) - 1
-        refill = done & (nxt < m)
-        lanes = _where(refill, jax.vmap(start)(nxt), lanes.replace(run=run))
-        lanes = lanes.replace(entry=jnp.where(done, jnp.where(refill, nxt, m), lanes.entry))
-        return lanes, out, queued + done.sum()
+        nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
+        take = got & (nxt < m)
+        lanes = lanes.replace(run=run)
+        if n_lanes < m:  # hand waiting entries to the harvested lanes
+            fresh = jax.vmap(start)(nxt)
+            target = jnp.where(take, idx, n_lanes)
+            lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes, fresh)
+        idle = jnp.where(got & ~take, idx, n_lanes)
+        lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
+        return lanes, out, queued + take.sum(dtype=jnp.int32)
 
     _, out, _ = jax.lax.while_loop(lambda c: (c[0].entry < m).any(), block, (lanes, out, jnp.int32(n_lanes)))
     return out
