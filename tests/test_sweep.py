@@ -106,3 +106,15 @@ def test_vmapped_hyper_shares_one_program(tmp_path):
     base = GridSettings(seeds=4, chunk_size=4, trials=5, chances=5)
     run_sweep(Sweep.build(base, ["alpha=0.1,0.2,0.3", "beta=0.1,0.2"]), tmp_path / "s")
     assert len(runner._COMPILED) == 2  # one per algorithm, not per point
+
+
+def test_compare_per_point(tmp_path):
+    import json
+
+    base = GridSettings(seeds=6, chunk_size=6, trials=12, chances=15)
+    rows = run_sweep(Sweep.build(base, ["alpha=0.1,0.3"]), tmp_path / "s", compare=True)
+    for point in (0, 1):
+        stats = json.loads((tmp_path / "s" / "points" / f"p{point:05d}" / "stats.json").read_text())
+        mine = {r["algo"]: r for r in rows if r["point"] == point}
+        assert stats["primary"]["mean_treatment"] == pytest.approx(mine["eac"]["mean_successes"])
+        assert stats["primary"]["mean_baseline"] == pytest.approx(mine["ac"]["mean_successes"])
