@@ -206,7 +206,7 @@ class BowlingSettings:
     temperature: float = 1.0
 
     def validate(self) -> None:
-        from jaxeac.experiment import _positive_int, _rate
+        from jaxeac.experiment import _positive_int, _rate, check_algos
 
         for name in ("seeds", "trials", "chunk_size"):
             _positive_int(name.replace("_", " "), getattr(self, name))
@@ -218,12 +218,7 @@ class BowlingSettings:
         _rate("beta", self.beta)
         _rate("gamma", self.gamma, upper=1.0)
         _rate("temperature", self.temperature, positive=True)
-        if not self.algos:
-            raise UsageError("algos is empty; pass at least one of ac, eac")
-        for name in self.algos:
-            algorithm(name)
-        if len(set(self.algos)) != len(self.algos):
-            raise UsageError(f"algos lists an algorithm twice ({' '.join(self.algos)}); list each once")
+        check_algos(self.algos)
         self.physics()  # BowlingConfig validates θ_max and the noise levels
 
     def physics(self) -> BowlingConfig:

@@ -44,6 +44,16 @@ def _rate(name: str, value, *, upper: float | None = None, positive: bool = Fals
         raise UsageError(f"{name} must lie in [0, {upper:g}] (got {value!r})")
 
 
+def check_algos(algos) -> None:
+    """A non-empty list of known algorithm names, each once (raises `UsageError`)."""
+    if not algos:
+        raise UsageError("algos is empty; pass at least one of " + ", ".join(sorted(ALGORITHMS)))
+    for name in algos:
+        algorithm(name)  # raises on unknown names
+    if len(set(algos)) != len(algos):
+        raise UsageError(f"algos lists an algorithm twice ({' '.join(algos)}); list each once")
+
+
 @dataclasses.dataclass(frozen=True)
 class GridSettings:
     """Everything that defines a grid run; `None` fields come from the preset."""
@@ -86,12 +96,7 @@ class GridSettings:
         _rate("temperature", self.temperature, positive=True)
         if isinstance(self.key, bool) or not isinstance(self.key, int | np.integer) or self.key < 0:
             raise UsageError(f"key must be a non-negative integer (got {self.key!r})")
-        if not self.algos:
-            raise UsageError("algos is empty; pass at least one of " + ", ".join(sorted(ALGORITHMS)))
-        for name in self.algos:
-            algorithm(name)  # raises on unknown names
-        if len(set(self.algos)) != len(self.algos):
-            raise UsageError(f"algos lists an algorithm twice ({' '.join(self.algos)}); list each once")
+        check_algos(self.algos)
         if self.memory not in LAYOUTS:
             raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {', '.join(LAYOUTS)}")
 
