@@ -98,10 +98,20 @@ class AgentState:
     goal_known: jax.Array  # bool [], E5: goal reached at least once
     trial: jax.Array  # int32 [], 0-based index of the current trial
     chance: jax.Array  # int32 [], chances taken so far in the current trial
-    outcomes: jax.Array  # bool [T], success of each finished trial
+    log: jax.Array  # int32 [T], per finished trial: chances used, negated if it failed; 0 = not yet
     rtilde: jax.Array  # float [C], the latest r̃ per chance index: trial t−1's until trial t writes it
     prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
     path: tuple[jax.Array, jax.Array, jax.Array] | None  # buffer layout: states, actions, E6 flags [C]
+
+    @property
+    def outcomes(self) -> jax.Array:
+        """bool [T]: success of each finished trial (False while a trial is unfinished)."""
+        return self.log > 0
+
+    @property
+    def lengths(self) -> jax.Array:
+        """int32 [T]: chances used by each finished trial (0 while unfinished)."""
+        return jnp.abs(self.log)
 
 
 def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, n_trials: int) -> AgentState:
@@ -122,11 +132,22 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, 
         goal_known=jnp.bool_(False),
         trial=jnp.int32(0),
         chance=jnp.int32(0),
-        outcomes=jnp.zeros((n_trials,), bool),
+        log=jnp.zeros((n_trials,), jnp.int32),
         rtilde=jnp.zeros((n_chances,), float),
         prev_length=jnp.int32(0),
         path=path,
     )
+
+
+def _prefix_sums(x: jax.Array) -> jax.Array:
+    """cumsum over a short last axis, unrolled: elementwise adds fuse with the ops around them,
+    where ``jnp.cumsum`` becomes a separate reduce-window kernel (a per-step cost on CPU)."""
+    if x.shape[-1] > 32:
+        return jnp.cumsum(x, axis=-1)
+    parts = [x[..., 0]]
+    for a in range(1, x.shape[-1]):
+        parts.append(parts[-1] + x[..., a])
+    return jnp.stack(parts, axis=-1)
 
 
 def sample_softmax(logits: jax.Array, allowed: jax.Array, u: jax.Array) -> jax.Array:
@@ -136,7 +157,7 @@ def sample_softmax(logits: jax.Array, allowed: jax.Array, u: jax.Array) -> jax.A
     """
     shifted = logits - jnp.max(jnp.where(allowed, logits, -jnp.inf))
     weights = jnp.where(allowed, jnp.exp(shifted), 0.0)
-    cdf = jnp.cumsum(weights)
+    cdf = _prefix_sums(weights)
     action = jnp.sum(cdf <= u * cdf[-1])
     return jnp.minimum(action, logits.shape[0] - 1).astype(jnp.int32)
 
@@ -242,10 +263,10 @@ def end_trial(cfg: AgentConfig, agent: AgentState, success, ends) -> AgentState:
             memory = mem.write_success(memory, states, actions, valid & success)
         if cfg.failure_memory:
             memory = mem.write_failure(memory, states, actions, flags & valid & ~success)
-    t = jnp.where(ends, agent.trial, agent.outcomes.shape[0])  # not ending: dropped write
-    outcomes = agent.outcomes.at[t].set(success, mode="drop")
+    t = jnp.where(ends, agent.trial, agent.log.shape[0])  # not ending: dropped write
+    log = agent.log.at[t].set(jnp.where(success, length, -length), mode="drop")  # a trial takes ≥ 1 chance
     return agent.replace(
-        memory=memory, outcomes=outcomes,
+        memory=memory, log=log,
         prev_length=jnp.where(ends, length, agent.prev_length),
         trial=agent.trial + ends.astype(jnp.int32),
         chance=jnp.where(ends, 0, agent.chance),

@@ -249,13 +249,12 @@ def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResul
 class _FlatCarry:
     agent: AgentState
     env_state: Any
-    steps: jax.Array  # int32 [T], chances used per trial
 
 
 def _flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
     start = env.reset_at(start_index(words, 0, env.n_chances, env.n_starts))
-    return _FlatCarry(agent, start, jnp.zeros((cfg.trials,), jnp.int32))
+    return _FlatCarry(agent, start)
 
 
 def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) -> _FlatCarry:
@@ -266,7 +265,6 @@ def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper)
     u = step_uniform(words, action_counter(trial, agent.chance, env.n_chances))
     agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, u, hyper, active)
     ends = active & (step.terminated | step.truncated)
-    steps = carry.steps.at[jnp.where(ends, trial, cfg.trials)].set(agent.chance, mode="drop")
     agent = end_trial(cfg.agent, agent, step.terminated, ends)
     nxt = jnp.minimum(agent.trial, cfg.trials - 1)
     start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
@@ -274,7 +272,7 @@ def _flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper)
         lambda fresh, moved, old: jnp.where(ends, fresh, jnp.where(active, moved, old)),
         start, step.state, carry.env_state,
     )
-    return _FlatCarry(agent, env_state, steps)
+    return _FlatCarry(agent, env_state)
 
 
 @pytree_dataclass
@@ -329,7 +327,7 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
         policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(finished.agent)
         out = SeedResult(
             out.success.at[row].set(finished.agent.outcomes, mode="drop"),
-            out.steps.at[row].set(finished.steps, mode="drop"),
+            out.steps.at[row].set(finished.agent.lengths, mode="drop"),
             out.policy.at[row].set(policy, mode="drop"),
         )
         nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
