@@ -120,7 +120,7 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, 
     if cfg.uses_memory:
         if cfg.memory == "dense":
             mem.check_dense_limits(n_actions, n_trials)
-        memory = mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity)
+        memory = mem.init_memory(cfg.memory, n_states, n_actions, cfg.capacity, n_trials)
     path = None
     if cfg.uses_memory and cfg.memory == "buffer":
         path = (jnp.zeros((n_chances,), jnp.int32), jnp.zeros((n_chances,), jnp.int32),
@@ -235,7 +235,10 @@ def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, acti
         # makes the write depend on the read above, so XLA updates r̃ in place instead of copying it.
         kept = kept.at[jnp.where(active | flag, c, kept.shape[0])].set(rtilde, mode="drop")
     memory, path = agent.memory, agent.path
-    if isinstance(memory, mem.DenseMemory):
+    if isinstance(memory, mem.PackedMemory):
+        memory = mem.record_packed(memory, state, action, trial, agent.outcomes, active,
+                                   cfg.success_memory, flag if flag is not None else False)
+    elif isinstance(memory, mem.DenseMemory):
         if cfg.success_memory:
             memory = mem.record_visit(memory, state, action, trial, agent.outcomes, active)
         if cfg.failure_memory:

@@ -23,6 +23,13 @@ scatter per memory. Limits: A ≤ 24 actions, fewer than 2^(31 − A) trials, an
 most 254 actions and 32,766 trials for the success word (checked at init).
 Lookups during trial t see exactly the memory after trial t − 1, as in Algorithm 1.
 
+With few actions (A ≤ 5, as on the grid) and a run's trial count known, both
+memories share **one word per state** (`PackedMemory`): every visit stamps the
+state with its trial and settles the previous stamp's pending entries, whose
+trial is over by then. Same semantics, one gather and one scatter per step for
+both memories (each write is a separate kernel on CPU, so this is what EAC's
+per-step cost is made of); chosen automatically by `init_memory`.
+
 **buffer** (K slots, O(K) bytes per seed): (state, action) slots written at the
 end of a trial in chronological order. *Policy when full:* first-in, first-out —
 a new entry goes to slot ``count mod K``, evicting the oldest insertion. Updating
@@ -36,7 +43,7 @@ All functions are pure and single-stream (one seed); callers vmap.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +67,23 @@ class DenseMemory:
     failure_pending: jax.Array  # int32 [S]: (stamp + 1) << A | pending failure bits
     n_actions: int = static_field()
 @pytree_dataclass
+class PackedMemory:
+    """E7 dense layout, both memories in one int32 word per state (A ≤ 5; see module docstring).
+
+    Fields from the low bits: committed success action + 1 and pending success action
+    + 1 (`action_bits` each), committed failed bits and pending failed bits (A each),
+    and the trial stamp + 1 of the last visit in the remaining high bits.
+    """
+
+    words: jax.Array  # int32 [S]
+    n_actions: int = static_field()
+
+    @property
+    def action_bits(self) -> int:
+        return packed_action_bits(self.n_actions)
+
+
+@pytree_dataclass
 class BufferMemory:
     """E7 buffer layout: K (state, action) slots per memory, FIFO when full."""
 
@@ -71,7 +95,7 @@ class BufferMemory:
     failure_count: jax.Array  # int32 []
 
 
-Memory = DenseMemory | BufferMemory
+Memory = DenseMemory | PackedMemory | BufferMemory
 
 
 def check_dense_limits(n_actions: int, n_trials: int) -> None:
@@ -83,8 +107,29 @@ def check_dense_limits(n_actions: int, n_trials: int) -> None:
         )
 
 
-def init_memory(layout: Layout, n_states: int, n_actions: int, capacity: int) -> Memory:
-    """Empty memories: no success action anywhere, no failure flag."""
+MAX_PACKED_ACTIONS = 5
+
+
+def packed_action_bits(n_actions: int) -> int:
+    """Bits of one stored action + 1 (0 = none) in a `PackedMemory` word."""
+    return int(n_actions).bit_length()
+
+
+def packed_fits(n_actions: int, n_trials: int) -> bool:
+    """Whether one int32 word per state holds both memories for A actions and T trials."""
+    free = 31 - 2 * packed_action_bits(n_actions) - 2 * n_actions
+    return n_actions <= MAX_PACKED_ACTIONS and n_trials + 1 < (1 << free)
+
+
+def init_memory(layout: Layout, n_states: int, n_actions: int, capacity: int,
+                n_trials: int | None = None) -> Memory:
+    """Empty memories: no success action anywhere, no failure flag.
+
+    The dense layout packs both memories into one word per state when the run's trial
+    count `n_trials` is given and fits (`packed_fits`), else uses three words per state.
+    """
+    if layout == "dense" and n_trials is not None and packed_fits(n_actions, n_trials):
+        return PackedMemory(words=jnp.zeros((n_states,), jnp.int32), n_actions=n_actions)
     if layout == "dense":
         zeros = jnp.zeros((n_states,), jnp.int32)  # every field stored + 1: 0 = none
         return DenseMemory(success=zeros, failed=zeros, failure_pending=zeros, n_actions=n_actions)
@@ -110,6 +155,9 @@ def _slot_valid(count: jax.Array, capacity: int) -> jax.Array:
 
 def success_action(memory: Memory, state, trial, outcomes) -> jax.Array:
     """E1(a): the remembered successful action at `state` during `trial`, or −1."""
+    if isinstance(memory, PackedMemory):
+        f = _unpack_packed(memory, memory.words[state])
+        return jnp.where(_ended(f.stamp, trial, outcomes, success=True), f.pending, f.committed)
     if isinstance(memory, DenseMemory):
         stamp, pending, committed = _unpack_success(memory.success[state])
         return jnp.where(_ended(stamp, trial, outcomes, success=True), pending, committed)
@@ -120,6 +168,10 @@ def success_action(memory: Memory, state, trial, outcomes) -> jax.Array:
 
 def failure_flags(memory: Memory, state, trial, outcomes, n_actions: int) -> jax.Array:
     """E1(b): bool [A], the actions flagged failed at `state` during `trial`."""
+    if isinstance(memory, PackedMemory):
+        f = _unpack_packed(memory, memory.words[state])
+        bits = f.failed | jnp.where(_ended(f.stamp, trial, outcomes, success=False), f.failed_pending, 0)
+        return (bits >> jnp.arange(n_actions)) & 1 == 1
     if isinstance(memory, DenseMemory):
         bits = _failure_bits(memory, state, trial, outcomes)
         return (bits >> jnp.arange(n_actions)) & 1 == 1
@@ -179,10 +231,76 @@ def record_failure_candidate(memory: DenseMemory, state, action, trial, outcomes
     )
 
 
-def dense_tables(memory: DenseMemory, trial, outcomes) -> tuple[jax.Array, jax.Array]:
+class _Packed(NamedTuple):
+    stamp: jax.Array  # trial of the last visit, −1 = never
+    pending: jax.Array  # success action taken at the last visit in that trial, −1 = none
+    committed: jax.Array  # success action in effect before that trial, −1 = none
+    failed: jax.Array  # bits of the actions flagged failed before that trial
+    failed_pending: jax.Array  # bits of the actions that met E6 in that trial
+
+
+def _unpack_packed(memory: PackedMemory, word) -> _Packed:
+    b, n = memory.action_bits, memory.n_actions
+    amask, fmask = (1 << b) - 1, (1 << n) - 1
+    return _Packed(
+        stamp=(word >> (2 * b + 2 * n)) - 1,
+        pending=((word >> b) & amask) - 1,
+        committed=(word & amask) - 1,
+        failed=(word >> (2 * b)) & fmask,
+        failed_pending=(word >> (2 * b + n)) & fmask,
+    )
+
+
+def _pack_packed(memory: PackedMemory, f: _Packed):
+    b, n = memory.action_bits, memory.n_actions
+    return (((f.stamp + 1) << (2 * b + 2 * n)) | (f.failed_pending << (2 * b + n))
+            | (f.failed << (2 * b)) | ((f.pending + 1) << b) | (f.committed + 1))
+
+
+def record_packed(
+    memory: PackedMemory, state, action, trial, outcomes, active, remember, flag
+) -> PackedMemory:
+    """E4 and E6 lazily for one step of `trial` (if `active`): `action` becomes the state's
+    pending success action (if `remember`) and, if `flag` (E6 met), a pending failed action.
+
+    A first visit in a new trial settles the previous stamp's entries, whose trial is over:
+    a success commits its action, a failure its flagged actions.
+    """
+    f = _unpack_packed(memory, memory.words[state])
+    same = f.stamp == trial
+    succeeded = _ended(f.stamp, trial, outcomes, success=True)
+    failed_before = _ended(f.stamp, trial, outcomes, success=False)
+    new = _Packed(
+        stamp=jnp.asarray(trial, jnp.int32),
+        pending=jnp.where(remember, action, -1),
+        committed=jnp.where(succeeded, f.pending, f.committed),
+        failed=f.failed | jnp.where(failed_before, f.failed_pending, 0),
+        failed_pending=jnp.where(same, f.failed_pending, 0) | jnp.where(flag, 1 << action, 0),
+    )
+    row = jnp.where(active, state, memory.words.shape[0])  # inactive: dropped write
+    return memory.replace(words=memory.words.at[row].set(
+        _pack_packed(memory, new), mode="drop", unique_indices=True))
+
+
+def with_committed(memory: DenseMemory | PackedMemory, success, failed) -> DenseMemory | PackedMemory:
+    """The memory holding exactly these committed entries and nothing pending (tests, notebooks).
+
+    success: int [S], the remembered action per state (−1 = none); failed: bool [S, A].
+    """
+    success = jnp.asarray(success, jnp.int32)
+    bits = (jnp.asarray(failed, jnp.int32) << jnp.arange(memory.n_actions)).sum(axis=1)
+    if isinstance(memory, PackedMemory):
+        none = jnp.full_like(success, -1)
+        f = _Packed(stamp=none, pending=none, committed=success, failed=bits,
+                    failed_pending=jnp.zeros_like(bits))
+        return memory.replace(words=_pack_packed(memory, f))
+    return memory.replace(success=success + 1, failed=bits, failure_pending=jnp.zeros_like(bits))
+
+
+def dense_tables(memory: DenseMemory | PackedMemory, trial, outcomes) -> tuple[jax.Array, jax.Array]:
     """(success int32 [S], failed bool [S, A]): the memory in effect during `trial`."""
     memory, outcomes = jax.tree.map(jnp.asarray, (memory, outcomes))
-    states = jnp.arange(memory.success.shape[0])
+    states = jnp.arange((memory.words if isinstance(memory, PackedMemory) else memory.success).shape[0])
     success = jax.vmap(lambda s: success_action(memory, s, trial, outcomes))(states)
     failed = jax.vmap(lambda s: failure_flags(memory, s, trial, outcomes, memory.n_actions))(states)
     return success, failed

@@ -26,7 +26,7 @@ from jaxeac.agent import (
     td_error,
 )
 from jaxeac.errors import UsageError
-from jaxeac.memory import dense_tables
+from jaxeac.memory import dense_tables, with_committed
 
 JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
 
@@ -105,10 +105,7 @@ def hyper(temperature=1.0):
 
 def with_tables(agent, success, failed):
     """An EAC agent whose dense memory holds these committed entries."""
-    m = agent.memory
-    success = jnp.asarray(success, jnp.int32)
-    bits = (jnp.asarray(failed, jnp.int32) << jnp.arange(m.n_actions)).sum(axis=1)
-    return agent.replace(memory=m.replace(success=success + 1, failed=bits))  # stored + 1, no stamp
+    return agent.replace(memory=with_committed(agent.memory, success, failed))
 
 
 def test_select_action_e1_order():

@@ -112,3 +112,28 @@ def test_memory_jit_matches_eager():
     jitted = jax.jit(mem.write_success)(m, *args)
     for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_packed_word_golden():
+    """One word per state (A = 4): the bits by hand, and settling on the next visit (E4, E6)."""
+    m = mem.init_memory("dense", 10, 4, 0, n_trials=5)
+    assert isinstance(m, mem.PackedMemory) and m.action_bits == 3
+    outcomes = jnp.array([False, True, False, False, False])
+    yes = jnp.bool_(True)
+    m = mem.record_packed(m, 6, 1, 0, outcomes, yes, yes, yes)  # trial 0: a1 flagged at s6
+    m = mem.record_packed(m, 6, 3, 0, outcomes, yes, yes, jnp.bool_(False))  # then a3, unflagged
+    # stamp 0 (+1) << 14 | pending failed {1} << 10 | failed {} << 6 | pending a3 (+1) << 3 | none
+    assert int(m.words[6]) == (1 << 14) | (0b0010 << 10) | (4 << 3)
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 0, outcomes, 4), [False] * 4)  # own trial
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 1, outcomes, 4), [False, True, False, False])
+    assert int(mem.success_action(m, 6, 1, outcomes)) == -1  # trial 0 failed: a3 not remembered
+    # trial 1 (a success) visits s6 with a2: trial 0's flag is settled into the failed bits
+    m = mem.record_packed(m, 6, 2, 1, outcomes, yes, yes, jnp.bool_(False))
+    assert int(m.words[6]) == (2 << 14) | (0b0010 << 6) | (3 << 3)
+    assert int(mem.success_action(m, 6, 2, outcomes)) == 2
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 2, outcomes, 4), [False, True, False, False])
+    # trial 2 visits with a0: trial 1's success commits a2; an inactive step writes nothing
+    m = mem.record_packed(m, 6, 0, 2, outcomes, yes, yes, jnp.bool_(False))
+    assert int(mem.success_action(m, 6, 3, outcomes)) == 2  # trial 2 failed: a2 stays
+    same = mem.record_packed(m, 6, 1, 3, outcomes, jnp.bool_(False), yes, yes)
+    np.testing.assert_array_equal(same.words, m.words)

@@ -104,3 +104,26 @@ def test_small_buffer_evicts_fifo():
     small = dataclasses.replace(VARIANTS["eac_buffer_small"])
     ref = check_against_reference(get_map("paper"), small, trials=25, chances=40, seed=3)
     assert len(ref.success_memory) <= 3 and len(ref.failure_memory) <= 3
+
+
+@pytest.mark.parametrize("variant", ["eac", "eac_within_trial", "eac_success_only", "eac_failure_only"])
+def test_three_word_dense_layout_matches_reference(variant, monkeypatch):
+    """E7: with packing refused, the grid runs on the three-word dense layout (as bowling's
+    21 actions always do), and it too matches the reference step by step."""
+    import jaxeac.memory as mem
+
+    monkeypatch.setattr(mem, "packed_fits", lambda n_actions, n_trials: False)
+    agent = jax.eval_shape(lambda: mem.init_memory("dense", 4, 4, 1, n_trials=10))
+    assert isinstance(agent, mem.DenseMemory)
+    check_against_reference(get_map("paper"), VARIANTS[variant], trials=25, chances=40, seed=5)
+
+
+def test_grid_uses_one_packed_word_per_state():
+    """E7: four actions and a few hundred trials fit one word; 21 actions (bowling) do not."""
+    import jaxeac.memory as mem
+
+    assert isinstance(mem.init_memory("dense", 3, 4, 1, n_trials=200), mem.PackedMemory)
+    assert mem.packed_fits(4, 100_000) and not mem.packed_fits(4, 200_000)
+    assert mem.packed_fits(5, 32_766) and not mem.packed_fits(5, 32_767)
+    assert not mem.packed_fits(6, 10) and not mem.packed_fits(21, 10)
+    assert isinstance(mem.init_memory("dense", 3, 4, 1), mem.DenseMemory)  # trial count unknown
