@@ -75,7 +75,7 @@ class RunConfig:
     gamma: float = 0.9
     temperature: float = 1.0
     loop: Loop = "auto"
-    lanes: int | None = None  # flat loop: seeds in flight per device; None: 512 on CPU, all on GPU
+    lanes: int | None = None  # flat loop: seeds in flight per device; None: 256 on CPU, all on GPU
 
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
@@ -294,7 +294,7 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     on its lane, R1).
     """
     m = words.shape[0]
-    lanes = cfg.lanes if cfg.lanes is not None else (512 if jax.default_backend() == "cpu" else m)
+    lanes = cfg.lanes if cfg.lanes is not None else (256 if jax.default_backend() == "cpu" else m)
     n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
 
