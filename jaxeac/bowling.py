@@ -204,6 +204,9 @@ class BowlingSettings:
     beta: float = 0.3
     gamma: float = 1.0
     temperature: float = 1.0
+    solver: str = "newton"  # B7 solver settings (see envs.bowling.BowlingConfig)
+    iterations: int = 4
+    ls_iterations: int = 8
 
     def validate(self) -> None:
         from jaxeac.experiment import _positive_int, _rate, check_algos
@@ -223,7 +226,9 @@ class BowlingSettings:
 
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
-                             noise_angle=self.noise_angle, noise_speed=self.noise_speed)
+                             noise_angle=self.noise_angle, noise_speed=self.noise_speed,
+                             solver=self.solver, iterations=self.iterations,
+                             ls_iterations=self.ls_iterations)
 
     def run_config(self, algo: str) -> RunConfig:
         return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,

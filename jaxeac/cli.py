@@ -71,6 +71,15 @@ def add_grid_flags(p: argparse.ArgumentParser) -> None:
                    help="slots per memory for --memory buffer")
 
 
+def add_solver_flags(p: argparse.ArgumentParser) -> None:
+    """The bowling physics' constraint-solver settings (B7)."""
+    p.add_argument("--solver", default="newton", metavar="newton|cg",
+                   help="constraint solver (default newton; cg is faster in MJX on GPUs, less exact)")
+    p.add_argument("--iterations", type=positive_int, default=4, metavar="N", help="solver iterations")
+    p.add_argument("--ls-iterations", type=positive_int, default=8, metavar="N",
+                   help="line-search iterations")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -101,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--noise-speed", type=finite_float, default=0.1, metavar="S",
                    help="s.d. of the release-speed noise in m/s (B3)")
     b.add_argument("--backend", default="c", metavar="c|mjx", help="physics backend (B7; default c)")
+    add_solver_flags(b)
     b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO")
     b.add_argument("--alpha", type=finite_float, default=0.1, metavar="A", help="critic step size α")
     b.add_argument("--beta", type=finite_float, default=0.3, metavar="B", help="actor step size β")
@@ -116,6 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shoulder angles in rad, within ±theta-max")
     t.add_argument("--noise", type=finite_float, default=0.0, help="noise scale (0: deterministic)")
     t.add_argument("--backend", default="c", metavar="c|mjx")
+    add_solver_flags(t)
     t.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X")
     t.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="noise PRNG key")
     t.add_argument("--render", metavar="FILE.png", help="save a picture of the pin deck after the throw")
@@ -242,7 +253,8 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
-        beta=args.beta, gamma=args.gamma,
+        beta=args.beta, gamma=args.gamma, solver=args.solver, iterations=args.iterations,
+        ls_iterations=args.ls_iterations,
     )
     settings.validate()
     out = check_writable_dir(args.out)
@@ -268,7 +280,8 @@ def cmd_throw(args: argparse.Namespace) -> int:
 
     from envs.bowling import BowlingConfig, throw_command
 
-    cfg = BowlingConfig(theta_max=args.theta_max)
+    cfg = BowlingConfig(theta_max=args.theta_max, solver=args.solver, iterations=args.iterations,
+                        ls_iterations=args.ls_iterations)
     if args.render:
         from pathlib import Path
 

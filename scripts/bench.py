@@ -135,13 +135,27 @@ def _render_bowling(path: Path, rec: dict) -> list[str]:
     out = [f"#### `{path.name}`: {', '.join(m['jax_devices'])}, {m['cpu_count']} CPUs, mujoco {v['mujoco']}, "
            f"mujoco-mjx {v.get('mujoco_mjx', '?')}, jax {v['jax']}\n",
            "Command: `python scripts/bench_bowling.py` (flags in the text); 400 physics steps per throw.\n",
-           "| backend | batch | threads | compile s | run s | throws/s | physics steps/s | mean pins |",
-           "|---|---|---|---|---|---|---|---|"]
+           "| backend | solver:iters:ls:cap | batch | threads | compile s | run s | throws/s | "
+           "physics steps/s | mean pins |",
+           "|---|---|---|---|---|---|---|---|---|"]
     for r in rec["results"]:
         compile_s = f"{r['compile_s']:.1f}" if "compile_s" in r else "–"
         threads = r.get("nthread", "–")
-        out.append(f"| {r['backend']} | {r['batch']:,} | {threads} | {compile_s} | {r['run_s']:.2f} | "
-                   f"{r['throws_per_s']:.0f} | {r['steps_per_s']:.3g} | {r['mean_knocked']:.2f} |")
+        out.append(f"| {r['backend']} | {r.get('physics', 'newton:4:8:32')} | {r['batch']:,} | {threads} | "
+                   f"{compile_s} | {r['run_s']:.2f} | {r['throws_per_s']:.0f} | {r['steps_per_s']:.3g} | "
+                   f"{r['mean_knocked']:.2f} |")
+    acc = [r for r in rec["results"] if "accuracy_throws" in r]
+    if acc:
+        out += ["", "Accuracy on the first N throws of the largest batch, against the C engine at 50/50 "
+                "Newton iterations on the same noisy throws (same keys):", "",
+                "| backend | solver:iters:ls:cap | N | mean pins | reference | difference ± s.e. | "
+                "mean abs difference per throw | strike rate (reference) |",
+                "|---|---|---|---|---|---|---|---|"]
+        for r in acc:
+            out.append(f"| {r['backend']} | {r['physics']} | {r['accuracy_throws']:,} | "
+                       f"{r['mean_knocked_first_n']:.2f} | {r['reference_mean_knocked']:.2f} | "
+                       f"{r['mean_diff']:+.2f} ± {r['mean_diff_se']:.2f} | {r['mean_abs_diff']:.2f} | "
+                       f"{r['strike_rate']:.3f} ({r['reference_strike_rate']:.3f}) |")
     return out + [""]
 
 

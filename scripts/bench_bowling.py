@@ -7,11 +7,17 @@ default noise, from a full rack, so hits and misses are both in the batch.
 
     python scripts/bench_bowling.py --out bench_cpu.json
     python scripts/bench_bowling.py --backends mjx --mjx-batches 1024 4096 16384 65536 --out gpu.json
+    python scripts/bench_bowling.py --backends mjx --physics newton:4:8 cg:8:8 cg:6:4:24 --accuracy 2048
+
+``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap]);
+``--accuracy N`` also scores each setting's pins on the first N throws of its largest
+batch against the C engine at 50/50 Newton iterations on the same noisy throws.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -55,6 +61,7 @@ def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         best = min(best, time.perf_counter() - t0)
     return {
         "backend": "c",
+        "physics": physics_label(cfg),
         "batch": batch,
         "nthread": cfg.nthread or os.cpu_count(),
         "setup_s": setup,
@@ -62,7 +69,40 @@ def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         "throws_per_s": batch / best,
         "steps_per_s": batch * cfg.n_steps / best,
         "mean_knocked": float(np.mean(res.knocked)),
+        "_knocked": np.asarray(res.knocked),
     }
+
+
+def physics_label(cfg: BowlingConfig) -> str:
+    """solver:iterations:ls_iterations:contact_cap, as given to --physics."""
+    return f"{cfg.solver}:{cfg.iterations}:{cfg.ls_iterations}:{cfg.contact_cap}"
+
+
+def parse_physics(spec: str, base: BowlingConfig) -> BowlingConfig:
+    """BowlingConfig with the solver settings of a 'solver:iterations:ls_iterations[:contact_cap]' spec."""
+    parts = spec.split(":")
+    if len(parts) not in (3, 4):
+        raise SystemExit(f"error: --physics {spec!r}: use solver:iterations:ls_iterations[:contact_cap]")
+    cap = int(parts[3]) if len(parts) == 4 else base.contact_cap
+    return dataclasses.replace(base, solver=parts[0], iterations=int(parts[1]),
+                               ls_iterations=int(parts[2]), contact_cap=cap)
+
+
+def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, reference: dict) -> dict:
+    """Pins per throw on the first n throws of a batch against the C engine at 50/50 Newton
+    iterations on the same noisy throws (same keys): means, paired difference and its s.e."""
+    if "knocked" not in reference or reference["knocked"].size < n:
+        ref_cfg = dataclasses.replace(cfg, solver="newton", iterations=50, ls_iterations=50)
+        pins, a, keys = _inputs(batch, cfg, 0)
+        res = throw(initial_pins(n), a[:n], keys[:n], backend="c", cfg=ref_cfg)
+        reference["knocked"] = np.asarray(res.knocked)
+    ref = reference["knocked"][:n].astype(float)
+    got = knocked[:n].astype(float)
+    diff = got - ref
+    return {"accuracy_throws": n, "mean_knocked_first_n": float(got.mean()),
+            "reference_mean_knocked": float(ref.mean()), "mean_diff": float(diff.mean()),
+            "mean_diff_se": float(diff.std(ddof=1) / np.sqrt(n)), "mean_abs_diff": float(np.abs(diff).mean()),
+            "strike_rate": float((got == 10).mean()), "reference_strike_rate": float((ref == 10).mean())}
 
 
 def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
@@ -80,6 +120,7 @@ def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         best = min(best, time.perf_counter() - t0)
     return {
         "backend": "mjx",
+        "physics": physics_label(cfg),
         "batch": batch,
         "device": str(jax.devices()[0]),
         "compile_s": compile_s,
@@ -87,6 +128,7 @@ def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         "throws_per_s": batch / best,
         "steps_per_s": batch * cfg.n_steps / best,
         "mean_knocked": float(np.mean(np.asarray(res.knocked))),
+        "_knocked": np.asarray(res.knocked),
     }
 
 
@@ -108,6 +150,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="default: 16 64 256 on CPU, 1024 4096 16384 65536 on GPU")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--nthread", type=int, default=0, help="C threads (0 = CPU count)")
+    p.add_argument("--physics", nargs="+", default=["newton:4:8"], metavar="SPEC",
+                   help="solver settings to measure, each solver:iterations:ls_iterations[:contact_cap]")
+    p.add_argument("--accuracy", type=int, default=0, metavar="N",
+                   help="also compare the first N throws of each setting's largest batch with the C "
+                        "engine at 50/50 Newton iterations on the same throws (0: skip)")
     p.add_argument("--out", type=Path, default=None, help="write the JSON report here")
     args = p.parse_args(argv)
 
@@ -139,15 +186,26 @@ def main(argv: list[str] | None = None) -> int:
         report["versions"]["jaxlib"] = md.version("jaxlib")
     except Exception:  # metadata missing in odd installs: the report still stands
         pass
-    for name in args.backends:
-        batches = args.c_batches if name == "c" else mjx_batches
-        rows = []
-        for b in batches:
-            row = bench_c(b, cfg, args.repeats) if name == "c" else bench_mjx(b, cfg, args.repeats)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-        report["results"].extend(rows)
-        report[f"{name}_saturates_at_batch"] = saturation(rows)
+    reference: dict = {}
+    for spec in args.physics:
+        pcfg = parse_physics(spec, cfg)
+        for name in args.backends:
+            batches = args.c_batches if name == "c" else mjx_batches
+            rows = []
+            for b in batches:
+                row = bench_c(b, pcfg, args.repeats) if name == "c" else bench_mjx(b, pcfg, args.repeats)
+                rows.append(row)
+            knocked = rows[-1]["_knocked"]
+            for row in rows:
+                row.pop("_knocked")
+                print(json.dumps(row), flush=True)
+            if args.accuracy:
+                n = min(args.accuracy, rows[-1]["batch"])
+                rows[-1].update(accuracy(knocked, rows[-1]["batch"], pcfg, n, reference))
+                print(json.dumps({k: v for k, v in rows[-1].items() if "diff" in k or "reference" in k}),
+                      flush=True)
+            report["results"].extend(rows)
+            report.setdefault("saturates_at_batch", {})[f"{name} {physics_label(pcfg)}"] = saturation(rows)
     report["machine"]["loadavg_at_end"] = os.getloadavg()
     if args.out:
         args.out.write_text(json.dumps(report, indent=2))

@@ -24,6 +24,7 @@ jit-compiled learning run).
 Public API::
 
     cfg = BowlingConfig()                       # frozen, validated
+    cfg = BowlingConfig(solver="cg", iterations=8, ls_iterations=8)  # solver settings (B7)
     angles(cfg) -> np.ndarray (K,)
     initial_pins(batch) -> PinState(qpos (B,10,7), standing (B,10))
     throw(pins, angle, key_or_noise, *, backend="c", record_trajectory=False, cfg=cfg)
@@ -42,6 +43,7 @@ from .scene import (
     N_PINS,
     XML_PATH,
     BowlingConfig,
+    Physics,
     PinState,
     ThrowResult,
     Trajectory,
@@ -56,6 +58,7 @@ __all__ = [
     "N_PINS",
     "XML_PATH",
     "BowlingConfig",
+    "Physics",
     "PinState",
     "ThrowResult",
     "Trajectory",

@@ -19,10 +19,12 @@ import mujoco.rollout
 import numpy as np
 
 from .scene import (
+    DEFAULT_PHYSICS,
     NQ,
     NV,
     XML_PATH,
     BowlingConfig,
+    Physics,
     PinState,
     ThrowResult,
     Trajectory,
@@ -34,9 +36,16 @@ _CHUNK = 128  # throws per rollout call: bounds the (chunk, n_steps, nstate) out
 _SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def load_model() -> mujoco.MjModel:
-    """The bowling MjModel from the package's MJCF file (B1)."""
-    return mujoco.MjModel.from_xml_path(str(XML_PATH))
+def load_model(physics: Physics = DEFAULT_PHYSICS) -> mujoco.MjModel:
+    """The bowling MjModel from the package's MJCF file (B1), with these solver settings."""
+    model = mujoco.MjModel.from_xml_path(str(XML_PATH))
+    model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[
+        physics.solver]
+    model.opt.iterations = physics.iterations
+    model.opt.ls_iterations = physics.ls_iterations
+    cap = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
+    model.numeric_data[model.numeric_adr[cap]] = physics.contact_cap
+    return model
 
 
 def _state_offsets(model: mujoco.MjModel) -> tuple[int, int, int]:
@@ -53,9 +62,9 @@ def _state_offsets(model: mujoco.MjModel) -> tuple[int, int, int]:
 class CEngine:
     """A loaded model, one MjData per thread and a rollout pool: runs batches of throws."""
 
-    def __init__(self, nthread: int = 0):
+    def __init__(self, nthread: int = 0, physics: Physics = DEFAULT_PHYSICS):
         """Load the model and start a pool of nthread threads (0: one per CPU core)."""
-        self.model = load_model()
+        self.model = load_model(physics)
         self.nthread = nthread or os.cpu_count() or 1
         self.datas = [mujoco.MjData(self.model) for _ in range(self.nthread)]
         self.pool = mujoco.rollout.Rollout(nthread=self.nthread)
@@ -88,9 +97,9 @@ class CEngine:
 
 
 @functools.lru_cache(maxsize=4)
-def engine(nthread: int = 0) -> CEngine:
-    """A cached CEngine for nthread threads."""
-    return CEngine(nthread)
+def engine(nthread: int = 0, physics: Physics = DEFAULT_PHYSICS) -> CEngine:
+    """A cached CEngine for nthread threads and these solver settings."""
+    return CEngine(nthread, physics)
 
 
 @functools.lru_cache(maxsize=16)
@@ -114,7 +123,7 @@ def throw_c(
 ) -> ThrowResult:
     """Batched throw on the C engine: pins (B,...), angle (B,), eps (B, 2) -> numpy ThrowResult (B7)."""
     qpos, qvel = _prepare_fn(cfg)(pins, jnp.asarray(angle, jnp.float32), eps)
-    eng = engine(cfg.nthread)
+    eng = engine(cfg.nthread, cfg.physics)
     stride = cfg.trajectory_stride if record_trajectory else 0
     final, traj = eng.simulate(
         np.asarray(qpos, np.float64), np.asarray(qvel, np.float64), cfg.n_steps, stride

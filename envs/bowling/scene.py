@@ -60,6 +60,7 @@ TIMESTEP = 0.005  # s, as in the MJCF file
 MAX_STEPS = 2000  # 10 s: parked pins must not reach the floor
 
 BACKENDS = ("c", "mjx")
+SOLVERS = ("newton", "cg")  # MuJoCo's constraint solvers offered (B7: chosen by measurement)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +76,13 @@ class BowlingConfig:
     tilt_down_deg: float = 45.0  # a pin tilted more than this is down (B4)
     trajectory_stride: int = 5  # record every k-th step when a trajectory is asked for
     nthread: int = 0  # C backend threads; 0 = os.cpu_count()
+    # Constraint solver, both backends (the MJCF file's settings are the defaults). Newton 4/8 is
+    # the accurate default; CG with few iterations is faster under MJX on GPUs, at an accuracy
+    # cost measured in BENCHMARKS.md (scripts/bench_bowling.py --accuracy).
+    solver: str = "newton"
+    iterations: int = 4
+    ls_iterations: int = 8
+    contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""
@@ -98,6 +106,30 @@ class BowlingConfig:
             raise UsageError(f"trajectory_stride={self.trajectory_stride!r}: need an integer >= 1")
         if not isinstance(self.nthread, int) or self.nthread < 0:
             raise UsageError(f"nthread={self.nthread!r}: need an integer >= 0 (0 = all cores)")
+        if self.solver not in SOLVERS:
+            raise UsageError(f"unknown solver {self.solver!r}: use one of {', '.join(SOLVERS)}")
+        for name, top in (("iterations", 1000), ("ls_iterations", 1000), ("contact_cap", 1000)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
+                raise UsageError(f"{name}={value!r}: need an integer in [1, {top}]")
+
+    @property
+    def physics(self) -> Physics:
+        """The engine settings (what a loaded model depends on)."""
+        return Physics(self.solver, self.iterations, self.ls_iterations, self.contact_cap)
+
+
+@dataclasses.dataclass(frozen=True)
+class Physics:
+    """Solver settings applied to the loaded MJCF model (both backends; contact_cap: MJX only)."""
+
+    solver: str = "newton"
+    iterations: int = 4
+    ls_iterations: int = 8
+    contact_cap: int = 32
+
+
+DEFAULT_PHYSICS = Physics()  # the MJCF file's settings
 
 
 def angles(cfg: BowlingConfig) -> np.ndarray:
