@@ -207,6 +207,8 @@ class BowlingSettings:
     solver: str = "newton"  # B7 solver settings (see envs.bowling.BowlingConfig)
     iterations: int = 4
     ls_iterations: int = 8
+    contact_cap: int = 32
+    pair_cap: int = 0
 
     def validate(self) -> None:
         from jaxeac.experiment import _positive_int, _rate, check_algos
@@ -228,7 +230,8 @@ class BowlingSettings:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
                              noise_angle=self.noise_angle, noise_speed=self.noise_speed,
                              solver=self.solver, iterations=self.iterations,
-                             ls_iterations=self.ls_iterations)
+                             ls_iterations=self.ls_iterations, contact_cap=self.contact_cap,
+                             pair_cap=self.pair_cap)
 
     def run_config(self, algo: str) -> RunConfig:
         return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,

@@ -78,6 +78,10 @@ def add_solver_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=positive_int, default=4, metavar="N", help="solver iterations")
     p.add_argument("--ls-iterations", type=positive_int, default=8, metavar="N",
                    help="line-search iterations")
+    p.add_argument("--contact-cap", type=positive_int, default=32, metavar="N",
+                   help="MJX: contacts kept per condim group (keep >= 30: the pins' 30 feet are one group)")
+    p.add_argument("--pair-cap", type=nonneg_int, default=0, metavar="N",
+                   help="MJX: closest geom pairs tested per collision group (0 = every pair)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -254,7 +258,7 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
         beta=args.beta, gamma=args.gamma, solver=args.solver, iterations=args.iterations,
-        ls_iterations=args.ls_iterations,
+        ls_iterations=args.ls_iterations, contact_cap=args.contact_cap, pair_cap=args.pair_cap,
     )
     settings.validate()
     out = check_writable_dir(args.out)
@@ -281,7 +285,8 @@ def cmd_throw(args: argparse.Namespace) -> int:
     from envs.bowling import BowlingConfig, throw_command
 
     cfg = BowlingConfig(theta_max=args.theta_max, solver=args.solver, iterations=args.iterations,
-                        ls_iterations=args.ls_iterations)
+                        ls_iterations=args.ls_iterations, contact_cap=args.contact_cap,
+                        pair_cap=args.pair_cap)
     if args.render:
         from pathlib import Path
 

@@ -134,8 +134,10 @@ def _render_bowling(path: Path, rec: dict) -> list[str]:
     m, v = rec["machine"], rec["versions"]
     out = [f"#### `{path.name}`: {', '.join(m['jax_devices'])}, {m['cpu_count']} CPUs, mujoco {v['mujoco']}, "
            f"mujoco-mjx {v.get('mujoco_mjx', '?')}, jax {v['jax']}\n",
-           "Command: `python scripts/bench_bowling.py` (flags in the text); 400 physics steps per throw.\n",
-           "| backend | solver:iters:ls:cap | batch | threads | compile s | run s | throws/s | "
+           *([f"Command: `{c}`\n" for c in rec["commands"]] if "commands" in rec else
+             ["Command: `python scripts/bench_bowling.py` (flags in the text)\n"]),
+           "400 physics steps per throw.\n",
+           "| backend | solver:iters:ls:cap[:pairs] | batch | threads | compile s | run s | throws/s | "
            "physics steps/s | mean pins |",
            "|---|---|---|---|---|---|---|---|---|"]
     for r in rec["results"]:
@@ -148,7 +150,7 @@ def _render_bowling(path: Path, rec: dict) -> list[str]:
     if acc:
         out += ["", "Accuracy on the first N throws of the largest batch, against the C engine at 50/50 "
                 "Newton iterations on the same noisy throws (same keys):", "",
-                "| backend | solver:iters:ls:cap | N | mean pins | reference | difference ± s.e. | "
+                "| backend | solver:iters:ls:cap[:pairs] | N | mean pins | reference | difference ± s.e. | "
                 "mean abs difference per throw | strike rate (reference) |",
                 "|---|---|---|---|---|---|---|---|"]
         for r in acc:

@@ -9,7 +9,7 @@ default noise, from a full rack, so hits and misses are both in the batch.
     python scripts/bench_bowling.py --backends mjx --mjx-batches 1024 4096 16384 65536 --out gpu.json
     python scripts/bench_bowling.py --backends mjx --physics newton:4:8 cg:8:8 cg:6:4:24 --accuracy 2048
 
-``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap]);
+``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap[:pair_cap]]);
 ``--accuracy N`` also scores each setting's pins on the first N throws of its largest
 batch against the C engine at 50/50 Newton iterations on the same noisy throws.
 """
@@ -73,19 +73,24 @@ def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
     }
 
 
+SPEC_FORMAT = "solver:iterations:ls_iterations[:contact_cap[:pair_cap]]"
+
+
 def physics_label(cfg: BowlingConfig) -> str:
-    """solver:iterations:ls_iterations:contact_cap, as given to --physics."""
-    return f"{cfg.solver}:{cfg.iterations}:{cfg.ls_iterations}:{cfg.contact_cap}"
+    """The --physics spec of cfg's solver settings (the pair cap only where set)."""
+    label = f"{cfg.solver}:{cfg.iterations}:{cfg.ls_iterations}:{cfg.contact_cap}"
+    return label + (f":{cfg.pair_cap}" if cfg.pair_cap else "")
 
 
 def parse_physics(spec: str, base: BowlingConfig) -> BowlingConfig:
-    """BowlingConfig with the solver settings of a 'solver:iterations:ls_iterations[:contact_cap]' spec."""
+    """BowlingConfig with the solver settings of a SPEC_FORMAT spec."""
     parts = spec.split(":")
-    if len(parts) not in (3, 4):
-        raise SystemExit(f"error: --physics {spec!r}: use solver:iterations:ls_iterations[:contact_cap]")
-    cap = int(parts[3]) if len(parts) == 4 else base.contact_cap
-    return dataclasses.replace(base, solver=parts[0], iterations=int(parts[1]),
-                               ls_iterations=int(parts[2]), contact_cap=cap)
+    if not 3 <= len(parts) <= 5:
+        raise SystemExit(f"error: --physics {spec!r}: use {SPEC_FORMAT}")
+    fields = {"solver": parts[0], "iterations": int(parts[1]), "ls_iterations": int(parts[2])}
+    for name, value in zip(("contact_cap", "pair_cap"), parts[3:], strict=False):
+        fields[name] = int(value)
+    return dataclasses.replace(base, **fields)
 
 
 def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, reference: dict) -> dict:
@@ -151,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--nthread", type=int, default=0, help="C threads (0 = CPU count)")
     p.add_argument("--physics", nargs="+", default=["newton:4:8"], metavar="SPEC",
-                   help="solver settings to measure, each solver:iterations:ls_iterations[:contact_cap]")
+                   help=f"solver settings to measure, each {SPEC_FORMAT}")
     p.add_argument("--accuracy", type=int, default=0, metavar="N",
                    help="also compare the first N throws of each setting's largest batch with the C "
                         "engine at 50/50 Newton iterations on the same throws (0: skip)")

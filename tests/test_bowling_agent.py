@@ -114,6 +114,7 @@ def test_bowling_cli_end_to_end(tmp_path, capsys):
         np.testing.assert_array_equal(mine, curves[f"{algo}_return"].sum(1))
     summary = json.loads((out / "summary.json").read_text())
     assert summary["primary_measure"] == "return" and summary["experiment"] == "bowling"
+    assert summary["physics"]["solver"] == "newton" and summary["physics"]["iterations"] == 4  # B7, recorded
     assert "Table I" in (out / "table1.md").read_text()
 
 
@@ -127,6 +128,10 @@ def test_bowling_cli_end_to_end(tmp_path, capsys):
     (["throw", "--angles", "0.5"], "outside"),
     (["throw", "--angles", "0", "--noise", "-1"], "noise"),
     (["throw", "--angles", "0", "--backend", "cuda"], "backend"),
+    (["bowling", "--solver", "pgs"], "unknown solver 'pgs'"),
+    (["bowling", "--iterations", "0"], "positive integer"),
+    (["throw", "--angles", "0", "--contact-cap", "0"], "positive integer"),
+    (["throw", "--angles", "0", "--pair-cap", "-2"], "non-negative"),
 ])
 def test_bowling_bad_input(argv, message, tmp_path, capsys):
     out = tmp_path / "never"

@@ -207,6 +207,11 @@ def test_throw_command_and_render(tmp_path):
         {"release_speed": 0.0},
         {"n_steps": 0},
         {"tilt_down_deg": 95.0},
+        {"solver": "pgs"},
+        {"iterations": 0},
+        {"ls_iterations": 1.5},
+        {"contact_cap": 0},
+        {"pair_cap": -1},
     ],
 )
 def test_bad_config_raises_usage_error(kwargs):
@@ -238,3 +243,32 @@ def test_bad_throw_input_raises_usage_error(tmp_path):
         initial_pins(0)
     with pytest.raises(UsageError):
         render_deck(initial_pins(1), tmp_path / "no" / "x.png")
+
+
+def test_solver_settings_reach_both_engines():
+    """B7: the config's solver settings are what the C model and the MJX model run with."""
+    import mujoco
+
+    from envs.bowling.backend_c import load_model
+
+    default = load_model()
+    assert (default.opt.solver, default.opt.iterations, default.opt.ls_iterations) == (
+        mujoco.mjtSolver.mjSOL_NEWTON, 4, 8)
+    cfg = BowlingConfig(solver="cg", iterations=12, ls_iterations=4, contact_cap=30, pair_cap=16)
+    model = load_model(cfg.physics)
+    assert (model.opt.solver, model.opt.iterations, model.opt.ls_iterations) == (
+        mujoco.mjtSolver.mjSOL_CG, 12, 4)
+
+    def numeric(m, name):
+        return m.numeric_data[m.numeric_adr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_NUMERIC, name)]]
+
+    assert (numeric(default, "max_contact_points"), numeric(default, "max_geom_pairs")) == (32, -1)
+    assert (numeric(model, "max_contact_points"), numeric(model, "max_geom_pairs")) == (30, 16)
+
+
+def test_cg_solver_throws_like_newton():
+    """A measured faster setting (BENCHMARKS.md) still plays the same game on exact throws:
+    the centre throw knocks >= 5 pins and a throw at theta_max knocks none."""
+    cg = BowlingConfig(noise_angle=0.0, noise_speed=0.0, solver="cg", iterations=12, ls_iterations=4)
+    res = throw(initial_pins(2), np.array([0.0, cg.theta_max]), jax.random.key(0), cfg=cg)
+    assert int(res.knocked[0]) >= 5 and int(res.knocked[1]) == 0

@@ -43,8 +43,11 @@ def load_model(physics: Physics = DEFAULT_PHYSICS) -> mujoco.MjModel:
         physics.solver]
     model.opt.iterations = physics.iterations
     model.opt.ls_iterations = physics.ls_iterations
-    cap = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, "max_contact_points")
-    model.numeric_data[model.numeric_adr[cap]] = physics.contact_cap
+    # MJX's caps (the C engine ignores them); max_geom_pairs -1 = test every pair
+    caps = (("max_contact_points", physics.contact_cap), ("max_geom_pairs", physics.pair_cap or -1))
+    for name, value in caps:
+        index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
+        model.numeric_data[model.numeric_adr[index]] = value
     return model
 
 

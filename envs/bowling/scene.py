@@ -83,6 +83,7 @@ class BowlingConfig:
     iterations: int = 4
     ls_iterations: int = 8
     contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
+    pair_cap: int = 0  # MJX only: closest geom pairs tested per collision group (max_geom_pairs; 0 = all)
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""
@@ -112,11 +113,13 @@ class BowlingConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
                 raise UsageError(f"{name}={value!r}: need an integer in [1, {top}]")
+        if isinstance(self.pair_cap, bool) or not isinstance(self.pair_cap, int) or self.pair_cap < 0:
+            raise UsageError(f"pair_cap={self.pair_cap!r}: need an integer >= 0 (0 = test every pair)")
 
     @property
     def physics(self) -> Physics:
         """The engine settings (what a loaded model depends on)."""
-        return Physics(self.solver, self.iterations, self.ls_iterations, self.contact_cap)
+        return Physics(self.solver, self.iterations, self.ls_iterations, self.contact_cap, self.pair_cap)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,6 +130,7 @@ class Physics:
     iterations: int = 4
     ls_iterations: int = 8
     contact_cap: int = 32
+    pair_cap: int = 0
 
 
 DEFAULT_PHYSICS = Physics()  # the MJCF file's settings
