@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.bowling import BowlingConfig, initial_pins, throw, throw_noise
+from envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from envs.bowling import angles as angle_grid
 from jaxeac.agent import (
     AgentState,
@@ -204,7 +204,7 @@ class BowlingSettings:
     beta: float = 0.3
     gamma: float = 1.0
     temperature: float = 1.0
-    solver: str = "newton"  # B7 solver settings (see envs.bowling.BowlingConfig)
+    solver: str = "newton"  # B7 solver settings (see envs.bowling.SolverSettings)
     iterations: int = 4
     ls_iterations: int = 8
     contact_cap: int = 32
@@ -229,9 +229,8 @@ class BowlingSettings:
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
                              noise_angle=self.noise_angle, noise_speed=self.noise_speed,
-                             solver=self.solver, iterations=self.iterations,
-                             ls_iterations=self.ls_iterations, contact_cap=self.contact_cap,
-                             pair_cap=self.pair_cap)
+                             solver=SolverSettings(self.solver, self.iterations, self.ls_iterations,
+                                                   self.contact_cap, self.pair_cap))
 
     def run_config(self, algo: str) -> RunConfig:
         return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,

@@ -282,11 +282,10 @@ def cmd_bowling(args: argparse.Namespace) -> int:
 def cmd_throw(args: argparse.Namespace) -> int:
     import json
 
-    from envs.bowling import BowlingConfig, throw_command
+    from envs.bowling import BowlingConfig, SolverSettings, throw_command
 
-    cfg = BowlingConfig(theta_max=args.theta_max, solver=args.solver, iterations=args.iterations,
-                        ls_iterations=args.ls_iterations, contact_cap=args.contact_cap,
-                        pair_cap=args.pair_cap)
+    solver = SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
+    cfg = BowlingConfig(theta_max=args.theta_max, solver=solver)
     if args.render:
         from pathlib import Path
 

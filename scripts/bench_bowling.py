@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from envs.bowling import (  # noqa: E402
     BowlingConfig,
+    SolverSettings,
     angles,
     backend_mjx,  # noqa: E402
     initial_pins,
@@ -78,8 +79,9 @@ SPEC_FORMAT = "solver:iterations:ls_iterations[:contact_cap[:pair_cap]]"
 
 def physics_label(cfg: BowlingConfig) -> str:
     """The --physics spec of cfg's solver settings (the pair cap only where set)."""
-    label = f"{cfg.solver}:{cfg.iterations}:{cfg.ls_iterations}:{cfg.contact_cap}"
-    return label + (f":{cfg.pair_cap}" if cfg.pair_cap else "")
+    s = cfg.solver
+    label = f"{s.method}:{s.iterations}:{s.ls_iterations}:{s.contact_cap}"
+    return label + (f":{s.pair_cap}" if s.pair_cap else "")
 
 
 def parse_physics(spec: str, base: BowlingConfig) -> BowlingConfig:
@@ -87,17 +89,14 @@ def parse_physics(spec: str, base: BowlingConfig) -> BowlingConfig:
     parts = spec.split(":")
     if not 3 <= len(parts) <= 5:
         raise SystemExit(f"error: --physics {spec!r}: use {SPEC_FORMAT}")
-    fields = {"solver": parts[0], "iterations": int(parts[1]), "ls_iterations": int(parts[2])}
-    for name, value in zip(("contact_cap", "pair_cap"), parts[3:], strict=False):
-        fields[name] = int(value)
-    return dataclasses.replace(base, **fields)
+    return dataclasses.replace(base, solver=SolverSettings(parts[0], *map(int, parts[1:])))
 
 
 def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, reference: dict) -> dict:
     """Pins per throw on the first n throws of a batch against the C engine at 50/50 Newton
     iterations on the same noisy throws (same keys): means, paired difference and its s.e."""
     if "knocked" not in reference or reference["knocked"].size < n:
-        ref_cfg = dataclasses.replace(cfg, solver="newton", iterations=50, ls_iterations=50)
+        ref_cfg = dataclasses.replace(cfg, solver=SolverSettings("newton", 50, 50))
         pins, a, keys = _inputs(batch, cfg, 0)
         res = throw(initial_pins(n), a[:n], keys[:n], backend="c", cfg=ref_cfg)
         reference["knocked"] = np.asarray(res.knocked)

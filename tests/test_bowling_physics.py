@@ -14,6 +14,7 @@ from envs.bowling import (
     XML_PATH,
     BowlingConfig,
     PinState,
+    SolverSettings,
     angles,
     initial_pins,
     make_mjx_throw,
@@ -207,17 +208,21 @@ def test_throw_command_and_render(tmp_path):
         {"release_speed": 0.0},
         {"n_steps": 0},
         {"tilt_down_deg": 95.0},
-        {"solver": "pgs"},
-        {"iterations": 0},
-        {"ls_iterations": 1.5},
-        {"contact_cap": 0},
-        {"pair_cap": -1},
+        {"solver": "newton"},
+        {"solver": {"method": "pgs"}},
+        {"solver": {"iterations": 0}},
+        {"solver": {"ls_iterations": 1.5}},
+        {"solver": {"contact_cap": 0}},
+        {"solver": {"pair_cap": -1}},
     ],
 )
 def test_bad_config_raises_usage_error(kwargs):
     """Bad settings name the problem and the fix in one line."""
     with pytest.raises(UsageError) as err:
-        BowlingConfig(**kwargs)
+        if isinstance(kwargs.get("solver"), dict):
+            SolverSettings(**kwargs["solver"])
+        else:
+            BowlingConfig(**kwargs)
     assert "\n" not in str(err.value) and ":" in str(err.value)
 
 
@@ -254,8 +259,7 @@ def test_solver_settings_reach_both_engines():
     default = load_model()
     assert (default.opt.solver, default.opt.iterations, default.opt.ls_iterations) == (
         mujoco.mjtSolver.mjSOL_NEWTON, 4, 8)
-    cfg = BowlingConfig(solver="cg", iterations=12, ls_iterations=4, contact_cap=30, pair_cap=16)
-    model = load_model(cfg.physics)
+    model = load_model(SolverSettings("cg", iterations=12, ls_iterations=4, contact_cap=30, pair_cap=16))
     assert (model.opt.solver, model.opt.iterations, model.opt.ls_iterations) == (
         mujoco.mjtSolver.mjSOL_CG, 12, 4)
 
@@ -269,6 +273,6 @@ def test_solver_settings_reach_both_engines():
 def test_cg_solver_throws_like_newton():
     """A measured faster setting (BENCHMARKS.md) still plays the same game on exact throws:
     the centre throw knocks >= 5 pins and a throw at theta_max knocks none."""
-    cg = BowlingConfig(noise_angle=0.0, noise_speed=0.0, solver="cg", iterations=12, ls_iterations=4)
+    cg = BowlingConfig(noise_angle=0.0, noise_speed=0.0, solver=SolverSettings("cg", 12, 4))
     res = throw(initial_pins(2), np.array([0.0, cg.theta_max]), jax.random.key(0), cfg=cg)
     assert int(res.knocked[0]) >= 5 and int(res.knocked[1]) == 0

@@ -24,7 +24,7 @@ jit-compiled learning run).
 Public API::
 
     cfg = BowlingConfig()                       # frozen, validated
-    cfg = BowlingConfig(solver="cg", iterations=8, ls_iterations=8)  # solver settings (B7)
+    cfg = BowlingConfig(solver=SolverSettings("cg", iterations=12, ls_iterations=4))  # B7
     angles(cfg) -> np.ndarray (K,)
     initial_pins(batch) -> PinState(qpos (B,10,7), standing (B,10))
     throw(pins, angle, key_or_noise, *, backend="c", record_trajectory=False, cfg=cfg)
@@ -43,8 +43,8 @@ from .scene import (
     N_PINS,
     XML_PATH,
     BowlingConfig,
-    Physics,
     PinState,
+    SolverSettings,
     ThrowResult,
     Trajectory,
     angles,
@@ -58,7 +58,7 @@ __all__ = [
     "N_PINS",
     "XML_PATH",
     "BowlingConfig",
-    "Physics",
+    "SolverSettings",
     "PinState",
     "ThrowResult",
     "Trajectory",

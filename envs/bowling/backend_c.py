@@ -19,13 +19,13 @@ import mujoco.rollout
 import numpy as np
 
 from .scene import (
-    DEFAULT_PHYSICS,
+    DEFAULT_SOLVER,
     NQ,
     NV,
     XML_PATH,
     BowlingConfig,
-    Physics,
     PinState,
+    SolverSettings,
     ThrowResult,
     Trajectory,
     judge_throw,
@@ -36,15 +36,15 @@ _CHUNK = 128  # throws per rollout call: bounds the (chunk, n_steps, nstate) out
 _SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
-def load_model(physics: Physics = DEFAULT_PHYSICS) -> mujoco.MjModel:
+def load_model(solver: SolverSettings = DEFAULT_SOLVER) -> mujoco.MjModel:
     """The bowling MjModel from the package's MJCF file (B1), with these solver settings."""
     model = mujoco.MjModel.from_xml_path(str(XML_PATH))
     model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[
-        physics.solver]
-    model.opt.iterations = physics.iterations
-    model.opt.ls_iterations = physics.ls_iterations
+        solver.method]
+    model.opt.iterations = solver.iterations
+    model.opt.ls_iterations = solver.ls_iterations
     # MJX's caps (the C engine ignores them); max_geom_pairs -1 = test every pair
-    caps = (("max_contact_points", physics.contact_cap), ("max_geom_pairs", physics.pair_cap or -1))
+    caps = (("max_contact_points", solver.contact_cap), ("max_geom_pairs", solver.pair_cap or -1))
     for name, value in caps:
         index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
         model.numeric_data[model.numeric_adr[index]] = value
@@ -65,9 +65,9 @@ def _state_offsets(model: mujoco.MjModel) -> tuple[int, int, int]:
 class CEngine:
     """A loaded model, one MjData per thread and a rollout pool: runs batches of throws."""
 
-    def __init__(self, nthread: int = 0, physics: Physics = DEFAULT_PHYSICS):
+    def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER):
         """Load the model and start a pool of nthread threads (0: one per CPU core)."""
-        self.model = load_model(physics)
+        self.model = load_model(solver)
         self.nthread = nthread or os.cpu_count() or 1
         self.datas = [mujoco.MjData(self.model) for _ in range(self.nthread)]
         self.pool = mujoco.rollout.Rollout(nthread=self.nthread)
@@ -100,9 +100,9 @@ class CEngine:
 
 
 @functools.lru_cache(maxsize=4)
-def engine(nthread: int = 0, physics: Physics = DEFAULT_PHYSICS) -> CEngine:
+def engine(nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER) -> CEngine:
     """A cached CEngine for nthread threads and these solver settings."""
-    return CEngine(nthread, physics)
+    return CEngine(nthread, solver)
 
 
 @functools.lru_cache(maxsize=16)
@@ -126,7 +126,7 @@ def throw_c(
 ) -> ThrowResult:
     """Batched throw on the C engine: pins (B,...), angle (B,), eps (B, 2) -> numpy ThrowResult (B7)."""
     qpos, qvel = _prepare_fn(cfg)(pins, jnp.asarray(angle, jnp.float32), eps)
-    eng = engine(cfg.nthread, cfg.physics)
+    eng = engine(cfg.nthread, cfg.solver)
     stride = cfg.trajectory_stride if record_trajectory else 0
     final, traj = eng.simulate(
         np.asarray(qpos, np.float64), np.asarray(qvel, np.float64), cfg.n_steps, stride

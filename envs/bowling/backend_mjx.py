@@ -26,10 +26,10 @@ with contextlib.redirect_stdout(io.StringIO()):  # MJX prints "Failed to import 
 
 from .backend_c import load_model
 from .scene import (
-    DEFAULT_PHYSICS,
+    DEFAULT_SOLVER,
     BowlingConfig,
-    Physics,
     PinState,
+    SolverSettings,
     ThrowResult,
     Trajectory,
     judge_throw,
@@ -39,9 +39,9 @@ from .scene import (
 
 
 @functools.lru_cache(maxsize=4)
-def mjx_model(physics: Physics = DEFAULT_PHYSICS) -> tuple[mjx.Model, mjx.Data]:
+def mjx_model(solver: SolverSettings = DEFAULT_SOLVER) -> tuple[mjx.Model, mjx.Data]:
     """The bowling model (these solver settings) on the JAX device, and a blank Data to start from."""
-    mx = mjx.put_model(load_model(physics))
+    mx = mjx.put_model(load_model(solver))
     return mx, mjx.make_data(mx)
 
 
@@ -57,10 +57,10 @@ def _segment(d: mjx.Data, _, mx: mjx.Model, stride: int) -> tuple[mjx.Data, jax.
 
 
 def simulate(
-    qpos: jax.Array, qvel: jax.Array, n_steps: int, stride: int = 0, physics: Physics = DEFAULT_PHYSICS
+    qpos: jax.Array, qvel: jax.Array, n_steps: int, stride: int = 0, solver: SolverSettings = DEFAULT_SOLVER
 ):
     """Final qpos (77,) after n_steps from (qpos, qvel), and qpos every stride steps (T, 77)."""
-    mx, d0 = mjx_model(physics)
+    mx, d0 = mjx_model(solver)
     d = d0.replace(qpos=qpos.astype(d0.qpos.dtype), qvel=qvel.astype(d0.qvel.dtype))
     traj = None
     if stride:
@@ -80,7 +80,7 @@ def throw_eps(
 ) -> ThrowResult:
     """One MJX throw from a given standard-normal noise draw eps (2,) (B2-B4)."""
     qpos, qvel = throw_start(pins, jnp.asarray(angle, jnp.float32), eps, cfg)
-    final, traj = simulate(qpos, qvel, cfg.n_steps, cfg.trajectory_stride if record else 0, cfg.physics)
+    final, traj = simulate(qpos, qvel, cfg.n_steps, cfg.trajectory_stride if record else 0, cfg.solver)
     res = judge_throw(pins, final[7:].reshape(10, 7), cfg)
     if traj is None:
         return res
@@ -103,7 +103,7 @@ def throw_key(
 
 def make_mjx_throw(cfg: BowlingConfig, record_trajectory: bool = False):
     """Pure jittable throw_fn(pins, angle, key) -> ThrowResult for one throw (vmap it to batch)."""
-    mjx_model(cfg.physics)  # put the model on the device once, before any tracing
+    mjx_model(cfg.solver)  # put the model on the device once, before any tracing
     return functools.partial(throw_key, cfg=cfg, record=record_trajectory)
 
 
@@ -116,5 +116,5 @@ def batched_throw(cfg: BowlingConfig, record_trajectory: bool = False):
 @functools.lru_cache(maxsize=16)
 def batched_throw_eps(cfg: BowlingConfig, record_trajectory: bool = False):
     """jit(vmap(throw_eps)) over a leading batch axis of (pins, angle, eps)."""
-    mjx_model(cfg.physics)
+    mjx_model(cfg.solver)
     return jax.jit(jax.vmap(functools.partial(throw_eps, cfg=cfg, record=record_trajectory)))

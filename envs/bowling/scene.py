@@ -64,6 +64,35 @@ SOLVERS = ("newton", "cg")  # MuJoCo's constraint solvers offered (B7: chosen by
 
 
 @dataclasses.dataclass(frozen=True)
+class SolverSettings:
+    """The constraint solver a loaded model runs with, in both backends (B7); validated.
+
+    The defaults are the MJCF file's: Newton, 4 iterations, 8 line-search iterations,
+    the accurate setting. CG with enough iterations is faster under MJX on GPUs at the
+    same accuracy; fewer iterations or a lower contact cap trade accuracy for speed
+    (measured in BENCHMARKS.md with scripts/bench_bowling.py --accuracy).
+    """
+
+    method: str = "newton"  # one of SOLVERS
+    iterations: int = 4
+    ls_iterations: int = 8
+    contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
+    pair_cap: int = 0  # MJX only: closest geom pairs tested per collision group (max_geom_pairs; 0 = all)
+
+    def __post_init__(self) -> None:
+        """Check every field; raise UsageError naming the problem and the fix."""
+        if self.method not in SOLVERS:
+            raise UsageError(f"unknown solver {self.method!r}: use one of {', '.join(SOLVERS)}")
+        for name, low in (("iterations", 1), ("ls_iterations", 1), ("contact_cap", 1), ("pair_cap", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= 1000:
+                raise UsageError(f"{name}={value!r}: need an integer in [{low}, 1000]")
+
+
+DEFAULT_SOLVER = SolverSettings()
+
+
+@dataclasses.dataclass(frozen=True)
 class BowlingConfig:
     """Static settings of the bowling throw (B2, B3, B4); validated on construction."""
 
@@ -76,14 +105,7 @@ class BowlingConfig:
     tilt_down_deg: float = 45.0  # a pin tilted more than this is down (B4)
     trajectory_stride: int = 5  # record every k-th step when a trajectory is asked for
     nthread: int = 0  # C backend threads; 0 = os.cpu_count()
-    # Constraint solver, both backends (the MJCF file's settings are the defaults). Newton 4/8 is
-    # the accurate default; CG with few iterations is faster under MJX on GPUs, at an accuracy
-    # cost measured in BENCHMARKS.md (scripts/bench_bowling.py --accuracy).
-    solver: str = "newton"
-    iterations: int = 4
-    ls_iterations: int = 8
-    contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
-    pair_cap: int = 0  # MJX only: closest geom pairs tested per collision group (max_geom_pairs; 0 = all)
+    solver: SolverSettings = DEFAULT_SOLVER  # constraint solver, both backends (B7)
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""
@@ -107,33 +129,8 @@ class BowlingConfig:
             raise UsageError(f"trajectory_stride={self.trajectory_stride!r}: need an integer >= 1")
         if not isinstance(self.nthread, int) or self.nthread < 0:
             raise UsageError(f"nthread={self.nthread!r}: need an integer >= 0 (0 = all cores)")
-        if self.solver not in SOLVERS:
-            raise UsageError(f"unknown solver {self.solver!r}: use one of {', '.join(SOLVERS)}")
-        for name, top in (("iterations", 1000), ("ls_iterations", 1000), ("contact_cap", 1000)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
-                raise UsageError(f"{name}={value!r}: need an integer in [1, {top}]")
-        if isinstance(self.pair_cap, bool) or not isinstance(self.pair_cap, int) or self.pair_cap < 0:
-            raise UsageError(f"pair_cap={self.pair_cap!r}: need an integer >= 0 (0 = test every pair)")
-
-    @property
-    def physics(self) -> Physics:
-        """The engine settings (what a loaded model depends on)."""
-        return Physics(self.solver, self.iterations, self.ls_iterations, self.contact_cap, self.pair_cap)
-
-
-@dataclasses.dataclass(frozen=True)
-class Physics:
-    """Solver settings applied to the loaded MJCF model (both backends; contact_cap: MJX only)."""
-
-    solver: str = "newton"
-    iterations: int = 4
-    ls_iterations: int = 8
-    contact_cap: int = 32
-    pair_cap: int = 0
-
-
-DEFAULT_PHYSICS = Physics()  # the MJCF file's settings
+        if not isinstance(self.solver, SolverSettings):
+            raise UsageError(f"solver={self.solver!r}: pass a SolverSettings")
 
 
 def angles(cfg: BowlingConfig) -> np.ndarray:
