@@ -30,6 +30,7 @@ import numpy as np
 
 from envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from envs.bowling import angles as angle_grid
+from envs.bowling.scene import DEFAULT_SOLVER
 from jaxeac.agent import (
     AgentState,
     Hyper,
@@ -204,11 +205,7 @@ class BowlingSettings:
     beta: float = 0.3
     gamma: float = 1.0
     temperature: float = 1.0
-    solver: str = "newton"  # B7 solver settings (see envs.bowling.SolverSettings)
-    iterations: int = 4
-    ls_iterations: int = 8
-    contact_cap: int = 32
-    pair_cap: int = 0
+    solver: SolverSettings = DEFAULT_SOLVER  # B7 constraint solver of both physics engines
 
     def validate(self) -> None:
         from jaxeac.experiment import _positive_int, _rate, check_algos
@@ -228,9 +225,7 @@ class BowlingSettings:
 
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
-                             noise_angle=self.noise_angle, noise_speed=self.noise_speed,
-                             solver=SolverSettings(self.solver, self.iterations, self.ls_iterations,
-                                                   self.contact_cap, self.pair_cap))
+                             noise_angle=self.noise_angle, noise_speed=self.noise_speed, solver=self.solver)
 
     def run_config(self, algo: str) -> RunConfig:
         return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,

@@ -84,6 +84,13 @@ def add_solver_flags(p: argparse.ArgumentParser) -> None:
                    help="MJX: closest geom pairs tested per collision group (0 = every pair)")
 
 
+def _solver_settings(args: argparse.Namespace):
+    """The SolverSettings of the flags add_solver_flags adds (validated on construction)."""
+    from envs.bowling import SolverSettings
+
+    return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -257,8 +264,7 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
-        beta=args.beta, gamma=args.gamma, solver=args.solver, iterations=args.iterations,
-        ls_iterations=args.ls_iterations, contact_cap=args.contact_cap, pair_cap=args.pair_cap,
+        beta=args.beta, gamma=args.gamma, solver=_solver_settings(args),
     )
     settings.validate()
     out = check_writable_dir(args.out)
@@ -282,10 +288,9 @@ def cmd_bowling(args: argparse.Namespace) -> int:
 def cmd_throw(args: argparse.Namespace) -> int:
     import json
 
-    from envs.bowling import BowlingConfig, SolverSettings, throw_command
+    from envs.bowling import BowlingConfig, throw_command
 
-    solver = SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
-    cfg = BowlingConfig(theta_max=args.theta_max, solver=solver)
+    cfg = BowlingConfig(theta_max=args.theta_max, solver=_solver_settings(args))
     if args.render:
         from pathlib import Path
 
