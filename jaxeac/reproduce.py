@@ -680,16 +680,9 @@ def render_report(rec: dict, out: Path) -> str:
           f"{g['seeds']} seeds per method. G6 was chosen so that AC succeeds about as often as the "
           "paper's AC; "
           "AC's match to 56 is therefore by construction, not evidence.", "",
-          "### G1 — EAC 163 vs AC 56 of 200", "", EFFECT_HEADER,
-          _effect_row("successes of 200 (primary)", gp), "",
-          f"Holm-adjusted p (family: the five declared measures of `grid/stats.json`): {_p(gp['p_holm'])}. "
-          f"Seeds needed for 80 % power at the observed effect: {gp['seeds_for_80pct_power']}.", ""]
-    for a in ("ac", "eac"):
-        s, pp = g["successes"][a], g["paper_position"][a]
-        L.append(_position_line(a, s, pp))
-    L += ["", f"Paper's difference: +{g['paper_diff']}; ours: {_f(gp['diff'], 2, True)} "
-          f"{_ci(gp['diff_ci95'], 2, True)}.",
-          "", f"**Verdict: {cl['G1']['verdict']}** — {cl['G1']['why']}.", "",
+          *_headline_claim("### G1 — EAC 163 vs AC 56 of 200", "successes of 200 (primary)", gp,
+                           " (family: the five declared measures of `grid/stats.json`)", g["successes"],
+                           g["paper_position"], g["paper_diff"], cl["G1"]),
           "![Fig. 3: cumulative successes](grid/fig3_simultaneous.png)", "",
           f"Fig. 3 redrawn: mean cumulative successes per method with a band that holds over all "
           f"{g['trials']} trials at once ({g['fig3_band']['method']}, "
@@ -727,16 +720,8 @@ def render_report(rec: dict, out: Path) -> str:
           "MuJoCo C backend, SPEC B1–B7 defaults (K = 21 angles, θ_max = 0.1 rad, T = 10 trials of "
           "2 chances), "
           f"{b['seeds']} seeds per method.", "",
-          "### B1 — EAC 81 vs AC 67 pins of 100 (Table I)", "", EFFECT_HEADER,
-          _effect_row("pins over 10 trials (primary)", bp), "",
-          f"Holm-adjusted p: {_p(bp['p_holm'])}. Seeds needed for 80 % power at the observed effect: "
-          f"{bp['seeds_for_80pct_power']}.", ""]
-    for a in ("ac", "eac"):
-        s, pp = b["returns"][a], b["paper_position"][a]
-        L.append(_position_line(a, s, pp))
-    L += ["", f"Paper's difference: +{b['paper_diff']}; ours: {_f(bp['diff'], 2, True)} "
-          f"{_ci(bp['diff_ci95'], 2, True)}.",
-          "", f"**Verdict: {cl['B1']['verdict']}** — {cl['B1']['why']}.", "",
+          *_headline_claim("### B1 — EAC 81 vs AC 67 pins of 100 (Table I)", "pins over 10 trials (primary)",
+                           bp, "", b["returns"], b["paper_position"], b["paper_diff"], cl["B1"]),
           "Table I — the paper's single runs (pins per chance, as extracted from its text) beside ours:", "",
           "| trial | paper EAC | paper AC |", "|---|---|---|"]
     for t, (e, a) in enumerate(zip(PAPER_TABLE_ONE["eac"], PAPER_TABLE_ONE["ac"], strict=True)):
@@ -840,6 +825,18 @@ def render_report(rec: dict, out: Path) -> str:
           "`calibration/reproduce.json` and `ablations/reproduce.json`; per-comparison reports are "
           "`grid/report.md` and `bowling/report.md`.", ""]
     return "\n".join(L)
+
+
+def _headline_claim(title, label, stats, family, values, positions, paper_diff, claim) -> list[str]:
+    """Report lines of a paper's headline claim (G1, B1): effect table, Holm p and power, where the
+    paper's single runs fall among our seeds, the two differences and the verdict."""
+    lines = [title, "", EFFECT_HEADER, _effect_row(label, stats), "",
+             f"Holm-adjusted p{family}: {_p(stats['p_holm'])}. Seeds needed for 80 % power at the "
+             f"observed effect: {stats['seeds_for_80pct_power']}.", ""]
+    lines += [_position_line(a, values[a], positions[a]) for a in ("ac", "eac")]
+    return lines + ["", f"Paper's difference: +{paper_diff}; ours: {_f(stats['diff'], 2, True)} "
+                    f"{_ci(stats['diff_ci95'], 2, True)}.",
+                    "", f"**Verdict: {claim['verdict']}** — {claim['why']}.", ""]
 
 
 def _position_line(algo: str, s: dict, pp: dict) -> str:

@@ -97,7 +97,7 @@ def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, refere
     iterations on the same noisy throws (same keys): means, paired difference and its s.e."""
     if "knocked" not in reference or reference["knocked"].size < n:
         ref_cfg = dataclasses.replace(cfg, solver=SolverSettings("newton", 50, 50))
-        pins, a, keys = _inputs(batch, cfg, 0)
+        _, a, keys = _inputs(batch, cfg, 0)  # the batch's own throws: same angles and keys
         res = throw(initial_pins(n), a[:n], keys[:n], backend="c", cfg=ref_cfg)
         reference["knocked"] = np.asarray(res.knocked)
     ref = reference["knocked"][:n].astype(float)
