@@ -288,43 +288,52 @@ class _Lane:
 def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
 
-    Lanes advance one chance per iteration. Every C iterations, lanes whose seed has
-    run T trials (up to `harvest` of them) write its result and take the next waiting
-    seed, so lanes stay busy until the queue is empty (a seed's result does not depend
-    on its lane, R1).
+    Lanes advance one chance per iteration. With a lane per entry, blocks of C
+    iterations run until every seed has run T trials and results are read out once.
+    With fewer lanes, every C iterations lanes whose seed has run T trials (up to
+    `harvest` of them) write its result and take the next waiting seed, so lanes stay
+    busy until the queue is empty (a seed's result does not depend on its lane, R1).
     """
     m = words.shape[0]
     lanes = cfg.lanes if cfg.lanes is not None else (256 if jax.default_backend() == "cpu" else m)
     n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
+    policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
 
     def start(entry) -> _Lane:
         entry = jnp.minimum(entry, m - 1)
         w, h = words[entry], jax.tree.map(lambda x: x[entry], hyper)
         return _Lane(_flat_init(env, cfg, w), w, h, entry)
 
+    if n_lanes == m:  # every entry has a lane from the start: no queue, read results out once
+        def unfinished(run: _FlatCarry):
+            return (run.agent.trial < cfg.trials).any()
+
+        def chances(run: _FlatCarry):
+            return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, words, hyper), run)
+
+        first = jax.vmap(lambda w: _flat_init(env, cfg, w))(words)
+        agent = jax.lax.while_loop(unfinished, chances, first).agent
+        return SeedResult(agent.outcomes, agent.lengths, policies(agent))
+
     lanes = jax.vmap(start)(jnp.arange(n_lanes))
     out = SeedResult(jnp.zeros((m, cfg.trials), bool), jnp.zeros((m, cfg.trials), jnp.int32),
                      jnp.zeros((m, env.n_states), jnp.int32))
 
-    # Lanes harvested per block: all of them when every entry has a lane from the start,
-    # else a bounded number, so per-block work (policies, fresh lanes) stays small.
-    harvest = n_lanes if n_lanes == m else max(1, n_lanes // 8)
+    # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
+    # greedy policies, fresh lanes) stays small next to the block's C chances.
+    harvest = max(1, n_lanes // 8)
 
     def block(carry):
         lanes, out, queued = carry
         run = jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, lanes.words, lanes.hyper), lanes.run)
         done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
-        if harvest == n_lanes:  # every lane at once: no gather of lane states needed
-            idx, got, finished = jnp.where(done, jnp.arange(n_lanes), n_lanes), done, run
-            row = jnp.where(done, lanes.entry, m)
-        else:
-            (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
-            got = idx < n_lanes
-            lane = jnp.minimum(idx, n_lanes - 1)
-            finished = jax.tree.map(lambda x: x[lane], run)
-            row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
-        policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))(finished.agent)
+        (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
+        got = idx < n_lanes
+        lane = jnp.minimum(idx, n_lanes - 1)
+        finished = jax.tree.map(lambda x: x[lane], run)
+        row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
+        policy = policies(finished.agent)
         out = SeedResult(
             out.success.at[row].set(finished.agent.outcomes, mode="drop"),
             out.steps.at[row].set(finished.agent.lengths, mode="drop"),
@@ -332,11 +341,9 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
         )
         nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
         take = got & (nxt < m)
-        lanes = lanes.replace(run=run)
-        if n_lanes < m:  # hand waiting entries to the harvested lanes
-            fresh = jax.vmap(start)(nxt)
-            target = jnp.where(take, idx, n_lanes)
-            lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes, fresh)
+        fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
+        target = jnp.where(take, idx, n_lanes)
+        lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
         idle = jnp.where(got & ~take, idx, n_lanes)
         lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
         return lanes, out, queued + take.sum(dtype=jnp.int32)

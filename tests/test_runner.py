@@ -94,8 +94,9 @@ LOOP_CASES = [  # (algorithm, variant, map seed: 0 = paper map, else a random sm
 ]
 
 
+@pytest.mark.parametrize("lanes", [3, 64])  # fewer lanes than entries (a queue); a lane for each
 @pytest.mark.parametrize(("algo", "variant", "map_seed"), LOOP_CASES)
-def test_flat_loop_equals_trials_loop(algo, variant, map_seed):
+def test_flat_loop_equals_trials_loop(algo, variant, map_seed, lanes):
     """The fast flat loop and the literal trials loop give bit-identical runs."""
     from conftest import random_map_text
 
@@ -105,7 +106,7 @@ def test_flat_loop_equals_trials_loop(algo, variant, map_seed):
     env = ENV if map_seed == 0 else GridWorld(parse_map(random_map_text(rng)), int(rng.integers(1, 12)))
     agent = algorithm(algo, **variant)
     results = [
-        run_seeds(env, RunConfig(trials=30, agent=agent, loop=loop, lanes=3), root_key=map_seed,
+        run_seeds(env, RunConfig(trials=30, agent=agent, loop=loop, lanes=lanes), root_key=map_seed,
                   n_seeds=24, chunk_size=8)
         for loop in ("flat", "trials")
     ]
