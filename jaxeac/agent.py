@@ -20,10 +20,12 @@ import jax.numpy as jnp
 
 from jaxeac import memory as mem
 from jaxeac.errors import UsageError
-from jaxeac.pytree import pytree_dataclass
+from jaxeac.pytree import pytree_dataclass, static_field
 
 FailureRule = Literal["previous_trial", "within_trial"]
 FAILURE_RULES = ("previous_trial", "within_trial")
+TableLayout = Literal["auto", "split", "rows"]
+TABLE_LAYOUTS = ("auto", "split", "rows")
 
 #: A step size: a constant, or an optax schedule over the 0-based trial index.
 Rate = float | Callable[[jax.Array], jax.Array]
@@ -35,7 +37,8 @@ class AgentConfig:
 
     `success_memory` / `failure_memory` switch the two memories of Algorithm 1;
     both off is the classic AC. `learn_on_memory_steps` is the E2 variant and
-    `failure_rule` the E6 variant.
+    `failure_rule` the E6 variant. `memory` (E7) and `tables` (`SplitTables` or
+    `RowTables`; `auto` picks by backend) are storage layouts: same results, different speed.
     """
 
     success_memory: bool = True
@@ -44,12 +47,15 @@ class AgentConfig:
     failure_rule: FailureRule = "previous_trial"
     memory: mem.Layout = "dense"
     capacity: int = 1024
+    tables: TableLayout = "auto"
 
     def __post_init__(self):
         if self.failure_rule not in FAILURE_RULES:
             raise UsageError(
                 f"unknown failure_rule {self.failure_rule!r}; choose one of {FAILURE_RULES}"
             )
+        if self.tables not in TABLE_LAYOUTS:
+            raise UsageError(f"unknown table layout {self.tables!r}; choose one of {TABLE_LAYOUTS}")
         if self.memory not in mem.LAYOUTS:
             raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {mem.LAYOUTS}")
         if isinstance(self.capacity, bool) or not isinstance(self.capacity, int) or self.capacity <= 0:
@@ -88,12 +94,111 @@ class Hyper:
     temperature: jax.Array  # softmax temperature τ of (1)
 
 
+def critic_update(values: jax.Array, state, delta, alpha, learn) -> jax.Array:
+    """(2): V(s) ← V(s) + α·δ (only when `learn`)."""
+    return values.at[state].add(jnp.where(learn, alpha * delta, 0.0), unique_indices=True)
+
+
+def actor_update(preferences: jax.Array, state, action, delta, beta, learn) -> jax.Array:
+    """(4): p(s,a) ← p(s,a) + β·δ for the taken action only (only when `learn`)."""
+    return preferences.at[state, action].add(jnp.where(learn, beta * delta, 0.0), unique_indices=True)
+
+
+@pytree_dataclass
+class SplitTables:
+    """p(s, a) and V(s) as two arrays: the fewest bytes per seed (CPU default)."""
+
+    preferences: jax.Array  # float [S, A]
+    values: jax.Array  # float [S]
+
+    def row(self, state) -> tuple[jax.Array, jax.Array]:
+        """(p(s, ·) [A], V(s))."""
+        return self.preferences[state], self.values[state]
+
+    def value(self, state) -> jax.Array:
+        return self.values[state]
+
+    def learn(self, state, action, delta, alpha, beta, learn) -> SplitTables:
+        """(2) and (4) at (state, action), applied when `learn`."""
+        return SplitTables(actor_update(self.preferences, state, action, delta, beta, learn),
+                           critic_update(self.values, state, delta, alpha, learn))
+
+
+ROW_FLOATS = 8  # rows padded to a multiple of 8 floats: 32 bytes, one memory sector on GPUs
+
+
+@pytree_dataclass
+class RowTables:
+    """p(s, ·) and V(s) side by side, one padded row per state (GPU default).
+
+    Row s is ``[p(s, 0) … p(s, A−1), V(s), 0 …]`` with W = A + 1 rounded up to a multiple of
+    8. A step reads row s once (softmax (1), δ of (3)) and writes it back once with both
+    updates (2) and (4), where split tables take two scattered writes; on GPUs, where each
+    scattered access costs a memory transaction, that is the cheaper layout. Same
+    arithmetic, so both layouts give bit-identical runs.
+    """
+
+    rows: jax.Array  # float [S, W]
+    n_actions: int = static_field()
+
+    @property
+    def preferences(self) -> jax.Array:
+        return self.rows[:, :self.n_actions]
+
+    @property
+    def values(self) -> jax.Array:
+        return self.rows[:, self.n_actions]
+
+    def row(self, state) -> tuple[jax.Array, jax.Array]:
+        r = self.rows[state]
+        return r[:self.n_actions], r[self.n_actions]
+
+    def value(self, state) -> jax.Array:
+        return self.rows[state, self.n_actions]
+
+    def learn(self, state, action, delta, alpha, beta, learn) -> RowTables:
+        """(2) and (4) at (state, action) as one row write, applied when `learn`."""
+        step = jnp.where(learn, delta, 0.0)
+        column = jnp.arange(self.rows.shape[1])
+        change = jnp.where(column == self.n_actions, alpha * step,
+                           jnp.where(column == action, beta * step, 0.0))
+        return self.replace(rows=self.rows.at[state].set(self.rows[state] + change, unique_indices=True))
+
+
+Tables = SplitTables | RowTables
+
+
+def resolve_tables(layout: TableLayout) -> Literal["split", "rows"]:
+    """`auto`: rows on accelerators, split tables on the CPU (measured in BENCHMARKS.md)."""
+    if layout != "auto":
+        return layout
+    return "split" if jax.default_backend() == "cpu" else "rows"
+
+
+def init_tables(layout: TableLayout, n_states: int, n_actions: int) -> Tables:
+    """p = 0 and V = 0 everywhere (the uniform policy of Alg. 1 line 1)."""
+    if resolve_tables(layout) == "rows":
+        width = -(-(n_actions + 1) // ROW_FLOATS) * ROW_FLOATS
+        return RowTables(rows=jnp.zeros((n_states, width), float), n_actions=n_actions)
+    return SplitTables(preferences=jnp.zeros((n_states, n_actions), float),
+                       values=jnp.zeros((n_states,), float))
+
+
+def with_actor_critic(agent: AgentState, preferences=None, values=None) -> AgentState:
+    """The agent with these p(s, a) [S, A] and/or V(s) [S] in its own table layout (tests, notebooks)."""
+    preferences = agent.preferences if preferences is None else jnp.asarray(preferences, agent.values.dtype)
+    values = agent.values if values is None else jnp.asarray(values, agent.values.dtype)
+    if isinstance(agent.tables, RowTables):
+        rows = agent.tables.rows.at[:, :agent.tables.n_actions].set(preferences)
+        return agent.replace(tables=agent.tables.replace(rows=rows.at[:, agent.tables.n_actions].set(values)))
+    return agent.replace(tables=SplitTables(preferences, values))
+
+
 @pytree_dataclass
 class AgentState:
     """Everything an agent carries across the trials of one seed."""
 
-    preferences: jax.Array  # float [S, A], p(s, a) of (1), (4)
-    values: jax.Array  # float [S], V(s) of (2)
+    tables: Tables  # p(s, a) of (1), (4) and V(s) of (2)
     memory: mem.Memory | None  # success/failure experience (None for AC)
     goal_known: jax.Array  # bool [], E5: goal reached at least once
     trial: jax.Array  # int32 [], 0-based index of the current trial
@@ -102,6 +207,16 @@ class AgentState:
     rtilde: jax.Array  # float [C], the latest r̃ per chance index: trial t−1's until trial t writes it
     prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
     path: tuple[jax.Array, jax.Array, jax.Array] | None  # buffer layout: states, actions, E6 flags [C]
+
+    @property
+    def preferences(self) -> jax.Array:
+        """float [S, A]: p(s, a) of (1), (4)."""
+        return self.tables.preferences
+
+    @property
+    def values(self) -> jax.Array:
+        """float [S]: V(s) of (2)."""
+        return self.tables.values
 
     @property
     def outcomes(self) -> jax.Array:
@@ -126,8 +241,7 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, 
         path = (jnp.zeros((n_chances,), jnp.int32), jnp.zeros((n_chances,), jnp.int32),
                 jnp.zeros((n_chances,), bool))
     return AgentState(
-        preferences=jnp.zeros((n_states, n_actions), float),
-        values=jnp.zeros((n_states,), float),
+        tables=init_tables(cfg.tables, n_states, n_actions),
         memory=memory,
         goal_known=jnp.bool_(False),
         trial=jnp.int32(0),
@@ -168,7 +282,7 @@ def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper):
     (a) a success action → take it; (b) some but not all actions flagged failed →
     softmax over the unflagged ones; (c) otherwise plain AC softmax (1).
     """
-    logits = agent.preferences[state] / hyper.temperature
+    logits = agent.tables.row(state)[0] / hyper.temperature
     n_actions = logits.shape[0]
     allowed = jnp.ones((n_actions,), bool)
     from_memory = jnp.bool_(False)
@@ -193,23 +307,11 @@ def td_error(reward, value, next_value, gamma, terminated) -> jax.Array:
     return reward + gamma * jnp.where(terminated, 0.0, next_value) - value
 
 
-def critic_update(values: jax.Array, state, delta, alpha, learn) -> jax.Array:
-    """(2): V(s) ← V(s) + α·δ (only when `learn`)."""
-    return values.at[state].add(jnp.where(learn, alpha * delta, 0.0), unique_indices=True)
-
-
-def actor_update(preferences: jax.Array, state, action, delta, beta, learn) -> jax.Array:
-    """(4): p(s,a) ← p(s,a) + β·δ for the taken action only (only when `learn`)."""
-    return preferences.at[state, action].add(jnp.where(learn, beta * delta, 0.0), unique_indices=True)
-
-
 def learn_step(agent: AgentState, state, action, reward, next_state, terminated, learn, alpha, beta, gamma):
     """Eqs. (2)–(4) on one transition, applied when `learn` (E2)."""
-    delta = td_error(reward, agent.values[state], agent.values[next_state], gamma, terminated)
-    return agent.replace(
-        values=critic_update(agent.values, state, delta, alpha, learn),
-        preferences=actor_update(agent.preferences, state, action, delta, beta, learn),
-    )
+    value = agent.tables.row(state)[1]
+    delta = td_error(reward, value, agent.tables.value(next_state), gamma, terminated)
+    return agent.replace(tables=agent.tables.learn(state, action, delta, alpha, beta, learn))
 
 
 def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde) -> jax.Array:

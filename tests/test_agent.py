@@ -24,11 +24,13 @@ from jaxeac.agent import (
     sample_softmax,
     select_action,
     td_error,
+    with_actor_critic,
 )
 from jaxeac.errors import UsageError
 from jaxeac.memory import dense_tables, with_committed
 
 JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
+TABLES = pytest.mark.parametrize("tables", ["split", "rows"])
 
 
 def maybe_jit(f, jit, **kw):
@@ -58,10 +60,11 @@ def test_critic_and_actor_updates_golden(jit):
     np.testing.assert_allclose(p, expected, rtol=1e-6)
 
 
-def test_learn_step_golden_sequence():
+@TABLES
+def test_learn_step_golden_sequence(tables):
     """Two transitions by hand: 0 --a1--> 1 (r=0), then 1 --a0--> goal (r=1, terminal)."""
-    agent = init_agent(algorithm("ac"), 3, 2, 4, 10)
-    agent = agent.replace(values=jnp.array([0.0, 0.2, 0.7]))
+    agent = init_agent(algorithm("ac", tables=tables), 3, 2, 4, 10)
+    agent = with_actor_critic(agent, values=[0.0, 0.2, 0.7])
     a1 = learn_step(agent, 0, 1, 0.0, 1, False, True, 0.5, 0.2, 0.9)
     # δ = 0 + 0.9·0.2 − 0 = 0.18 → V0 = 0.09, p(0,1) = 0.036
     np.testing.assert_allclose(a1.values, [0.09, 0.2, 0.7], rtol=1e-6)
@@ -132,9 +135,10 @@ def test_select_action_e1_order():
     assert bool(select_action(variant, agent, 2, 0.0, hyper())[1])
 
 
-def test_select_action_temperature():
-    cfg = algorithm("ac")
-    agent = init_agent(cfg, 1, 2, 1, 1).replace(preferences=jnp.array([[0.0, math.log(3.0)]]))
+@TABLES
+def test_select_action_temperature(tables):
+    cfg = algorithm("ac", tables=tables)
+    agent = with_actor_critic(init_agent(cfg, 1, 2, 1, 1), preferences=[[0.0, math.log(3.0)]])
     # τ = 1: π = [.25, .75]; τ → large: π → [.5, .5]
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1.0))[0]) == 1
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1e6))[0]) == 0
@@ -204,14 +208,15 @@ def test_memory_applies_only_after_the_trial():
     assert int(select_action(cfg, agent, 2, 0.9, hyper())[0]) == 1
 
 
-def test_ac_has_no_memory_and_greedy_policy():
-    ac = algorithm("ac")
+@TABLES
+def test_ac_has_no_memory_and_greedy_policy(tables):
+    ac = algorithm("ac", tables=tables)
     agent = init_agent(ac, 2, 3, 1, 1)
     assert agent.memory is None and not ac.uses_memory
-    agent = agent.replace(preferences=jnp.array([[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]]))
+    agent = with_actor_critic(agent, preferences=[[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]])
     np.testing.assert_array_equal(greedy_policy(ac, agent), [1, 0])
-    eac = algorithm("eac")
-    e = with_tables(init_agent(eac, 2, 3, 1, 1).replace(preferences=agent.preferences), [-1, 2],
+    eac = algorithm("eac", tables=tables)
+    e = with_tables(with_actor_critic(init_agent(eac, 2, 3, 1, 1), preferences=agent.preferences), [-1, 2],
                     np.zeros((2, 3), bool))
     np.testing.assert_array_equal(greedy_policy(eac, e), [1, 2])  # G7: memory first
 
@@ -227,6 +232,7 @@ def test_rate_schedule():
 @pytest.mark.parametrize(("kw", "msg"), [
     ({"failure_rule": "sideways"}, "unknown failure_rule"),
     ({"memory": "sparse"}, "unknown memory layout"),
+    ({"tables": "packed"}, "unknown table layout"),
     ({"capacity": 0}, "capacity must be a positive integer"),
     ({"capacity": 2.5}, "capacity must be a positive integer"),
 ])
@@ -238,3 +244,19 @@ def test_agent_config_rejects_bad_values(kw, msg):
 def test_unknown_algorithm():
     with pytest.raises(UsageError, match="unknown algorithm 'sarsa'"):
         algorithm("sarsa")
+
+
+def test_row_tables_layout():
+    """Rows of p(s, ·), V(s) padded to 32 bytes; updates (2), (4) leave the padding at zero."""
+    from jaxeac.agent import RowTables, SplitTables, resolve_tables
+
+    assert resolve_tables("auto") == ("split" if jax.default_backend() == "cpu" else "rows")
+    assert isinstance(init_agent(algorithm("ac", tables="split"), 3, 4, 1, 1).tables, SplitTables)
+    agent = init_agent(algorithm("ac", tables="rows"), 3, 4, 1, 1)
+    assert isinstance(agent.tables, RowTables) and agent.tables.rows.shape == (3, 8)
+    assert init_agent(algorithm("ac", tables="rows"), 3, 21, 1, 1).tables.rows.shape == (3, 24)
+    agent = learn_step(agent, 1, 3, 1.0, 2, True, True, 0.5, 0.2, 0.9)  # δ = 1
+    expected = np.zeros((3, 8))
+    expected[1, 3], expected[1, 4] = 0.2, 0.5  # β·δ at (1, 3); α·δ in the value column
+    np.testing.assert_allclose(agent.tables.rows, expected, rtol=1e-6)
+    np.testing.assert_allclose(agent.values, [0.0, 0.5, 0.0], rtol=1e-6)

@@ -23,6 +23,8 @@ from jaxeac.runner import RunConfig, seed_key, trace_run
 VARIANTS = {
     "ac": algorithm("ac"),
     "eac": algorithm("eac"),
+    "ac_rows": algorithm("ac", tables="rows"),
+    "eac_rows": algorithm("eac", tables="rows"),
     "eac_buffer": algorithm("eac", memory="buffer", capacity=512),
     "eac_buffer_small": algorithm("eac", memory="buffer", capacity=3),  # FIFO eviction in use
     "eac_learn_on_memory": algorithm("eac", learn_on_memory_steps=True),

@@ -91,6 +91,7 @@ LOOP_CASES = [  # (algorithm, variant, map seed: 0 = paper map, else a random sm
     ("eac", {"failure_rule": "within_trial"}, 2),
     ("eac_success_only", {}, 3),
     ("eac_failure_only", {}, 4),
+    ("eac", {"tables": "rows"}, 5),
 ]
 
 
