@@ -39,8 +39,9 @@ def throw_(cfg, agent, state, action, knocked, after, last):
                             jnp.int32(knocked), jnp.int32(after), last, jnp.bool_(True), HYPER)
 
 
-def test_strike_is_a_success_and_is_remembered_e4():
-    cfg = RunConfig(trials=5, agent=algorithm("eac"), gamma=1.0)
+@pytest.mark.parametrize("tables", ["split", "rows"])
+def test_strike_is_a_success_and_is_remembered_e4(tables):
+    cfg = RunConfig(trials=5, agent=algorithm("eac", tables=tables), gamma=1.0)
     agent = init_agent(cfg.agent, N_MASKS, 3, 2, 5)
     agent = throw_(cfg, agent, FULL_RACK, 2, 10, 0, False)  # strike on chance 1: the trial ends
     assert int(agent.trial) == 1 and bool(agent.outcomes[0])
