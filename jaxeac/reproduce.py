@@ -511,23 +511,29 @@ def _outside(pos: dict) -> str:
     return "; " + ", ".join(far) + " (outside the 5-95% range)"
 
 
+def _headline_verdict(cid, experiment, claim, paper, measure, stats, pos, what, reversed_why=None) -> dict:
+    """A headline claim (G1, B1): EAC > AC on the primary measure (Holm), and whether both of the
+    paper's single-run results lie within our seeds' 5-95% range."""
+    d = _supported(stats, "p_holm")
+    within = pos["ac"]["within_5_95"] and pos["eac"]["within_5_95"]
+    against = reversed_why if d < 0 and reversed_why else "EAC > AC is not supported"
+    return {
+        "id": cid, "experiment": experiment, "claim": claim, "paper": paper, "measure": measure,
+        "stats": stats,
+        "verdict": "holds" if d > 0 and within else "partly holds" if d > 0 else "does not hold",
+        "why": ("EAC > AC is supported" if d > 0 else against)
+        + (f"; both single-run {what} lie within our seeds' 5-95% range" if within else _outside(pos)),
+    }
+
+
 def claims(grid: dict, gstats: dict, bowl: dict, bstats: dict) -> list[dict]:
     """The paper's claims, each with what we found and a verdict (`VERDICT_RULES`)."""
     out = []
     # G1: 163 vs 56 of 200.
-    pr = gstats["primary"]
-    d = _supported(pr, "p_holm")
-    pos = grid["paper_position"]
-    within = pos["ac"]["within_5_95"] and pos["eac"]["within_5_95"]
-    out.append({
-        "id": "G1", "experiment": "grid",
-        "claim": "EAC reaches the goal more often than AC: 163 vs 56 of 200 trials",
-        "paper": "EAC 163, AC 56 (one run each; difference +107)", "measure": "successes", "stats": pr,
-        "verdict": "holds" if d > 0 and within else "partly holds" if d > 0 else "does not hold",
-        "why": ("EAC > AC is supported" if d > 0 else "EAC > AC is not supported")
-        + ("; both single-run numbers lie within our seeds' 5-95% range" if within else
-           _outside(pos)),
-    })
+    out.append(_headline_verdict(
+        "G1", "grid", "EAC reaches the goal more often than AC: 163 vs 56 of 200 trials",
+        "EAC 163, AC 56 (one run each; difference +107)", "successes", gstats["primary"],
+        grid["paper_position"], "numbers"))
     # G2: faster learning / steeper curve from the first trials.
     auc = gstats["secondary"]["auc_cumulative"]
     fs = gstats["secondary"]["first_success"]
@@ -564,20 +570,10 @@ def claims(grid: dict, gstats: dict, bowl: dict, bstats: dict) -> list[dict]:
         "EAC's final greedy policies do not reach the goal from more start cells than AC's",
     })
     # B1: 81 vs 67 pins of 100.
-    pr = bstats["primary"]
-    d = _supported(pr, "p_holm")
-    pos = bowl["paper_position"]
-    within = pos["ac"]["within_5_95"] and pos["eac"]["within_5_95"]
-    out.append({
-        "id": "B1", "experiment": "bowling",
-        "claim": "EAC knocks more pins than AC: 81 vs 67 of 100 (Table I)",
-        "paper": "EAC 81, AC 67 (one run each; difference +14)", "measure": "return", "stats": pr,
-        "verdict": "holds" if d > 0 and within else "partly holds" if d > 0 else "does not hold",
-        "why": ("EAC > AC is supported" if d > 0 else
-                "EAC < AC: the difference is reversed" if d < 0 else "EAC > AC is not supported")
-        + ("; both single-run totals lie within our seeds' 5-95% range" if within else
-           _outside(pos)),
-    })
+    out.append(_headline_verdict(
+        "B1", "bowling", "EAC knocks more pins than AC: 81 vs 67 of 100 (Table I)",
+        "EAC 81, AC 67 (one run each; difference +14)", "return", bstats["primary"],
+        bowl["paper_position"], "totals", reversed_why="EAC < AC: the difference is reversed"))
     # B2: EAC's chance-1 angle negative, chance-2 positive after ~5 trials.
     ang = bowl["angles"]
     e1, e2 = ang["eac"]["theta1"], ang["eac"]["theta2"]
