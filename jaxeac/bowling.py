@@ -11,7 +11,9 @@ Two physics backends (B7):
 
 * ``c`` — MuJoCo's C engine batched over threads: learning steps are jit-compiled
   and vmapped over seeds; the batched physics runs between them on the host.
-* ``mjx`` — the whole run (learning and physics) is one jit-compiled function.
+* ``mjx`` and ``warp`` — the whole run (learning and physics) is one jit-compiled
+  function; MJX steps the physics in JAX (``mjx``) or with its Warp implementation
+  on NVIDIA GPUs (``warp``).
 
 Both consume the same random numbers: E1 uniforms from `step_uniform` and throw
 noise from ``fold_in(fold_in(fold_in(root, seed), trial), chance)``.
@@ -30,7 +32,7 @@ import numpy as np
 
 from envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from envs.bowling import angles as angle_grid
-from envs.bowling.scene import DEFAULT_SOLVER
+from envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend
 from jaxeac.agent import (
     AgentState,
     Hyper,
@@ -50,7 +52,6 @@ N_PINS = 10
 N_MASKS = 1 << N_PINS  # B5: states are the sets of standing pins
 FULL_RACK = N_MASKS - 1
 CHANCES = 2  # B5
-BACKENDS = ("c", "mjx")
 
 
 def mask_index(standing) -> jax.Array:
@@ -144,16 +145,17 @@ def _set_rows(full, rows, part):
     return out
 
 
-def make_run_mjx(cfg: RunConfig, phys: BowlingConfig) -> Callable:
-    """The whole chunk with MJX as one jit-compiled function: ``(keys [M], hyper) -> BowlingRecord``."""
-    from envs.bowling import make_mjx_throw
+def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Callable:
+    """The whole chunk with MJX (implementation impl) as one jit-compiled function:
+    ``(keys [M], hyper) -> BowlingRecord``."""
+    from envs.bowling.backend_mjx import make_batch_throw
 
-    throw_one = make_mjx_throw(phys)
+    throw_all = make_batch_throw(phys, impl=impl)
     grid = jnp.asarray(angle_grid(phys), jnp.float32)
 
-    def physics(pins, action, key, trial, chance):
-        eps_key = jax.random.fold_in(jax.random.fold_in(key, trial), chance)
-        return throw_one(pins, grid[action], eps_key)
+    def physics(pins, action, keys, trial, chance):
+        eps_keys = jax.vmap(lambda k: jax.random.fold_in(jax.random.fold_in(k, trial), chance))(keys)
+        return throw_all(pins, grid[action], eps_keys)
 
     def batch(keys, hyper):
         m = keys.shape[0]
@@ -168,7 +170,7 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig) -> Callable:
             for c in range(CHANCES):
                 action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None))(cfg, agents, words, state,
                                                                                   hyper)
-                res = jax.vmap(physics, in_axes=(0, 0, 0, None, None))(pins, action, keys, t, c)
+                res = physics(pins, action, keys, t, c)
                 knocked = jnp.where(active, res.knocked, 0)
                 after = jnp.where(active, mask_index(res.standing), state)
                 agents = jax.vmap(learn_from_throw, in_axes=(None, 0, 0, 0, 0, 0, 0, None, 0, None))(
@@ -214,8 +216,7 @@ class BowlingSettings:
             _positive_int(name.replace("_", " "), getattr(self, name))
         if isinstance(self.angles, bool) or not isinstance(self.angles, int) or self.angles < 2:
             raise UsageError(f"angles must be an integer K >= 2 (got {self.angles!r})")
-        if self.backend not in BACKENDS:
-            raise UsageError(f"unknown backend {self.backend!r}; choose one of {', '.join(BACKENDS)}")
+        check_backend(self.backend)
         _rate("alpha", self.alpha)
         _rate("beta", self.beta)
         _rate("gamma", self.gamma, upper=1.0)
@@ -287,10 +288,10 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
     for seeds in chunks(settings.seeds, chunk):
         padded = np.pad(seeds, (0, chunk - seeds.size), mode="edge")
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root, jnp.asarray(padded))
-        if settings.backend == "mjx":
+        if settings.backend in MJX_IMPL:
             if run_mjx is None:
                 c0 = time.perf_counter()
-                run_mjx = make_run_mjx(cfg, phys).lower(keys, hyper).compile()
+                run_mjx = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(keys, hyper).compile()
                 compile_seconds = time.perf_counter() - c0
             rec = jax.device_get(run_mjx(keys, hyper))
         else:

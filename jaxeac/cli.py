@@ -120,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="s.d. of the angle noise in rad (B3)")
     b.add_argument("--noise-speed", type=finite_float, default=0.1, metavar="S",
                    help="s.d. of the release-speed noise in m/s (B3)")
-    b.add_argument("--backend", default="c", metavar="c|mjx", help="physics backend (B7; default c)")
+    b.add_argument("--backend", default="c", metavar="c|mjx|warp",
+                   help="physics backend (B7; default c; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
     add_solver_flags(b)
     b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO")
     b.add_argument("--alpha", type=finite_float, default=0.1, metavar="A", help="critic step size α")
@@ -136,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--angles", nargs="+", type=finite_float, required=True, metavar="A",
                    help="shoulder angles in rad, within ±theta-max")
     t.add_argument("--noise", type=finite_float, default=0.0, help="noise scale (0: deterministic)")
-    t.add_argument("--backend", default="c", metavar="c|mjx")
+    t.add_argument("--backend", default="c", metavar="c|mjx|warp")
     add_solver_flags(t)
     t.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X")
     t.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="noise PRNG key")

@@ -1,13 +1,15 @@
 """Benchmark the bowling physics backends (SPEC B7): throws/s and physics steps/s.
 
-C engine (``mujoco.rollout``, nthread = CPU count) and MJX (jit + vmap, on
-whatever device JAX uses: CPU here, GPU elsewhere). Compile seconds are kept
+C engine (``mujoco.rollout``, nthread = CPU count), MJX (jit + vmap, on
+whatever device JAX uses: CPU here, GPU elsewhere) and MJX with its Warp
+implementation (``warp``: NVIDIA GPUs, needs warp-lang). Compile seconds are kept
 apart from run seconds. Throws are a mix of the 21 default angles with the
 default noise, from a full rack, so hits and misses are both in the batch.
 
     python scripts/bench_bowling.py --out bench_cpu.json
     python scripts/bench_bowling.py --backends mjx --mjx-batches 1024 4096 16384 65536 --out gpu.json
     python scripts/bench_bowling.py --backends mjx --physics newton:4:8 cg:8:8 cg:6:4:24 --accuracy 2048
+    python scripts/bench_bowling.py --backends warp --mjx-batches 4096 16384 65536 --accuracy 2048
 
 ``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap[:pair_cap]]);
 ``--accuracy N`` also scores each setting's pins on the first N throws of its largest
@@ -33,6 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from envs.bowling import (  # noqa: E402
+    BACKENDS,
     BowlingConfig,
     SolverSettings,
     angles,
@@ -40,6 +43,8 @@ from envs.bowling import (  # noqa: E402
     initial_pins,
     throw,
 )
+from envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
+from jaxeac.errors import UsageError  # noqa: E402
 
 
 def _inputs(batch: int, cfg: BowlingConfig, seed: int):
@@ -109,10 +114,10 @@ def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, refere
             "strike_rate": float((got == 10).mean()), "reference_strike_rate": float((ref == 10).mean())}
 
 
-def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
-    """Compile and time the MJX backend on one batch size."""
+def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int, backend: str = "mjx") -> dict:
+    """Compile and time an MJX backend (mjx or warp) on one batch size."""
     pins, a, keys = _inputs(batch, cfg, 0)
-    fn = backend_mjx.batched_throw(cfg)
+    fn = backend_mjx.batched_throw(cfg, impl=MJX_IMPL[backend])
     args = (pins, jnp.asarray(a, jnp.float32), keys)
     t0 = time.perf_counter()
     compiled = fn.lower(*args).compile()
@@ -123,7 +128,7 @@ def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         res = jax.block_until_ready(compiled(*args))
         best = min(best, time.perf_counter() - t0)
     return {
-        "backend": "mjx",
+        "backend": backend,
         "physics": physics_label(cfg),
         "batch": batch,
         "device": str(jax.devices()[0]),
@@ -148,7 +153,7 @@ def saturation(rows: list[dict]) -> int | None:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the JSON report."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--backends", nargs="+", default=["c", "mjx"], choices=["c", "mjx"])
+    p.add_argument("--backends", nargs="+", default=["c", "mjx"], choices=list(BACKENDS))
     p.add_argument("--c-batches", nargs="+", type=int, default=[64, 256, 1024])
     p.add_argument("--mjx-batches", nargs="+", type=int, default=None,
                    help="default: 16 64 256 on CPU, 1024 4096 16384 65536 on GPU")
@@ -161,6 +166,11 @@ def main(argv: list[str] | None = None) -> int:
                         "engine at 50/50 Newton iterations on the same throws (0: skip)")
     p.add_argument("--out", type=Path, default=None, help="write the JSON report here")
     args = p.parse_args(argv)
+    for name in args.backends:
+        try:
+            check_backend(name)
+        except UsageError as exc:
+            p.error(str(exc))
 
     cfg = BowlingConfig(nthread=args.nthread)
     on_cpu = jax.devices()[0].platform == "cpu"
@@ -187,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
         import importlib.metadata as md
 
         report["versions"]["mujoco_mjx"] = md.version("mujoco-mjx")
+        if "warp" in args.backends:
+            report["versions"]["warp_lang"] = md.version("warp-lang")
         report["versions"]["jaxlib"] = md.version("jaxlib")
     except Exception:  # metadata missing in odd installs: the report still stands
         pass
@@ -197,8 +209,10 @@ def main(argv: list[str] | None = None) -> int:
             batches = args.c_batches if name == "c" else mjx_batches
             rows = []
             for b in batches:
-                row = bench_c(b, pcfg, args.repeats) if name == "c" else bench_mjx(b, pcfg, args.repeats)
-                rows.append(row)
+                if name == "c":
+                    rows.append(bench_c(b, pcfg, args.repeats))
+                else:
+                    rows.append(bench_mjx(b, pcfg, args.repeats, name))
             knocked = rows[-1]["_knocked"]
             for row in rows:
                 row.pop("_knocked")

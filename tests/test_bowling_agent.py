@@ -123,7 +123,7 @@ def test_bowling_cli_end_to_end(tmp_path, capsys):
 @pytest.mark.parametrize(("argv", "message"), [
     (["bowling", "--angles", "1"], "K >= 2"),
     (["bowling", "--seeds", "0"], "positive integer"),
-    (["bowling", "--backend", "gpu"], "unknown backend 'gpu'"),
+    (["bowling", "--backend", "gpu"], "unknown bowling backend 'gpu'"),
     (["bowling", "--noise-angle", "-0.1"], "noise_angle"),
     (["bowling", "--noise-speed", "-1"], "noise_speed"),
     (["bowling", "--theta-max", "0"], "theta_max"),
@@ -154,9 +154,14 @@ def test_throw_cli_json(capsys, tmp_path):
 
 
 @pytest.mark.slow
-def test_mjx_backend_runs_as_one_jit():
-    settings = BowlingSettings(seeds=2, trials=2, backend="mjx", chunk_size=2)
+@pytest.mark.parametrize("backend", ["mjx", "warp"])
+def test_mjx_backend_runs_as_one_jit(backend):
+    """B7: learning and physics as one compiled function (warp: skipped without warp-lang)."""
+    if backend == "warp":
+        pytest.importorskip("warp")
+    settings = BowlingSettings(seeds=2, trials=2, backend=backend, chunk_size=2)
     r = run_bowling_algo(settings, "eac")
     assert r.compile_seconds > 0 and r.knocked.shape == (2, 2, 2)
     assert (r.returns >= 0).all() and (r.returns <= 10).all()
+    assert ((r.action[:, :, 1] == -1) == (r.knocked[:, :, 0] == 10)).all()  # chance 2 only after no strike
     jax.clear_caches()

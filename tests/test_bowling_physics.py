@@ -182,6 +182,78 @@ def test_mjx_and_c_agree_in_distribution():
     assert np.all(np.asarray(rm.knocked) == 10 - np.asarray(rm.standing).sum(1))
 
 
+def test_mjx_batch_and_per_throw_paths_agree():
+    """B7: the batch function (api.throw, agents' runs) and the vmapped per-throw function of MJX
+    give the same pins on the same noisy throws."""
+    a = np.array([0.0, 0.02, -0.04, 0.1])
+    keys = jax.random.split(jax.random.key(7), len(a))
+    pins = initial_pins(len(a))
+    batch = throw(pins, a, keys, backend="mjx", cfg=CFG)
+    single = jax.jit(jax.vmap(make_mjx_throw(CFG)))(pins, jnp.asarray(a, jnp.float32), keys)
+    np.testing.assert_array_equal(np.asarray(batch.knocked), np.asarray(single.knocked))
+    np.testing.assert_array_equal(np.asarray(batch.standing), np.asarray(single.standing))
+
+
+def test_warp_buffers_hold_every_contact_the_pair_list_allows():
+    """B1/B7: Warp sizes contacts and constraint rows from WARP_CONTACTS and WARP_ROWS, which must be
+    the scene's hard bounds (explicit pairs only, most contacts per pair type, pyramidal rows)."""
+    import mujoco
+
+    from envs.bowling.backend_c import load_model
+    from envs.bowling.backend_mjx import WARP_CONTACTS, WARP_ROWS
+
+    m = load_model()
+    g = mujoco.mjtGeom
+    assert not np.any((m.geom_contype != 0) & (m.geom_conaffinity != 0)), "only listed pairs collide"
+    assert m.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+    most = {(g.mjGEOM_PLANE, g.mjGEOM_SPHERE): 1, (g.mjGEOM_PLANE, g.mjGEOM_CAPSULE): 2,
+            (g.mjGEOM_SPHERE, g.mjGEOM_CAPSULE): 1, (g.mjGEOM_CAPSULE, g.mjGEOM_CAPSULE): 2}
+    contacts = rows = 0
+    for i in range(m.npair):
+        kinds = tuple(sorted(int(m.geom_type[j]) for j in (m.pair_geom1[i], m.pair_geom2[i])))
+        n = most[kinds]
+        dim = int(m.pair_dim[i])
+        contacts += n
+        rows += n * (1 if dim == 1 else 2 * (dim - 1))
+    assert (contacts, rows) == (WARP_CONTACTS, WARP_ROWS) == (151, 514)
+
+
+def test_unknown_mjx_implementation_and_missing_warp_are_usage_errors(monkeypatch):
+    """The warp backend without warp-lang: one line naming the fix, before any work."""
+    from envs.bowling import backend_mjx
+    from jaxeac.bowling import BowlingSettings
+
+    with pytest.raises(UsageError, match="implementation"):
+        backend_mjx.check_impl("cuda")
+    monkeypatch.setattr(backend_mjx._mjx_warp, "WARP_INSTALLED", False)
+    for call in (lambda: backend_mjx.check_impl("warp"),
+                 lambda: throw(initial_pins(1), 0.0, jax.random.key(0), backend="warp", cfg=CFG),
+                 lambda: BowlingSettings(backend="warp").validate()):
+        with pytest.raises(UsageError, match="warp-lang") as err:
+            call()
+        assert "\n" not in str(err.value) and "pip install" in str(err.value)
+
+
+@pytest.mark.slow
+def test_warp_and_c_agree_in_distribution():
+    """B7: MJX's Warp implementation against the C engine on the same noisy throws (tolerances as for
+    the jax implementation); needs warp-lang (skipped without it; runs on CPU or an NVIDIA GPU)."""
+    pytest.importorskip("warp")
+    base = np.array([-0.1, -0.05, 0.0, 0.03, 0.06])
+    a = np.repeat(base, 12)
+    keys = jax.random.split(jax.random.key(2024), len(a))
+    pins = initial_pins(len(a))
+    rc = throw(pins, a, keys, backend="c", cfg=CFG)
+    rw = throw(pins, a, keys, backend="warp", cfg=CFG)
+    kw = np.asarray(rw.knocked).reshape(len(base), -1)
+    kc = np.asarray(rc.knocked).reshape(len(base), -1)
+    assert np.all(np.isfinite(np.asarray(rw.rest_qpos)))
+    assert np.all(kw[0] == 0)
+    np.testing.assert_array_less(np.abs(kw.mean(1) - kc.mean(1)), 1.5)
+    assert abs(kw.mean() - kc.mean()) < 0.5
+    assert np.all(np.asarray(rw.knocked) == 10 - np.asarray(rw.standing).sum(1))
+
+
 def test_throw_command_and_render(tmp_path):
     """CLI function: deterministic at noise 0, JSON-ready, writes a PNG."""
     png = tmp_path / "deck.png"

@@ -1,6 +1,6 @@
 """One throw interface over two physics backends (SPEC B2-B4, B7).
 
-``throw(pins, angle, key_or_noise, backend="c"|"mjx")`` runs a batch of throws:
+``throw(pins, angle, key_or_noise, backend="c"|"mjx"|"warp")`` runs a batch of throws:
 the noise draw (B3) comes from ``jax.random`` in both backends, so the same key
 gives the same noisy throw parameters on either engine; only the physics differs.
 """
@@ -15,6 +15,7 @@ from jaxeac.errors import UsageError
 
 from . import backend_c, backend_mjx
 from .scene import (
+    MJX_IMPL,
     N_PINS,
     BowlingConfig,
     PinState,
@@ -74,11 +75,11 @@ def throw(
     if backend == "c":
         eps = batch_noise(key_or_noise, batch)
         res = backend_c.throw_c(pins, a, eps, cfg, record_trajectory)
-    elif keys is not None:  # the pure per-throw function, vmapped (B7)
-        fn = backend_mjx.batched_throw(cfg, record_trajectory)
+    elif keys is not None:  # the pure batch function, jitted (B7)
+        fn = backend_mjx.batched_throw(cfg, record_trajectory, backend_mjx.check_impl(MJX_IMPL[backend]))
         res = fn(pins, jnp.asarray(a, jnp.float32), keys)
     else:
-        fn = backend_mjx.batched_throw_eps(cfg, record_trajectory)
+        fn = backend_mjx.batched_throw_eps(cfg, record_trajectory, backend_mjx.check_impl(MJX_IMPL[backend]))
         res = fn(pins, jnp.asarray(a, jnp.float32), batch_noise(key_or_noise, batch))
     if unbatched:
         res = jax.tree_util.tree_map(lambda x: x[0], res)

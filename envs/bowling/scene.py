@@ -59,7 +59,8 @@ NQ, NV = 77, 66
 TIMESTEP = 0.005  # s, as in the MJCF file
 MAX_STEPS = 2000  # 10 s: parked pins must not reach the floor
 
-BACKENDS = ("c", "mjx")
+BACKENDS = ("c", "mjx", "warp")  # B7: C engine; MJX in JAX; MJX with its Warp implementation (NVIDIA GPUs)
+MJX_IMPL = {"mjx": "jax", "warp": "warp"}  # the MJX implementation behind each MJX backend
 SOLVERS = ("newton", "cg")  # MuJoCo's constraint solvers offered (B7: chosen by measurement)
 
 
@@ -142,6 +143,10 @@ def check_backend(backend: str) -> str:
     """Return backend if known, else raise UsageError (B7)."""
     if backend not in BACKENDS:
         raise UsageError(f"unknown bowling backend {backend!r}: use one of {', '.join(BACKENDS)}")
+    if backend in MJX_IMPL:
+        from .backend_mjx import check_impl  # imports MJX; only when an MJX backend is asked for
+
+        check_impl(MJX_IMPL[backend])
     return backend
 
 
