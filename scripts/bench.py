@@ -133,7 +133,8 @@ def _render_scale(path: Path, rec: dict) -> list[str]:
 def _render_bowling(path: Path, rec: dict) -> list[str]:
     m, v = rec["machine"], rec["versions"]
     out = [f"#### `{path.name}`: {', '.join(m['jax_devices'])}, {m['cpu_count']} CPUs, mujoco {v['mujoco']}, "
-           f"mujoco-mjx {v.get('mujoco_mjx', '?')}, jax {v['jax']}\n",
+           f"mujoco-mjx {v.get('mujoco_mjx', '?')}"
+           + (f", warp-lang {v['warp_lang']}" if "warp_lang" in v else "") + f", jax {v['jax']}\n",
            *([f"Command: `{c}`\n" for c in rec["commands"]] if "commands" in rec else
              ["Command: `python scripts/bench_bowling.py` (flags in the text)\n"]),
            "400 physics steps per throw.\n",

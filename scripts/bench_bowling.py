@@ -141,6 +141,18 @@ def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int, backend: str = "mjx"
     }
 
 
+def command_line(argv: list[str], out: Path | None) -> str:
+    """The command as a user would rerun it, writing to scripts/bench_results/<name of --out>."""
+    args = list(argv)
+    if out is not None:
+        for i, a in enumerate(args):
+            if a == "--out" and i + 1 < len(args):
+                args[i + 1] = f"scripts/bench_results/{out.name}"
+            elif a.startswith("--out="):
+                args[i] = f"--out=scripts/bench_results/{out.name}"
+    return " ".join(["python", "scripts/bench_bowling.py", *args])
+
+
 def saturation(rows: list[dict]) -> int | None:
     """Smallest batch after which throws/s grows by less than 10 %."""
     rows = sorted(rows, key=lambda r: r["batch"])
@@ -171,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
             check_backend(name)
         except UsageError as exc:
             p.error(str(exc))
+    if args.out is not None and not args.out.parent.is_dir():
+        p.error(f"--out {args.out}: folder {args.out.parent} does not exist; create it or choose another")
 
     cfg = BowlingConfig(nthread=args.nthread)
     on_cpu = jax.devices()[0].platform == "cpu"
@@ -191,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "config": {"n_steps": cfg.n_steps, "timestep_s": 0.005, "n_angles": cfg.n_angles,
                    "theta_max": cfg.theta_max},
+        "commands": [command_line(sys.argv[1:] if argv is None else argv, args.out)],
         "results": [],
     }
     try:
@@ -225,8 +240,10 @@ def main(argv: list[str] | None = None) -> int:
             report["results"].extend(rows)
             report.setdefault("saturates_at_batch", {})[f"{name} {physics_label(pcfg)}"] = saturation(rows)
     report["machine"]["loadavg_at_end"] = os.getloadavg()
-    if args.out:
-        args.out.write_text(json.dumps(report, indent=2))
+    if args.out:  # whole file or nothing
+        tmp = args.out.with_name(args.out.name + ".tmp")
+        tmp.write_text(json.dumps(report, indent=2))
+        tmp.replace(args.out)
     return 0
 
 
