@@ -8,6 +8,7 @@ input fails before any compute); `run_grid` runs every algorithm over seeds
 from __future__ import annotations
 
 import dataclasses
+import importlib.metadata
 import io
 import json
 import math
@@ -227,12 +228,18 @@ def versions() -> dict[str, str]:
     import mujoco
     import optax
 
-    return {
+    out = {
         "jaxeac": __version__, "python": platform.python_version(), "jax": jax.__version__,
         "jaxlib": jax.lib.__version__ if hasattr(jax.lib, "__version__") else jax.__version__,
         "numpy": np.__version__, "optax": optax.__version__, "mujoco": mujoco.__version__,
         "matplotlib": matplotlib.__version__, "platform": platform.platform(),
     }
+    for dist in ("mujoco-mjx", "warp-lang"):  # the MJX backends' physics, where installed
+        try:
+            out[dist.replace("-", "_")] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
 
 
 def summary_base(experiment: str, primary: str, settings, results: dict, measures: dict) -> dict:
