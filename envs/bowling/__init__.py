@@ -17,9 +17,11 @@ down when tilted > 45 degrees or off the deck; fallen pins are parked out of
 play, standing ones stay where they came to rest, the ball returns.
 
 Backends (B7): ``backend="c"`` (MuJoCo C engine batched over threads with
-``mujoco.rollout``; the fast choice on CPU) and ``backend="mjx"`` (MJX, jit +
+``mujoco.rollout``; the fast choice on CPU), ``backend="mjx"`` (MJX in JAX, jit +
 vmap; ``make_mjx_throw(cfg)`` gives the pure per-throw function for use inside a
-jit-compiled learning run).
+jit-compiled learning run) and ``backend="warp"`` (MJX with its Warp
+implementation, NVIDIA GPUs, needs warp-lang; ``backend_mjx.make_batch_throw(cfg,
+impl=...)`` gives the pure batch function of either MJX implementation).
 
 Public API::
 
@@ -27,7 +29,7 @@ Public API::
     cfg = BowlingConfig(solver=SolverSettings("cg", iterations=12, ls_iterations=4))  # B7
     angles(cfg) -> np.ndarray (K,)
     initial_pins(batch) -> PinState(qpos (B,10,7), standing (B,10))
-    throw(pins, angle, key_or_noise, *, backend="c", record_trajectory=False, cfg=cfg)
+    throw(pins, angle, key_or_noise, *, backend="c"|"mjx"|"warp", record_trajectory=False, cfg=cfg)
         -> ThrowResult(pins_after, knocked (B,), standing (B,10), rest_qpos, trajectory)
     make_mjx_throw(cfg, record_trajectory=False) -> throw_fn(pins, angle, key)  # one throw
     render_deck(result, path_png, *, index=0, method="auto", title=None) -> method used
