@@ -75,7 +75,7 @@ class RunConfig:
     gamma: float = 0.9
     temperature: float = 1.0
     loop: Loop = "auto"
-    lanes: int | None = None  # flat loop: seeds in flight per device; None: 256 on CPU, all on GPU
+    lanes: int | None = None  # flat loop: seeds in flight per device; None: default_lanes
 
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
@@ -285,6 +285,27 @@ class _Lane:
     entry: jax.Array  # int32 [], index into the batch; ≥ M once the lane is idle
 
 
+CPU_LANES = 256  # per core: the lanes' tables stay in the core's cache (BENCHMARKS.md)
+ACCELERATOR_MEMORY_LANES = 1 << 18  # EAC on GPUs: a queue beats a lane per seed (BENCHMARKS.md)
+
+
+def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None) -> int:
+    """Seeds in flight per device when `RunConfig.lanes` is None.
+
+    CPU: 256 lanes fed from a queue. Accelerators: a lane per seed for the classic
+    AC; with memories (EAC), trials end early and unevenly, so lanes would idle
+    while the longest seeds finish: 2^18 lanes fed from a queue ran EAC 1.31x
+    faster on one H100 at 4M seeds (AC ran 0.77x with the queue, so it keeps a lane
+    per seed).
+    """
+    backend = backend or jax.default_backend()
+    if backend == "cpu":
+        return CPU_LANES
+    if agent.uses_memory:
+        return min(n_entries, ACCELERATOR_MEMORY_LANES)
+    return n_entries
+
+
 def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
 
@@ -295,7 +316,7 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     busy until the queue is empty (a seed's result does not depend on its lane, R1).
     """
     m = words.shape[0]
-    lanes = cfg.lanes if cfg.lanes is not None else (256 if jax.default_backend() == "cpu" else m)
+    lanes = cfg.lanes if cfg.lanes is not None else default_lanes(cfg.agent, m)
     n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
     policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))

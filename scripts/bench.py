@@ -63,14 +63,16 @@ def state_bytes_per_seed(env, cfg) -> int:
     return int(sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
 
 
-def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto") -> dict:
+def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
+               lanes: int | None = None) -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
     from envs.grid import GridWorld, get_map
     from jaxeac.agent import algorithm, resolve_tables
     from jaxeac.runner import RunConfig, run_seeds
 
     env = GridWorld(get_map("paper"), 40)
-    cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9)
+    cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
+                    lanes=lanes)
     best, compile_s, steps, mean = float("inf"), None, 0, 0.0
     for _ in range(repeats):
         r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk)
@@ -79,7 +81,7 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
         steps, mean = r.agent_steps, float(r.successes.mean())
     return {
         "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds),
-        "loop": cfg.resolved_loop, "tables": resolve_tables(tables),
+        "loop": cfg.resolved_loop, "tables": resolve_tables(tables), "lanes": lanes or "auto",
         "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
         "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
     }
@@ -102,7 +104,7 @@ def measure(args) -> dict:
     record = {"environment": environment(), "command": command_line(), "rows": []}
     for n in args.seeds:
         for algo in ("ac", "eac"):
-            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables)
+            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes)
             print(json.dumps(row), flush=True)
             record["rows"].append(row)
     for n in args.numpy_seeds:
@@ -193,16 +195,17 @@ def render(paths: list[Path]) -> str:
         out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
                    f"jax {env['jax']}, numpy {env['numpy']}, Python {env['python']}\n")
         out.append(f"Command: `{rec['command']}`\n")
-        out.append("| impl | algo | tables | seeds | chunk | compile s | run s | useful agent-steps/s | "
-                   "state bytes/seed | mean successes |")
-        out.append("|---|---|---|---|---|---|---|---|---|---|")
+        out.append("| impl | algo | tables | seeds | chunk | lanes | compile s | run s | "
+                   "useful agent-steps/s | state bytes/seed | mean successes |")
+        out.append("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rec["rows"]:
             compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else "–"
             chunk = r.get("chunk", "–")
             tables = r.get("tables", "split" if r["impl"] == "jaxeac" else "–")  # older records: split
-            out.append(f"| {r['impl']} | {r['algo']} | {tables} | {r['seeds']:,} | {chunk} | {compile_s} | "
-                       f"{r['run_s']:.2f} | {r['steps_per_s']:.3g} | {r.get('state_bytes_per_seed', '–')} | "
-                       f"{r['mean_successes']:.2f} |")
+            lanes = r.get("lanes", "auto" if r["impl"] == "jaxeac" else "–")
+            out.append(f"| {r['impl']} | {r['algo']} | {tables} | {r['seeds']:,} | {chunk} | {lanes} | "
+                       f"{compile_s} | {r['run_s']:.2f} | {r['steps_per_s']:.3g} | "
+                       f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |")
         peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
         ratios = [(r["algo"], r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
                   for r in rec["rows"] if r["impl"] == "jaxeac" and (r["algo"], r["seeds"]) in peers]
@@ -222,9 +225,13 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=2, help="runs per row; the best run time is kept")
     p.add_argument("--tables", choices=["auto", "split", "rows"], default="auto",
                    help="agent table layout (auto: split on CPUs, rows on accelerators)")
+    p.add_argument("--lanes", type=int, default=None,
+                   help="seeds in flight per device (default auto: 256 on CPU, every seed of a chunk on GPU)")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
     args = p.parse_args()
+    if args.lanes is not None and args.lanes < 1:
+        p.error(f"--lanes {args.lanes}: need at least one lane per device")
     if args.render:
         print(render(args.render))
         return

@@ -129,3 +129,14 @@ def test_step_uniform_is_uniform_and_decorrelated():
     # neighbouring counters and neighbouring seeds are uncorrelated
     assert abs(np.corrcoef(u[:, :-1].reshape(-1), u[:, 1:].reshape(-1))[0, 1]) < 0.01
     assert abs(np.corrcoef(u[:-1].reshape(-1), u[1:].reshape(-1))[0, 1]) < 0.01
+
+
+def test_default_lanes_per_backend_and_algorithm():
+    """CPU: 256 lanes fed from a queue; accelerators: a lane per seed for AC, at most 2^18 for EAC."""
+    from jaxeac.runner import default_lanes
+
+    ac, eac = algorithm("ac"), algorithm("eac")
+    assert default_lanes(ac, 10_000, "cpu") == default_lanes(eac, 10_000, "cpu") == 256
+    assert default_lanes(ac, 4_000_000, "gpu") == 4_000_000
+    assert default_lanes(eac, 4_000_000, "gpu") == 1 << 18
+    assert default_lanes(eac, 1000, "gpu") == 1000  # fewer seeds than that: a lane each, no queue
