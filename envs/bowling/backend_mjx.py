@@ -4,10 +4,12 @@ MJX offers two implementations of the physics behind one API, both offered here:
 
 * ``jax`` (backend ``mjx``): MuJoCo written in JAX; runs on any JAX device.
 * ``warp`` (backend ``warp``): MJX with its Warp implementation (MuJoCo Warp
-  kernels called from JAX); NVIDIA GPUs, needs ``warp-lang``
-  (``pip install "jaxeac[warp]"``). Its contact and constraint arrays are sized
-  for the whole batch; they are allotted here at the scene's hard bounds
-  (``WARP_CONTACTS``, ``WARP_ROWS``), so no contact can ever be dropped.
+  kernels called from JAX); made for NVIDIA GPUs (it also runs, slowly, on CPUs);
+  needs ``warp-lang`` (``pip install "jaxeac[warp]"``). Its contact and constraint
+  arrays are allotted up front for the whole batch; here they are sized at the
+  scene's hard bounds (``WARP_CONTACTS``, ``WARP_ROWS``: capsule-capsule and
+  capsule-plane pairs give at most 2 contacts, the others 1), so no contact can
+  ever be dropped.
 
 ``make_batch_throw(cfg, impl)`` returns a pure, jittable
 ``throw_fn(pins [B], angle [B], key [B]) -> ThrowResult [B]``: noise draw (B3),
