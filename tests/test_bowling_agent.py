@@ -144,6 +144,21 @@ def test_bowling_bad_input(argv, message, tmp_path, capsys):
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.parametrize("command", ["bowling", "throw"])
+def test_warp_backend_without_warp_lang_is_a_usage_error(command, monkeypatch, tmp_path, capsys):
+    """No warp-lang: one line naming the fix, exit 2, nothing written."""
+    from envs.bowling import backend_mjx
+
+    monkeypatch.setattr(backend_mjx._mjx_warp, "WARP_INSTALLED", False)
+    out = tmp_path / "never"
+    argv = ["--seeds", "2", "--out", str(out)] if command == "bowling" else ["--angles", "0"]
+    argv = [command, *argv]
+    assert main([*argv, "--backend", "warp"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and 'pip install "jaxeac[warp]"' in err, err
+    assert not out.exists()
+
+
 def test_throw_cli_json(capsys, tmp_path):
     assert main(["throw", "--angles", "0", "0.1", "--render", str(tmp_path / "deck.png")]) == 0
     data = json.loads(capsys.readouterr().out)
