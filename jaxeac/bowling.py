@@ -7,7 +7,7 @@ reward r̃ are the pins a throw knocks (E5), a trial is 2 chances, a strike ends
 it early (E3) and it succeeds when all ten pins are down at its end (B5).
 Pinned here: a trial's end is terminal for (3) (the frame is over, V(s') = 0).
 
-Two physics backends (B7):
+Physics backends (B7):
 
 * ``c`` — MuJoCo's C engine batched over threads: learning steps are jit-compiled
   and vmapped over seeds; the batched physics runs between them on the host.
@@ -15,7 +15,7 @@ Two physics backends (B7):
   function; MJX steps the physics in JAX (``mjx``) or with its Warp implementation
   on NVIDIA GPUs (``warp``).
 
-Both consume the same random numbers: E1 uniforms from `step_uniform` and throw
+All consume the same random numbers: E1 uniforms from `step_uniform` and throw
 noise from ``fold_in(fold_in(fold_in(root, seed), trial), chance)``.
 """
 

@@ -1,8 +1,8 @@
-"""One throw interface over two physics backends (SPEC B2-B4, B7).
+"""One throw interface over the physics backends (SPEC B2-B4, B7).
 
 ``throw(pins, angle, key_or_noise, backend="c"|"mjx"|"warp")`` runs a batch of throws:
-the noise draw (B3) comes from ``jax.random`` in both backends, so the same key
-gives the same noisy throw parameters on either engine; only the physics differs.
+the noise draw (B3) comes from ``jax.random`` in every backend, so the same key
+gives the same noisy throw parameters on each engine; only the physics differs.
 """
 
 from __future__ import annotations
