@@ -29,7 +29,6 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -45,6 +44,7 @@ from envs.bowling import (  # noqa: E402
 )
 from envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
 from jaxeac.errors import UsageError  # noqa: E402
+from jaxeac.experiment import versions  # noqa: E402
 
 
 def _inputs(batch: int, cfg: BowlingConfig, seed: int):
@@ -197,26 +197,12 @@ def main(argv: list[str] | None = None) -> int:
             "loadavg_at_start": os.getloadavg(),
             "jax_devices": [str(d) for d in jax.devices()],
         },
-        "versions": {
-            "python": platform.python_version(),
-            "jax": jax.__version__,
-            "mujoco": mujoco.__version__,
-            "numpy": np.__version__,
-        },
+        "versions": versions(),  # mujoco-mjx and warp-lang included where installed
         "config": {"n_steps": cfg.n_steps, "timestep_s": 0.005, "n_angles": cfg.n_angles,
                    "theta_max": cfg.theta_max},
         "commands": [command_line(sys.argv[1:] if argv is None else argv, args.out)],
         "results": [],
     }
-    try:
-        import importlib.metadata as md
-
-        report["versions"]["mujoco_mjx"] = md.version("mujoco-mjx")
-        if "warp" in args.backends:
-            report["versions"]["warp_lang"] = md.version("warp-lang")
-        report["versions"]["jaxlib"] = md.version("jaxlib")
-    except Exception:  # metadata missing in odd installs: the report still stands
-        pass
     reference: dict = {}
     for spec in args.physics:
         pcfg = parse_physics(spec, cfg)
