@@ -14,6 +14,9 @@ Two loop structures give bit-identical results (tested):
   iteration, so trials that end early (EAC's, mostly) leave no padded slots.
   The loop stops when every seed of the chunk has run T trials.
 
+On GPUs the flat loop's C chances per block run as one fused kernel
+(`jaxeac.kernel`, chosen by `RunConfig.kernel`); it computes the same steps.
+
 Random numbers come from one place: `step_uniform`, a counter-based hash of the
 seed's key words and (trial, chance), so no per-step key splitting is needed and
 both loops draw the same numbers.
@@ -48,6 +51,8 @@ from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
 
 Loop = Literal["auto", "flat", "trials"]
+Kernel = Literal["auto", "xla", "pallas"]
+KERNELS = ("auto", "xla", "pallas")
 
 
 class Env(Protocol):
@@ -76,6 +81,11 @@ class RunConfig:
     temperature: float = 1.0
     loop: Loop = "auto"
     lanes: int | None = None  # flat loop: seeds in flight per device; None: default_lanes
+    kernel: Kernel = "auto"  # flat loop's chances: `jaxeac.kernel` (GPUs) or XLA ops; see resolved_kernel
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise UsageError(f"unknown kernel {self.kernel!r}; choose one of {KERNELS}")
 
     def hyper(self) -> Hyper:
         """The traced constants (a scheduled rate's traced slot is unused)."""
@@ -91,6 +101,26 @@ class RunConfig:
             return self.loop
         buffered = self.agent.uses_memory and self.agent.memory == "buffer"
         return "trials" if buffered else "flat"
+
+
+def resolved_kernel(env: Env, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:
+    """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.kernel`) or ``xla``.
+
+    `auto`: the kernel on GPUs where it supports the env and config, XLA ops otherwise.
+    ``pallas`` asks for the kernel anywhere; off GPUs it runs in Pallas's (slow) interpreter.
+    """
+    from jaxeac.kernel import kernel_unsupported
+
+    if cfg.kernel == "xla":
+        return "xla"
+    why = kernel_unsupported(env, cfg)
+    if cfg.resolved_loop != "flat":
+        why = "the fused kernel runs the flat loop (the buffer memory needs the trials loop)"
+    if cfg.kernel == "pallas":
+        if why is not None:
+            raise UsageError(f"{why}; use kernel='xla' (or 'auto')")
+        return "pallas"
+    return "pallas" if why is None and (backend or jax.default_backend()) == "gpu" else "xla"
 
 
 @pytree_dataclass
@@ -111,6 +141,40 @@ class SeedResult:
     success: jax.Array  # bool [T]
     steps: jax.Array  # int32 [T]
     policy: jax.Array  # int32 [S]
+
+
+@pytree_dataclass
+class BatchOutput:
+    """What a compiled chunk returns, in the narrowest integer types that hold it.
+
+    ``log`` is `AgentState.log` per seed (chances used per trial, negated if it failed;
+    every trial takes ≥ 1 chance, so the sign is the outcome), ``policy`` the G7 policy.
+    Narrow types make the device-to-host transfer, the largest cost after the compute
+    on GPUs, 4–5× smaller; `unpack_output` restores `SeedResult` on the host.
+    """
+
+    log: jax.Array  # int8/16/32 [M, T]
+    policy: jax.Array  # int8/16/32 [M, S]
+
+
+def narrow_int(largest: int) -> np.dtype:
+    """The smallest signed integer type holding −largest … largest."""
+    for dtype in (np.int8, np.int16):
+        if largest <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.int32)
+
+
+def pack_output(env: Env, log: jax.Array, policy: jax.Array) -> BatchOutput:
+    """A chunk's logs and policies in `narrow_int` types (exact: |log| ≤ C, policy < A)."""
+    return BatchOutput(log.astype(narrow_int(env.n_chances)), policy.astype(narrow_int(env.n_actions)))
+
+
+def unpack_output(out: BatchOutput) -> SeedResult:
+    """Host side of `pack_output`: success bool, steps and policy int32 (numpy arrays)."""
+    log = np.asarray(out.log)
+    return SeedResult(success=log > 0, steps=np.abs(log).astype(np.int32),
+                      policy=np.asarray(out.policy).astype(np.int32))
 
 
 def seed_key(root_key: jax.Array, seed: jax.Array) -> jax.Array:
@@ -286,27 +350,29 @@ class _Lane:
 
 
 CPU_LANES = 256  # per core: the lanes' tables stay in the core's cache (BENCHMARKS.md)
-ACCELERATOR_MEMORY_LANES = 1 << 18  # EAC on GPUs: a queue beats a lane per seed (BENCHMARKS.md)
+ACCELERATOR_MEMORY_LANES = 1 << 18  # EAC on GPUs, XLA ops: a queue beats a lane per seed (BENCHMARKS.md)
+KERNEL_MEMORY_LANES = 1 << 15  # EAC on GPUs, fused kernel: few lanes keep hot rows in cache (BENCHMARKS.md)
 
 
-def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None) -> int:
-    """Seeds in flight per device when `RunConfig.lanes` is None.
+def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None,
+                  kernel: Literal["xla", "pallas"] = "xla") -> int:
+    """Seeds in flight per device when `RunConfig.lanes` is None (measured in BENCHMARKS.md).
 
     CPU: 256 lanes fed from a queue. Accelerators: a lane per seed for the classic
-    AC; with memories (EAC), trials end early and unevenly, so lanes would idle
-    while the longest seeds finish: 2^18 lanes fed from a queue ran EAC 1.31x
-    faster on one H100 at 4M seeds (AC ran 0.77x with the queue, so it keeps a lane
-    per seed).
+    AC. With memories (EAC), trials end early and unevenly and a learned seed keeps
+    to a few cells, so fewer lanes fed from a queue run faster: 2^18 with XLA ops
+    (1.31x a lane per seed at 4M seeds on one H100) and 2^15 with the fused kernel
+    (1.9x its 2^18).
     """
     backend = backend or jax.default_backend()
     if backend == "cpu":
         return CPU_LANES
     if agent.uses_memory:
-        return min(n_entries, ACCELERATOR_MEMORY_LANES)
+        return min(n_entries, KERNEL_MEMORY_LANES if kernel == "pallas" else ACCELERATOR_MEMORY_LANES)
     return n_entries
 
 
-def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
+def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
 
     Lanes advance one chance per iteration. With a lane per entry, blocks of C
@@ -316,30 +382,43 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     busy until the queue is empty (a seed's result does not depend on its lane, R1).
     """
     m = words.shape[0]
-    lanes = cfg.lanes if cfg.lanes is not None else default_lanes(cfg.agent, m)
+    kernel = resolved_kernel(env, cfg)
+    lanes = cfg.lanes if cfg.lanes is not None else default_lanes(cfg.agent, m, kernel=kernel)
     n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
+    if kernel == "pallas":
+        from jaxeac.kernel import LANES_PER_PROGRAM, advance_chances
+
+        n_lanes = -(-n_lanes // LANES_PER_PROGRAM) * LANES_PER_PROGRAM  # whole programs; extra lanes idle
+        interpret = jax.default_backend() != "gpu"
+
+        def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, one kernel
+            return advance_chances(env, cfg, run, w, h, interpret=interpret)
+    else:
+        def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, XLA ops
+            return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, w, h), run)
     policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
 
-    def start(entry) -> _Lane:
-        entry = jnp.minimum(entry, m - 1)
-        w, h = words[entry], jax.tree.map(lambda x: x[entry], hyper)
+    def start(entry) -> _Lane:  # a lane for `entry`; entries ≥ M give an idle lane
+        w, h = words[jnp.minimum(entry, m - 1)], jax.tree.map(lambda x: x[jnp.minimum(entry, m - 1)], hyper)
         return _Lane(_flat_init(env, cfg, w), w, h, entry)
 
-    if n_lanes == m:  # every entry has a lane from the start: no queue, read results out once
+    if n_lanes >= m:  # every entry has a lane from the start: no queue, read results out once
+        pad = jnp.minimum(jnp.arange(n_lanes), m - 1)  # lanes past M rerun the last entry, dropped
+        lane_words, lane_hyper = words[pad], jax.tree.map(lambda x: x[pad], hyper)
+
         def unfinished(run: _FlatCarry):
             return (run.agent.trial < cfg.trials).any()
 
         def chances(run: _FlatCarry):
-            return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, words, hyper), run)
+            return advance(run, lane_words, lane_hyper)
 
-        first = jax.vmap(lambda w: _flat_init(env, cfg, w))(words)
+        first = jax.vmap(lambda w: _flat_init(env, cfg, w))(lane_words)
         agent = jax.lax.while_loop(unfinished, chances, first).agent
-        return SeedResult(agent.outcomes, agent.lengths, policies(agent))
+        return pack_output(env, agent.log[:m], policies(agent)[:m])
 
     lanes = jax.vmap(start)(jnp.arange(n_lanes))
-    out = SeedResult(jnp.zeros((m, cfg.trials), bool), jnp.zeros((m, cfg.trials), jnp.int32),
-                     jnp.zeros((m, env.n_states), jnp.int32))
+    out = pack_output(env, jnp.zeros((m, cfg.trials), jnp.int32), jnp.zeros((m, env.n_states), jnp.int32))
 
     # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
     # greedy policies, fresh lanes) stays small next to the block's C chances.
@@ -347,19 +426,15 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
 
     def block(carry):
         lanes, out, queued = carry
-        run = jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, lanes.words, lanes.hyper), lanes.run)
+        run = advance(lanes.run, lanes.words, lanes.hyper)
         done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
         (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
         got = idx < n_lanes
         lane = jnp.minimum(idx, n_lanes - 1)
         finished = jax.tree.map(lambda x: x[lane], run)
         row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
-        policy = policies(finished.agent)
-        out = SeedResult(
-            out.success.at[row].set(finished.agent.outcomes, mode="drop"),
-            out.steps.at[row].set(finished.agent.lengths, mode="drop"),
-            out.policy.at[row].set(policy, mode="drop"),
-        )
+        done_out = pack_output(env, finished.agent.log, policies(finished.agent))
+        out = jax.tree.map(lambda a, new: a.at[row].set(new, mode="drop"), out, done_out)
         nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
         take = got & (nxt < m)
         fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
@@ -373,8 +448,9 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> SeedResult:
     return out
 
 
-def _trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> SeedResult:
-    return jax.vmap(make_run(env, cfg))(keys, hyper)
+def _trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
+    r = jax.vmap(make_run(env, cfg))(keys, hyper)
+    return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy)
 
 
 SEEDS_AXIS = "seeds"
@@ -386,14 +462,14 @@ def seed_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
 
 
 def make_batch_run(env: Env, cfg: RunConfig, mesh: Mesh | None = None) -> Callable:
-    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> SeedResult [M, ...]``.
+    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> BatchOutput [M, ...]``.
 
     With a `mesh`, the chunk is split over its ``seeds`` axis with `shard_map`: each
     device runs its own seeds with no communication (seeds are independent, R1).
     """
     loop = cfg.resolved_loop
 
-    def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper) -> SeedResult:
+    def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper) -> BatchOutput:
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root_key, seeds)
         if loop == "trials":
             return _trials_batch(env, cfg, keys, hyper)
@@ -495,15 +571,24 @@ def run_entries(
     compile_seconds = time.perf_counter() - t0
 
     parts: list[SeedResult] = []
-    t0 = time.perf_counter()
-    for start in range(0, n, chunk_size):
-        size, chunk_seeds, chunk_hyper = chunk_inputs(start)
-        out = jax.device_get(compiled(root, chunk_seeds, chunk_hyper))
-        parts.append(jax.tree.map(lambda x, k=size: np.asarray(x)[:k], out))
+
+    def collect(size: int, out: BatchOutput) -> None:
+        parts.append(jax.tree.map(lambda x: x[:size], unpack_output(jax.device_get(out))))
         if progress is not None:
             progress(size)
+
+    t0 = time.perf_counter()
+    pending = None  # the chunk in flight: dispatch is asynchronous, so the next chunk
+    for start in range(0, n, chunk_size):  # computes while this one's results come back
+        size, chunk_seeds, chunk_hyper = chunk_inputs(start)
+        running = (size, compiled(root, chunk_seeds, chunk_hyper))
+        if pending is not None:
+            collect(*pending)
+        pending = running
+    collect(*pending)
     run_seconds = time.perf_counter() - t0
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts), compile_seconds, run_seconds
+    whole = parts[0] if len(parts) == 1 else jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    return whole, compile_seconds, run_seconds
 
 
 def run_seeds(
@@ -528,9 +613,9 @@ def run_seeds(
     )
     return SeedsResult(
         seeds=seeds,
-        success=out.success.astype(bool),
-        steps=out.steps.astype(np.int32),
-        policy=out.policy.astype(np.int32),
+        success=out.success.astype(bool, copy=False),
+        steps=out.steps.astype(np.int32, copy=False),
+        policy=out.policy.astype(np.int32, copy=False),
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
     )

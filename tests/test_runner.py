@@ -10,7 +10,7 @@ import pytest
 from envs.grid import GridWorld, get_map
 from jaxeac.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.runner import RunConfig, make_run, run_seeds, seed_key
+from jaxeac.runner import RunConfig, make_run, narrow_int, run_seeds, seed_key
 
 ENV = GridWorld(get_map("paper"), 40)
 
@@ -51,6 +51,26 @@ def test_vmapped_seeds_equal_separate_runs():
         r = single(seed_key(root, i), cfg.hyper())
         np.testing.assert_array_equal(np.asarray(r.steps), batch.steps[i])
         np.testing.assert_array_equal(np.asarray(r.success), batch.success[i])
+
+
+def test_narrow_int_bounds():
+    assert [narrow_int(n) for n in (1, 127, 128, 32767, 32768)] == [np.int8, np.int8, np.int16, np.int16,
+                                                                      np.int32]
+
+
+@pytest.mark.parametrize("chances", [127, 128])  # the chunk's log travels as int8, then as int16
+def test_narrow_chunk_outputs_are_exact(chances):
+    env = GridWorld(get_map("paper"), chances)
+    cfg = RunConfig(trials=12, agent=algorithm("ac"), alpha=0.0, beta=0.0)  # no learning: long trials
+    batch = run_seeds(env, cfg, root_key=3, n_seeds=4, chunk_size=4)
+    single = jax.jit(make_run(env, cfg))
+    for i in range(4):
+        r = single(seed_key(jax.random.key(3), i), cfg.hyper())
+        np.testing.assert_array_equal(np.asarray(r.steps), batch.steps[i])
+        np.testing.assert_array_equal(np.asarray(r.success), batch.success[i])
+        np.testing.assert_array_equal(np.asarray(r.policy), batch.policy[i])
+    assert batch.steps.dtype == np.int32 and (batch.steps[~batch.success] == chances).all()
+    assert (~batch.success).any()  # failed trials carry the full C, the value the narrow type must hold
 
 
 def test_derived_per_seed_fields():
@@ -132,7 +152,8 @@ def test_step_uniform_is_uniform_and_decorrelated():
 
 
 def test_default_lanes_per_backend_and_algorithm():
-    """CPU: 256 lanes fed from a queue; accelerators: a lane per seed for AC, at most 2^18 for EAC."""
+    """CPU: 256 lanes fed from a queue; accelerators: a lane per seed for AC, at most 2^18 for EAC
+    (2^15 with the fused kernel)."""
     from jaxeac.runner import default_lanes
 
     ac, eac = algorithm("ac"), algorithm("eac")
@@ -140,3 +161,5 @@ def test_default_lanes_per_backend_and_algorithm():
     assert default_lanes(ac, 4_000_000, "gpu") == 4_000_000
     assert default_lanes(eac, 4_000_000, "gpu") == 1 << 18
     assert default_lanes(eac, 1000, "gpu") == 1000  # fewer seeds than that: a lane each, no queue
+    assert default_lanes(eac, 4_000_000, "gpu", kernel="pallas") == 1 << 15
+    assert default_lanes(ac, 4_000_000, "gpu", kernel="pallas") == 4_000_000

@@ -1,0 +1,81 @@
+"""The fused GPU kernel (`jaxeac.kernel`) against the XLA loop, run by Pallas's interpreter on the CPU.
+
+On GPUs the two paths gave identical per-seed results for 20,000 seeds of every algorithm
+(BENCHMARKS.md); here the kernel body runs as XLA:CPU ops whose fusions differ from the XLA
+loop's, so a table entry may round differently in its last bit (a fused multiply-add). The
+discrete run (actions, memories, trial log) must still match exactly.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from envs.grid import GridWorld, get_map
+from jaxeac.agent import algorithm
+from jaxeac.errors import UsageError
+from jaxeac.kernel import LANES_PER_PROGRAM, advance_chances, kernel_unsupported
+from jaxeac.runner import RunConfig, _flat_init, _flat_slot, resolved_kernel, run_seeds, seed_key, seed_words
+
+ENV = GridWorld(get_map("paper"), 40)
+ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only"]
+
+
+def _lanes(cfg, n, trials_done=0):
+    words = jax.vmap(lambda i: seed_words(seed_key(jax.random.key(7), i)))(jnp.arange(n))
+    run = jax.vmap(lambda w: _flat_init(ENV, cfg, w))(words)
+    hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), cfg.hyper())
+    return run, words, hyper
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_kernel_block_equals_c_xla_slots(algo):
+    """Three blocks of C chances from fresh lanes: every integer field equal, tables to float rounding."""
+    cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"))
+    run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM)
+    slot = jax.vmap(lambda c, w, h: _flat_slot(ENV, cfg, c, w, h))
+    xla = jax.jit(lambda r: jax.lax.fori_loop(0, 3 * ENV.n_chances, lambda _, x: slot(x, words, hyper), r))
+    kernel = jax.jit(lambda r: jax.lax.fori_loop(
+        0, 3, lambda _, x: advance_chances(ENV, cfg, x, words, hyper, interpret=True), r))
+    want, got = xla(run), kernel(run)
+    assert int(want.agent.trial.min()) >= 1  # trials ended and restarted inside the blocks
+    for (path, a), b in zip(jax.tree_util.tree_flatten_with_path(got)[0], jax.tree.leaves(want), strict=True):
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-7,
+                                       err_msg=jax.tree_util.keystr(path))
+        else:
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
+@pytest.mark.parametrize("lanes", [None, LANES_PER_PROGRAM])  # a lane per seed (padded), and a queue
+def test_kernel_runs_equal_xla_runs(algo, lanes):
+    """Whole runs through `run_seeds`: the same successes and steps per trial for every seed."""
+    runs = [run_seeds(ENV, RunConfig(trials=25, agent=algorithm(algo, tables="rows"), kernel=k, lanes=lanes),
+                      root_key=3, n_seeds=150, chunk_size=150) for k in ("xla", "pallas")]
+    np.testing.assert_array_equal(runs[0].success, runs[1].success)
+    np.testing.assert_array_equal(runs[0].steps, runs[1].steps)
+    assert (runs[0].policy == runs[1].policy).all(axis=1).mean() > 0.9  # argmax ties may round apart
+
+
+def test_kernel_choice_and_errors():
+    eac = RunConfig(trials=10, agent=algorithm("eac", tables="rows"))
+    assert resolved_kernel(ENV, eac, "gpu") == "pallas" and resolved_kernel(ENV, eac, "cpu") == "xla"
+    split = RunConfig(trials=10, agent=algorithm("eac", tables="split"))
+    assert resolved_kernel(ENV, split, "gpu") == "xla"  # auto falls back where the kernel cannot run
+    assert "rows table layout" in kernel_unsupported(ENV, split)
+    with pytest.raises(UsageError, match="rows table layout.*kernel='xla'"):
+        resolved_kernel(ENV, RunConfig(trials=10, agent=algorithm("eac", tables="split"), kernel="pallas"))
+    with pytest.raises(UsageError, match="constant step sizes"):
+        resolved_kernel(ENV, RunConfig(trials=10, agent=algorithm("ac", tables="rows"), kernel="pallas",
+                                       alpha=optax.constant_schedule(0.1)))
+    with pytest.raises(UsageError, match="flat loop"):
+        resolved_kernel(ENV, RunConfig(trials=10, agent=algorithm("eac", tables="rows", memory="buffer"),
+                                       kernel="pallas"))
+    with pytest.raises(UsageError, match="unknown kernel 'cuda'"):
+        RunConfig(trials=10, agent=algorithm("ac"), kernel="cuda")
+    with pytest.raises(ValueError, match="multiple of 128"):
+        advance_chances(ENV, eac, *_lanes(eac, 100), interpret=True)
