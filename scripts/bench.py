@@ -64,15 +64,15 @@ def state_bytes_per_seed(env, cfg) -> int:
 
 
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
-               lanes: int | None = None) -> dict:
+               lanes: int | None = None, kernel: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
     from envs.grid import GridWorld, get_map
     from jaxeac.agent import algorithm, resolve_tables
-    from jaxeac.runner import RunConfig, run_seeds
+    from jaxeac.runner import RunConfig, resolved_kernel, run_seeds
 
     env = GridWorld(get_map("paper"), 40)
     cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
-                    lanes=lanes)
+                    lanes=lanes, kernel=kernel)
     best, compile_s, steps, mean = float("inf"), None, 0, 0.0
     for _ in range(repeats):
         r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk)
@@ -82,6 +82,7 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
     return {
         "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds),
         "loop": cfg.resolved_loop, "tables": resolve_tables(tables), "lanes": lanes or "auto",
+        "kernel": resolved_kernel(env, cfg),
         "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
         "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
     }
@@ -104,7 +105,7 @@ def measure(args) -> dict:
     record = {"environment": environment(), "command": command_line(), "rows": []}
     for n in args.seeds:
         for algo in ("ac", "eac"):
-            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes)
+            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel)
             print(json.dumps(row), flush=True)
             record["rows"].append(row)
     for n in args.numpy_seeds:
@@ -195,16 +196,17 @@ def render(paths: list[Path]) -> str:
         out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
                    f"jax {env['jax']}, numpy {env['numpy']}, Python {env['python']}\n")
         out.append(f"Command: `{rec['command']}`\n")
-        out.append("| impl | algo | tables | seeds | chunk | lanes | compile s | run s | "
+        out.append("| impl | algo | tables | kernel | seeds | chunk | lanes | compile s | run s | "
                    "useful agent-steps/s | state bytes/seed | mean successes |")
-        out.append("|---|---|---|---|---|---|---|---|---|---|---|")
+        out.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rec["rows"]:
             compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else "–"
             chunk = r.get("chunk", "–")
             tables = r.get("tables", "split" if r["impl"] == "jaxeac" else "–")  # older records: split
             lanes = r.get("lanes", "auto" if r["impl"] == "jaxeac" else "–")
-            out.append(f"| {r['impl']} | {r['algo']} | {tables} | {r['seeds']:,} | {chunk} | {lanes} | "
-                       f"{compile_s} | {r['run_s']:.2f} | {r['steps_per_s']:.3g} | "
+            kernel = r.get("kernel", "xla" if r["impl"] == "jaxeac" else "–")  # older records: XLA ops
+            out.append(f"| {r['impl']} | {r['algo']} | {tables} | {kernel} | {r['seeds']:,} | {chunk} | "
+                       f"{lanes} | {compile_s} | {r['run_s']:.2f} | {r['steps_per_s']:.3g} | "
                        f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |")
         peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
         ratios = [(r["algo"], r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
@@ -227,6 +229,8 @@ def main() -> None:
                    help="agent table layout (auto: split on CPUs, rows on accelerators)")
     p.add_argument("--lanes", type=int, default=None,
                    help="seeds in flight per device (default auto: 256 on CPU, every seed of a chunk on GPU)")
+    p.add_argument("--kernel", choices=["auto", "xla", "pallas"], default="auto",
+                   help="the flat loop's chances: fused GPU kernel (pallas) or XLA ops; auto as jaxeac")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
     args = p.parse_args()
