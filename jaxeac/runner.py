@@ -400,7 +400,8 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
 
     def start(entry) -> _Lane:  # a lane for `entry`; entries ≥ M give an idle lane
-        w, h = words[jnp.minimum(entry, m - 1)], jax.tree.map(lambda x: x[jnp.minimum(entry, m - 1)], hyper)
+        i = jnp.minimum(entry, m - 1)
+        w, h = words[i], jax.tree.map(lambda x: x[i], hyper)
         return _Lane(_flat_init(env, cfg, w), w, h, entry)
 
     if n_lanes >= m:  # every entry has a lane from the start: no queue, read results out once
@@ -573,7 +574,7 @@ def run_entries(
     parts: list[SeedResult] = []
 
     def collect(size: int, out: BatchOutput) -> None:
-        parts.append(jax.tree.map(lambda x: x[:size], unpack_output(jax.device_get(out))))
+        parts.append(unpack_output(jax.tree.map(lambda x: x[:size], jax.device_get(out))))
         if progress is not None:
             progress(size)
 
