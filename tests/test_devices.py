@@ -1,4 +1,5 @@
-"""Seeds split over several devices give bit-identical results (SPEC R1), incl. uneven counts.
+"""Seeds split over several devices give bit-identical results (SPEC R1), incl. uneven counts,
+with XLA ops and with the fused kernel (run by Pallas's interpreter).
 
 Runs in a subprocess with two virtual CPU devices
 (``XLA_FLAGS=--xla_force_host_platform_device_count=2``), since the device count is
@@ -20,14 +21,22 @@ SCRIPT = textwrap.dedent("""
     from jaxeac.runner import RunConfig, run_seeds
     assert len(jax.devices()) == 2, jax.devices()
     env = GridWorld(get_map("paper"), 40)
-    for algo, loop in [("ac", "flat"), ("eac", "flat"), ("eac", "trials")]:
-        cfg = RunConfig(trials=30, agent=algorithm(algo), loop=loop)
+    configs = [RunConfig(trials=30, agent=algorithm(algo), loop=loop)
+               for algo, loop in [("ac", "flat"), ("eac", "flat"), ("eac", "trials")]]
+    configs.append(RunConfig(trials=30, agent=algorithm("eac", tables="rows"), kernel="pallas"))
+    for cfg in configs:
         one = run_seeds(env, cfg, root_key=1, n_seeds=7, chunk_size=3, devices=jax.devices()[:1])
         for chunk in (3, 4, 7):  # 7 seeds on 2 devices: padded chunks of 4, 4 and 8
             two = run_seeds(env, cfg, root_key=1, n_seeds=7, chunk_size=chunk)
             for field in ("success", "steps", "policy"):
                 np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
         assert len(two.seeds) == 7 and two.success.shape[0] == 7
+    # the fused kernel (Pallas's interpreter here) with a queue: 150 seeds per device on 128 lanes
+    cfg = RunConfig(trials=15, agent=algorithm("eac", tables="rows"), kernel="pallas", lanes=128)
+    one = run_seeds(env, cfg, root_key=2, n_seeds=300, chunk_size=300, devices=jax.devices()[:1])
+    two = run_seeds(env, cfg, root_key=2, n_seeds=300, chunk_size=300)
+    for field in ("success", "steps", "policy"):
+        np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
     print("identical on 1 and 2 devices")
 """)
 
