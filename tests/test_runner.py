@@ -10,7 +10,16 @@ import pytest
 from envs.grid import GridWorld, get_map
 from jaxeac.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.runner import RunConfig, make_run, narrow_int, run_seeds, seed_key
+from jaxeac.runner import (
+    BatchOutput,
+    RunConfig,
+    empty_results,
+    make_run,
+    narrow_int,
+    run_seeds,
+    seed_key,
+    unpack_output,
+)
 
 ENV = GridWorld(get_map("paper"), 40)
 
@@ -56,6 +65,33 @@ def test_vmapped_seeds_equal_separate_runs():
 def test_narrow_int_bounds():
     assert [narrow_int(n) for n in (1, 127, 128, 32767, 32768)] == [np.int8, np.int8, np.int16, np.int16,
                                                                       np.int32]
+
+
+def test_unpack_output_by_hand():
+    """Signed log → success and steps; policy widened; chunks written in place at their rows."""
+    chunk = BatchOutput(log=np.array([[3, -40], [-1, 127]], np.int8), policy=np.array([[0, 3, 1]], np.int8))
+    alone = unpack_output(BatchOutput(chunk.log[:1], chunk.policy))
+    assert alone.success.tolist() == [[True, False]] and alone.steps.tolist() == [[3, 40]]
+    assert alone.policy.dtype == np.int32 and alone.policy.tolist() == [[0, 3, 1]]
+    whole = empty_results(3, 2, 3)
+    whole.steps[0], whole.success[0], whole.policy[0] = 9, True, 2  # row 0 is not touched
+    got = unpack_output(BatchOutput(chunk.log, np.array([[1, 1, 0], [2, 0, 0]], np.int8)), whole, start=1)
+    assert got is whole
+    assert whole.steps.tolist() == [[9, 9], [3, 40], [1, 127]] and whole.steps.dtype == np.int32
+    assert whole.success.tolist() == [[True, True], [True, False], [False, True]]
+    assert whole.policy.tolist() == [[2, 2, 2], [1, 1, 0], [2, 0, 0]]
+
+
+def test_chunks_unpacked_in_row_blocks_equal_whole_chunks(monkeypatch):
+    """Host threads unpack a chunk in row blocks (`UNPACK_ROWS`); blocks that split chunks unevenly."""
+    import jaxeac.runner as runner
+
+    cfg = RunConfig(trials=10, agent=algorithm("eac"))
+    whole = run_seeds(ENV, cfg, root_key=4, n_seeds=11, chunk_size=8)
+    monkeypatch.setattr(runner, "UNPACK_ROWS", 3)
+    blocks = run_seeds(ENV, cfg, root_key=4, n_seeds=11, chunk_size=8)
+    for field in ("success", "steps", "policy"):
+        np.testing.assert_array_equal(getattr(whole, field), getattr(blocks, field))
 
 
 @pytest.mark.parametrize("chances", [127, 128])  # the chunk's log travels as int8, then as int16
