@@ -133,6 +133,20 @@ def _render_scale(path: Path, rec: dict) -> list[str]:
     return out + [""]
 
 
+def _render_kernel_check(path: Path, rec: dict) -> list[str]:
+    env = rec["environment"]
+    out = [f"#### `{path.name}`: {len(env['devices'])} × {env['device_kind']}, jax {env['jax']}\n",
+           f"Command: `{rec['command']}`\n",
+           "| algo | seeds | trials | seeds with identical successes and steps | "
+           "seeds with identical policy | mean successes | XLA run s | kernel run s |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in rec["rows"]:
+        out.append(f"| {r['algo']} | {r['seeds']:,} | {r['trials']} | "
+                   f"{r['seeds_identical_success_and_steps']:,} | {r['seeds_identical_policy']:,} | "
+                   f"{r['mean_successes']:.2f} | {r['xla_run_s']:.2f} | {r['kernel_run_s']:.2f} |")
+    return out + [""]
+
+
 def _render_bowling(path: Path, rec: dict) -> list[str]:
     m, v = rec["machine"], rec["versions"]
     out = [f"#### `{path.name}`: {', '.join(m['jax_devices'])}, {m['cpu_count']} CPUs, mujoco {v['mujoco']}, "
@@ -179,7 +193,7 @@ def _render_stats(path: Path, rec: dict) -> list[str]:
 
 
 def render(paths: list[Path]) -> str:
-    """Markdown tables from benchmark JSON files (grid, scale, bowling and stats records)."""
+    """Markdown tables from benchmark JSON files (grid, scale, kernel-check, bowling and stats records)."""
     out = []
     for path in paths:
         rec = json.loads(path.read_text())
@@ -191,6 +205,9 @@ def render(paths: list[Path]) -> str:
             continue
         if rec["rows"] and "subset_identical" in rec["rows"][0]:
             out += _render_scale(path, rec)
+            continue
+        if "all_identical" in rec:
+            out += _render_kernel_check(path, rec)
             continue
         env = rec["environment"]
         out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
