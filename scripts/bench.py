@@ -88,31 +88,39 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
     }
 
 
-def bench_numpy(algo: str, n_seeds: int) -> dict:
-    """The hand-vectorised NumPy peer on the same work (SPEC-equal in distribution)."""
+def bench_numpy(algo: str, n_seeds: int, repeats: int = 1) -> dict:
+    """The hand-vectorised NumPy peer on the same work (SPEC-equal in distribution), best of `repeats`."""
     from jaxeac.numpy_peer import run_numpy
 
-    t0 = time.perf_counter()
-    out = run_numpy("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
-                    temperature=1.0, n_seeds=n_seeds, seed=0)
-    run_s = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = run_numpy("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
+                        temperature=1.0, n_seeds=n_seeds, seed=0)
+        best = min(best, time.perf_counter() - t0)
     steps = int(out["steps"].sum())
-    return {"impl": "numpy", "algo": algo, "seeds": n_seeds, "run_s": run_s, "agent_steps": steps,
-            "steps_per_s": steps / run_s, "mean_successes": float(out["success"].sum(1).mean())}
+    return {"impl": "numpy", "algo": algo, "seeds": n_seeds, "run_s": best, "agent_steps": steps,
+            "steps_per_s": steps / best, "mean_successes": float(out["success"].sum(1).mean())}
 
 
 def measure(args) -> dict:
+    """jaxeac rows, each followed by the NumPy peer at the same seed count (if asked for), so a
+    drifting machine slows both sides of a ratio alike; both take the best of `--repeats`."""
     record = {"environment": environment(), "command": command_line(), "rows": []}
+
+    def add(row: dict) -> None:
+        print(json.dumps(row), flush=True)
+        record["rows"].append(row)
+
     for n in args.seeds:
         for algo in ("ac", "eac"):
-            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel)
-            print(json.dumps(row), flush=True)
-            record["rows"].append(row)
+            add(bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel))
+            if n in args.numpy_seeds:
+                add(bench_numpy(algo, n, args.repeats))
     for n in args.numpy_seeds:
-        for algo in ("ac", "eac"):
-            row = bench_numpy(algo, n)
-            print(json.dumps(row), flush=True)
-            record["rows"].append(row)
+        if n not in args.seeds:
+            for algo in ("ac", "eac"):
+                add(bench_numpy(algo, n, args.repeats))
     return record
 
 
