@@ -52,7 +52,13 @@ def kernel_unsupported(env: Any, cfg: Any) -> str | None:
 
 
 def _sample(logits: list, allowed: list, u):
-    """`sample_softmax` on per-action columns: the same operations in the same order."""
+    """`sample_softmax` on per-action columns: the same operations in the same order.
+
+    A second copy on purpose: the kernel holds a block of lanes per action, while the
+    XLA loop's [A]-vector form runs markedly faster on CPUs than this column form (tried:
+    one shared column version slowed the CPU step). tests/test_kernel.py holds the two
+    to identical actions for every algorithm.
+    """
     if allowed is None:  # no restriction (constants stay out of the kernel: Triton lowers values)
         top = functools.reduce(jnp.maximum, logits)
         weights = [jnp.exp(x - top) for x in logits]
