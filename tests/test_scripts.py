@@ -1,0 +1,54 @@
+"""The benchmark scripts behind BENCHMARKS.md still run and render, at toy sizes.
+
+Each runs as a subprocess, as a user would run it (the scripts set XLA flags before JAX
+starts). Sizes are tiny: these check the plumbing and the records' shape, not speed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script(*args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=ROOT, env=env,
+                          timeout=600)
+
+
+def test_bench_writes_a_record_with_the_peer_beside_jaxeac(tmp_path):
+    out = tmp_path / "grid.json"
+    proc = _script("scripts/bench.py", "--seeds", "60", "--numpy-seeds", "60", "--chunk", "64",
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert rec["command"].startswith("python scripts/bench.py --seeds 60")
+    assert [(r["impl"], r["algo"]) for r in rec["rows"]] == [  # the peer right after its jaxeac row
+        ("jaxeac", "ac"), ("numpy", "ac"), ("jaxeac", "eac"), ("numpy", "eac")]
+    for r in rec["rows"]:
+        assert r["seeds"] == 60 and r["agent_steps"] > 0
+        assert abs(r["steps_per_s"] - r["agent_steps"] / r["run_s"]) < 1e-6 * r["steps_per_s"]
+    table = _script("scripts/bench.py", "--render", str(out))
+    assert table.returncode == 0, table.stderr[-2000:]
+    assert "| jaxeac | eac | split | xla | 60 |" in table.stdout
+    assert "jaxeac / NumPy peer (same run, same seeds): AC at 60 seeds:" in table.stdout
+
+
+def test_check_kernel_compares_every_seed_and_renders(tmp_path):
+    out = tmp_path / "check.json"
+    proc = _script("scripts/check_kernel.py", "--seeds", "40", "--trials", "6", "--algos", "eac",
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "identical for every seed" in proc.stdout
+    rec = json.loads(out.read_text())
+    assert rec["all_identical"] is True
+    assert rec["rows"][0]["seeds_identical_success_and_steps"] == 40
+    table = _script("scripts/bench.py", "--render", str(out))
+    assert "| eac | 40 | 6 | 40 |" in table.stdout
+    bad = _script("scripts/check_kernel.py", "--seeds", "0")
+    assert bad.returncode == 2 and "--seeds and --trials must be ≥ 1" in bad.stderr
