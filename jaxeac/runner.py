@@ -604,10 +604,12 @@ def run_entries(
 
     def collect(start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor) -> None:
         host = jax.device_get(out)
-        rows = range(0, size, UNPACK_ROWS)  # host threads unpack row blocks (numpy frees the GIL)
-        list(pool.map(lambda r: unpack_output(
-            BatchOutput(host.log[r:min(r + UNPACK_ROWS, size)], host.policy[r:min(r + UNPACK_ROWS, size)]),
-            whole, start + r), rows))
+
+        def unpack_rows(r: int) -> None:  # on a host thread (numpy frees the GIL)
+            stop = min(r + UNPACK_ROWS, size)  # padding rows past `size` are dropped
+            unpack_output(jax.tree.map(lambda x: x[r:stop], host), whole, start + r)
+
+        list(pool.map(unpack_rows, range(0, size, UNPACK_ROWS)))
         if progress is not None:
             progress(size)
 
@@ -646,9 +648,9 @@ def run_seeds(
     )
     return SeedsResult(
         seeds=seeds,
-        success=out.success.astype(bool, copy=False),
-        steps=out.steps.astype(np.int32, copy=False),
-        policy=out.policy.astype(np.int32, copy=False),
+        success=out.success,
+        steps=out.steps,
+        policy=out.policy,
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
     )

@@ -124,10 +124,15 @@ def measure(args) -> dict:
     return record
 
 
-def _render_scale(path: Path, rec: dict) -> list[str]:
+def _devices_heading(path: Path, rec: dict) -> list[str]:
+    """Title (devices, versions) and command of a record written by scale.py or check_kernel.py."""
     env = rec["environment"]
-    out = [f"#### `{path.name}`: {len(env['devices'])} × {env['device_kind']}, jax {env['jax']}\n",
-           f"Command: `{rec['command']}`\n",
+    return [f"#### `{path.name}`: {len(env['devices'])} × {env['device_kind']}, jax {env['jax']}\n",
+            f"Command: `{rec['command']}`\n"]
+
+
+def _render_scale(path: Path, rec: dict) -> list[str]:
+    out = [*_devices_heading(path, rec),
            "| algo | seeds | devices | compile s | first run s | run s (warm) | agent-steps/s | "
            "1-device run s | scaling efficiency | first K seeds identical on 1 and n devices |",
            "|---|---|---|---|---|---|---|---|---|---|"]
@@ -142,9 +147,7 @@ def _render_scale(path: Path, rec: dict) -> list[str]:
 
 
 def _render_kernel_check(path: Path, rec: dict) -> list[str]:
-    env = rec["environment"]
-    out = [f"#### `{path.name}`: {len(env['devices'])} × {env['device_kind']}, jax {env['jax']}\n",
-           f"Command: `{rec['command']}`\n",
+    out = [*_devices_heading(path, rec),
            "| algo | seeds | trials | seeds with identical successes and steps | "
            "seeds with identical policy | mean successes | XLA run s | kernel run s |",
            "|---|---|---|---|---|---|---|---|"]
