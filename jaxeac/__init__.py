@@ -3,9 +3,9 @@ experience (Debnath & Nassour, 2014), for thousands of seeds in one jit-compiled
 
 Quick use::
 
-    from envs.grid import GridWorld, get_map
-    from jaxeac.agent import algorithm
-    from jaxeac.runner import RunConfig, run_seeds
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.algorithm.agent import algorithm
+    from jaxeac.running.batch import RunConfig, run_seeds
 
     env = GridWorld(get_map("paper"), n_chances=40)
     eac = run_seeds(env, RunConfig(trials=200, agent=algorithm("eac")), root_key=0, n_seeds=1000)
@@ -13,3 +13,7 @@ Quick use::
 """
 
 __version__ = "0.1.0"
+
+from jaxeac import _compat
+
+_compat.install()

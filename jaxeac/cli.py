@@ -86,7 +86,7 @@ def add_solver_flags(p: argparse.ArgumentParser) -> None:
 
 def _solver_settings(args: argparse.Namespace):
     """The SolverSettings of the flags add_solver_flags adds (validated on construction)."""
-    from envs.bowling import SolverSettings
+    from jaxeac.envs.bowling import SolverSettings
 
     return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
 
@@ -178,7 +178,7 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
 def cmd_grid(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.experiment import run_grid
+    from jaxeac.experiments.grid import run_grid
     from jaxeac.io import check_writable_dir
 
     settings = _grid_settings(args).resolved()
@@ -197,7 +197,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
 
 def _finish_grid(run, out, *, compare: bool, quiet: bool) -> int:
-    from jaxeac.experiment import summary_table, write_grid_outputs
+    from jaxeac.experiments.grid import summary_table, write_grid_outputs
 
     summary = write_grid_outputs(run, out)
     print(summary_table(summary))
@@ -209,7 +209,7 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool) -> int:
 
 def _grid_part(args: argparse.Namespace, settings, out) -> int:
     """One process of a multi-process run: its block of seeds into DIR/part-I-of-P/."""
-    from jaxeac.experiment import part_folder, process_share, run_grid, write_grid_outputs
+    from jaxeac.experiments.grid import part_folder, process_share, run_grid, write_grid_outputs
 
     if args.coordinator:
         import jax
@@ -224,7 +224,7 @@ def _grid_part(args: argparse.Namespace, settings, out) -> int:
 
 
 def cmd_merge(args: argparse.Namespace) -> int:
-    from jaxeac.experiment import merge_parts
+    from jaxeac.experiments.grid import merge_parts
 
     return _finish_grid(merge_parts(args.dir), args.dir, compare=not args.no_compare, quiet=args.quiet)
 
@@ -258,7 +258,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_bowling(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.bowling import BowlingSettings, run_bowling, table_one, write_bowling_outputs
+    from jaxeac.experiments.bowling import BowlingSettings, run_bowling, table_one, write_bowling_outputs
     from jaxeac.io import check_writable_dir
 
     settings = BowlingSettings(
@@ -289,7 +289,7 @@ def cmd_bowling(args: argparse.Namespace) -> int:
 def cmd_throw(args: argparse.Namespace) -> int:
     import json
 
-    from envs.bowling import BowlingConfig, throw_command
+    from jaxeac.envs.bowling import BowlingConfig, throw_command
 
     cfg = BowlingConfig(theta_max=args.theta_max, solver=_solver_settings(args))
     if args.render:
@@ -304,7 +304,7 @@ def cmd_throw(args: argparse.Namespace) -> int:
 
 
 def _grid_settings(args: argparse.Namespace):
-    from jaxeac.experiment import GridSettings
+    from jaxeac.experiments.grid import GridSettings
 
     return GridSettings(
         preset=args.preset, map_file=args.map_file, trials=args.trials, chances=args.chances,
@@ -317,7 +317,7 @@ def _grid_settings(args: argparse.Namespace):
 def cmd_sweep(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.sweep import Sweep, run_sweep
+    from jaxeac.experiments.sweep import Sweep, run_sweep
 
     base = _grid_settings(args)
     base.resolved()  # validate the flags before the swept values
@@ -331,7 +331,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from jaxeac.reproduce import reproduce
+    from jaxeac.experiments.reproduce import reproduce
 
     report = reproduce(args.out, quick=args.quick, key=args.key, progress=not args.quiet)
     print(f"report in {report}")

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats as sps  # noqa: E402
 
-from envs.grid import ACTION_DELTAS, GridMap  # noqa: E402
+from jaxeac.envs.grid import ACTION_DELTAS, GridMap  # noqa: E402
 
 COLORS = {"ac": "tab:blue", "eac": "tab:red"}
 LABELS = {"ac": "AC", "eac": "EAC"}
@@ -106,7 +106,7 @@ def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *,
 
 def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
     """Both grid figures of a `GridRun` into `folder`; returns the file names."""
-    from jaxeac.presets import make
+    from jaxeac.experiments.presets import make
 
     paper = make(run.settings.preset).paper_successes if run.settings.map_file is None else None
     cumulative_success_figure({a: r.success for a, r in run.results.items()},

@@ -57,7 +57,7 @@ def state_bytes_per_seed(env, cfg) -> int:
     """Bytes of the per-seed loop state (agent, memories, env state, per-trial records)."""
     import jax
 
-    from jaxeac.runner import _flat_init
+    from jaxeac.running.batch import _flat_init
 
     shapes = jax.eval_shape(lambda w: _flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
     return int(sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
@@ -66,9 +66,9 @@ def state_bytes_per_seed(env, cfg) -> int:
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
                lanes: int | None = None, kernel: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
-    from envs.grid import GridWorld, get_map
-    from jaxeac.agent import algorithm, resolve_tables
-    from jaxeac.runner import RunConfig, resolved_kernel, run_seeds
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.algorithm.agent import algorithm, resolve_tables
+    from jaxeac.running.batch import RunConfig, resolved_kernel, run_seeds
 
     env = GridWorld(get_map("paper"), 40)
     cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
@@ -90,7 +90,7 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
 
 def bench_numpy(algo: str, n_seeds: int, repeats: int = 1) -> dict:
     """The hand-vectorised NumPy peer on the same work (SPEC-equal in distribution), best of `repeats`."""
-    from jaxeac.numpy_peer import run_numpy
+    from peers.numpy_peer import run_numpy
 
     best = float("inf")
     for _ in range(repeats):

@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from envs.bowling import (  # noqa: E402
+from jaxeac.envs.bowling import (  # noqa: E402
     BACKENDS,
     BowlingConfig,
     SolverSettings,
@@ -42,9 +42,9 @@ from envs.bowling import (  # noqa: E402
     initial_pins,
     throw,
 )
-from envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
+from jaxeac.envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
 from jaxeac.errors import UsageError  # noqa: E402
-from jaxeac.experiment import versions  # noqa: E402
+from jaxeac.experiments.grid import versions  # noqa: E402
 
 
 def _inputs(batch: int, cfg: BowlingConfig, seed: int):

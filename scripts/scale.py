@@ -35,9 +35,9 @@ def main() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench import command_line, environment
 
-    from envs.grid import GridWorld, get_map
-    from jaxeac.agent import algorithm
-    from jaxeac.runner import RunConfig, run_seeds
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.algorithm.agent import algorithm
+    from jaxeac.running.batch import RunConfig, run_seeds
 
     env = GridWorld(get_map("paper"), 40)
     devices = jax.local_devices()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # tests/reference.py
+sys.path.insert(0, str(Path(__file__).parent.parent / "scripts"))  # scripts/peers (same-run peers)
 
 
 def random_map_text(rng: np.random.Generator) -> str:

@@ -2,7 +2,7 @@
 
 Written line by line from the paper and SPEC G1–G5, E1–E7, with dicts and lists
 instead of masked arrays, and driven by the same random numbers as the
-vectorised runner (`jaxeac.runner.trial_randoms`). Used only by the tests.
+vectorised runner (`jaxeac.running.batch.trial_randoms`). Used only by the tests.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from envs.grid import ACTION_DELTAS, GridMap
-from jaxeac.agent import AgentConfig
-from jaxeac.runner import trial_randoms
+from jaxeac.envs.grid import ACTION_DELTAS, GridMap
+from jaxeac.algorithm.agent import AgentConfig
+from jaxeac.running.batch import trial_randoms
 
 
 @dataclass

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxeac.agent import (
+from jaxeac.algorithm.agent import (
     AgentConfig,
     Hyper,
     actor_update,
@@ -27,7 +27,7 @@ from jaxeac.agent import (
     with_actor_critic,
 )
 from jaxeac.errors import UsageError
-from jaxeac.memory import dense_tables, with_committed
+from jaxeac.algorithm.memory import dense_tables, with_committed
 
 JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
 TABLES = pytest.mark.parametrize("tables", ["split", "rows"])
@@ -248,7 +248,7 @@ def test_unknown_algorithm():
 
 def test_row_tables_layout():
     """Rows of p(s, ·), V(s) padded to 32 bytes; updates (2), (4) leave the padding at zero."""
-    from jaxeac.agent import RowTables, SplitTables, resolve_tables
+    from jaxeac.algorithm.agent import RowTables, SplitTables, resolve_tables
 
     assert resolve_tables("auto") == ("split" if jax.default_backend() == "cpu" else "rows")
     assert isinstance(init_agent(algorithm("ac", tables="split"), 3, 4, 1, 1).tables, SplitTables)

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxeac.agent import Hyper, algorithm, init_agent
-from jaxeac.bowling import (
+from jaxeac.algorithm.agent import Hyper, algorithm, init_agent
+from jaxeac.experiments.bowling import (
     FULL_RACK,
     N_MASKS,
     BowlingSettings,
@@ -20,8 +20,8 @@ from jaxeac.bowling import (
     run_bowling_algo,
 )
 from jaxeac.cli import main
-from jaxeac.memory import dense_tables
-from jaxeac.runner import RunConfig
+from jaxeac.algorithm.memory import dense_tables
+from jaxeac.running.batch import RunConfig
 
 HYPER = Hyper(jnp.float32(0.1), jnp.float32(0.3), jnp.float32(1.0), jnp.float32(1.0))
 
@@ -147,7 +147,7 @@ def test_bowling_bad_input(argv, message, tmp_path, capsys):
 @pytest.mark.parametrize("command", ["bowling", "throw"])
 def test_warp_backend_without_warp_lang_is_a_usage_error(command, monkeypatch, tmp_path, capsys):
     """No warp-lang: one line naming the fix, exit 2, nothing written."""
-    from envs.bowling import backend_mjx
+    from jaxeac.envs.bowling import backend_mjx
 
     monkeypatch.setattr(backend_mjx._mjx_warp, "WARP_INSTALLED", False)
     out = tmp_path / "never"

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from envs.bowling import (
+from jaxeac.envs.bowling import (
     XML_PATH,
     BowlingConfig,
     PinState,
@@ -23,7 +23,7 @@ from envs.bowling import (
     throw_command,
     throw_noise,
 )
-from envs.bowling.scene import PARK_XYZ, PIN_XY, batch_noise
+from jaxeac.envs.bowling.scene import PARK_XYZ, PIN_XY, batch_noise
 from jaxeac.errors import UsageError
 
 CFG = BowlingConfig()
@@ -199,8 +199,8 @@ def test_warp_buffers_hold_every_contact_the_pair_list_allows():
     the scene's hard bounds (explicit pairs only, most contacts per pair type, pyramidal rows)."""
     import mujoco
 
-    from envs.bowling.backend_c import load_model
-    from envs.bowling.backend_mjx import WARP_CONTACTS, WARP_ROWS
+    from jaxeac.envs.bowling.backend_c import load_model
+    from jaxeac.envs.bowling.backend_mjx import WARP_CONTACTS, WARP_ROWS
 
     m = load_model()
     g = mujoco.mjtGeom
@@ -220,8 +220,8 @@ def test_warp_buffers_hold_every_contact_the_pair_list_allows():
 
 def test_unknown_mjx_implementation_and_missing_warp_are_usage_errors(monkeypatch):
     """The warp backend without warp-lang: one line naming the fix, before any work."""
-    from envs.bowling import backend_mjx
-    from jaxeac.bowling import BowlingSettings
+    from jaxeac.envs.bowling import backend_mjx
+    from jaxeac.experiments.bowling import BowlingSettings
 
     with pytest.raises(UsageError, match="implementation"):
         backend_mjx.check_impl("cuda")
@@ -326,7 +326,7 @@ def test_solver_settings_reach_both_engines():
     """B7: the config's solver settings are what the C model and the MJX model run with."""
     import mujoco
 
-    from envs.bowling.backend_c import load_model
+    from jaxeac.envs.bowling.backend_c import load_model
 
     default = load_model()
     assert (default.opt.solver, default.opt.iterations, default.opt.ls_iterations) == (

@@ -17,10 +17,10 @@ import numpy as np
 import optax
 import pytest
 
-from jaxeac.agent import Hyper, algorithm
-from jaxeac.experiment import GridSettings, run_grid
-from jaxeac.runner import RunConfig, run_entries, run_seeds
-from envs.grid import GridWorld, get_map
+from jaxeac.algorithm.agent import Hyper, algorithm
+from jaxeac.experiments.grid import GridSettings, run_grid
+from jaxeac.running.batch import RunConfig, run_entries, run_seeds
+from jaxeac.envs.grid import GridWorld, get_map
 
 
 def digest(*arrays) -> str:
@@ -74,7 +74,7 @@ def grid_schedule_and_sweep() -> dict[str, str]:
 
 
 def bowling_c() -> dict[str, str]:
-    from jaxeac.bowling import BowlingSettings, run_bowling
+    from jaxeac.experiments.bowling import BowlingSettings, run_bowling
 
     run = run_bowling(BowlingSettings(seeds=4, trials=3, key=1, chunk_size=4))
     return {a: digest(r.action, r.knocked, r.success) for a, r in run.results.items()}

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from envs.grid import GridWorld, get_map, load_map, parse_map
+from jaxeac.envs.grid import GridWorld, get_map, load_map, parse_map
 from jaxeac.errors import UsageError
 
 
@@ -106,7 +106,7 @@ def test_bad_chances():
 
 
 def test_paper_like_maps_scale_the_paper_layout():
-    from envs.grid import PAPER_MAP, paper_like_map
+    from jaxeac.envs.grid import PAPER_MAP, paper_like_map
 
     assert paper_like_map(11) == PAPER_MAP
     for n in (7, 15, 21):

@@ -1,4 +1,4 @@
-"""The fused GPU kernel (`jaxeac.kernel`) against the XLA loop, run by Pallas's interpreter on the CPU.
+"""The fused GPU kernel (`jaxeac.running.kernel`) against the XLA loop, run by Pallas's interpreter on the CPU.
 
 On GPUs the two paths gave identical per-seed results for 20,000 seeds of every algorithm
 (BENCHMARKS.md); here the kernel body runs as XLA:CPU ops whose fusions differ from the XLA
@@ -14,11 +14,11 @@ import numpy as np
 import optax
 import pytest
 
-from envs.grid import GridWorld, get_map
-from jaxeac.agent import algorithm
+from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.kernel import LANES_PER_PROGRAM, advance_chances, kernel_unsupported
-from jaxeac.runner import RunConfig, _flat_init, _flat_slot, resolved_kernel, run_seeds, seed_key, seed_words
+from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances, kernel_unsupported
+from jaxeac.running.batch import RunConfig, _flat_init, _flat_slot, resolved_kernel, run_seeds, seed_key, seed_words
 
 ENV = GridWorld(get_map("paper"), 40)
 ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only"]

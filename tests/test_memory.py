@@ -7,10 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from envs.grid import GridWorld, get_map
-from jaxeac import memory as mem
-from jaxeac.agent import algorithm
-from jaxeac.runner import RunConfig, run_seeds
+from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.algorithm import memory as mem
+from jaxeac.algorithm.agent import algorithm
+from jaxeac.running.batch import RunConfig, run_seeds
 
 
 def buffer(capacity=16):

@@ -1,4 +1,4 @@
-"""The hand-vectorised NumPy peer (`jaxeac.numpy_peer`) against the SPEC and the JAX runner.
+"""The hand-vectorised NumPy peer (`scripts/peers/numpy_peer.py`) against the SPEC and the JAX runner.
 
 * by hand, with injected random numbers, on 1×2 and 1×3 maps (G4, E1, E2, E4, E5, E6);
 * invariants that hold for any random numbers (E1(a), E4 on a map where one move wins);
@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from envs.grid import GridWorld, get_map, parse_map
-from jaxeac.agent import algorithm
+from jaxeac.envs.grid import GridWorld, get_map, parse_map
+from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.numpy_peer import run_numpy, simulate
-from jaxeac.presets import make
-from jaxeac.runner import RunConfig, run_seeds, seed_key, trial_randoms
+from peers.numpy_peer import run_numpy, simulate
+from jaxeac.experiments.presets import make
+from jaxeac.running.batch import RunConfig, run_seeds, seed_key, trial_randoms
 
 PAPER = make("paper")
 RATES = {"alpha": PAPER.alpha, "beta": PAPER.beta, "gamma": PAPER.gamma, "temperature": PAPER.temperature}

@@ -15,10 +15,10 @@ import pytest
 from conftest import random_map_text
 from reference import reference_run
 
-from envs.grid import GridWorld, get_map, parse_map
-from jaxeac.agent import algorithm
-from jaxeac.memory import BufferMemory, dense_tables
-from jaxeac.runner import RunConfig, seed_key, trace_run
+from jaxeac.envs.grid import GridWorld, get_map, parse_map
+from jaxeac.algorithm.agent import algorithm
+from jaxeac.algorithm.memory import BufferMemory, dense_tables
+from jaxeac.running.batch import RunConfig, seed_key, trace_run
 
 VARIANTS = {
     "ac": algorithm("ac"),
@@ -112,7 +112,7 @@ def test_small_buffer_evicts_fifo():
 def test_three_word_dense_layout_matches_reference(variant, monkeypatch):
     """E7: with packing refused, the grid runs on the three-word dense layout (as bowling's
     21 actions always do), and it too matches the reference step by step."""
-    import jaxeac.memory as mem
+    import jaxeac.algorithm.memory as mem
 
     monkeypatch.setattr(mem, "packed_fits", lambda n_actions, n_trials: False)
     agent = jax.eval_shape(lambda: mem.init_memory("dense", 4, 4, 1, n_trials=10))
@@ -122,7 +122,7 @@ def test_three_word_dense_layout_matches_reference(variant, monkeypatch):
 
 def test_grid_uses_one_packed_word_per_state():
     """E7: four actions and a few hundred trials fit one word; 21 actions (bowling) do not."""
-    import jaxeac.memory as mem
+    import jaxeac.algorithm.memory as mem
 
     assert isinstance(mem.init_memory("dense", 3, 4, 1, n_trials=200), mem.PackedMemory)
     assert mem.packed_fits(4, 100_000) and not mem.packed_fits(4, 200_000)

@@ -8,9 +8,9 @@ import re
 import numpy as np
 import pytest
 
-from envs.grid import parse_map
+from jaxeac.envs.grid import parse_map
 from jaxeac.errors import UsageError
-from jaxeac.reproduce import (
+from jaxeac.experiments.reproduce import (
     QUICK,
     Sizes,
     _supported,
@@ -178,7 +178,7 @@ def test_paper_position():
 
 
 def test_modes_meet_the_issue_sizes():
-    from jaxeac.reproduce import FULL
+    from jaxeac.experiments.reproduce import FULL
 
     assert FULL.grid_seeds >= 10_000 and FULL.bowling_seeds >= 1_000
     assert 100 <= QUICK.bowling_seeds <= 200

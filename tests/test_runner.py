@@ -7,10 +7,10 @@ import numpy as np
 import optax
 import pytest
 
-from envs.grid import GridWorld, get_map
-from jaxeac.agent import algorithm
+from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.runner import (
+from jaxeac.running.batch import (
     BatchOutput,
     RunConfig,
     empty_results,
@@ -84,7 +84,7 @@ def test_unpack_output_by_hand():
 
 def test_chunks_unpacked_in_row_blocks_equal_whole_chunks(monkeypatch):
     """Host threads unpack a chunk in row blocks (`UNPACK_ROWS`); blocks that split chunks unevenly."""
-    import jaxeac.runner as runner
+    import jaxeac.running.batch as runner
 
     cfg = RunConfig(trials=10, agent=algorithm("eac"))
     whole = run_seeds(ENV, cfg, root_key=4, n_seeds=11, chunk_size=8)
@@ -157,7 +157,7 @@ def test_flat_loop_equals_trials_loop(algo, variant, map_seed, lanes):
     """The fast flat loop and the literal trials loop give bit-identical runs."""
     from conftest import random_map_text
 
-    from envs.grid import parse_map
+    from jaxeac.envs.grid import parse_map
 
     rng = np.random.default_rng(map_seed)
     env = ENV if map_seed == 0 else GridWorld(parse_map(random_map_text(rng)), int(rng.integers(1, 12)))
@@ -175,7 +175,7 @@ def test_flat_loop_equals_trials_loop(algo, variant, map_seed, lanes):
 def test_step_uniform_is_uniform_and_decorrelated():
     from scipy import stats
 
-    from jaxeac.runner import action_counter, seed_words, step_uniform
+    from jaxeac.running.batch import action_counter, seed_words, step_uniform
 
     words = jax.vmap(seed_words)(jax.vmap(lambda i: seed_key(jax.random.key(0), i))(np.arange(64)))
     counters = action_counter(np.arange(200)[:, None], np.arange(41)[None, :], 40).reshape(-1)
@@ -190,7 +190,7 @@ def test_step_uniform_is_uniform_and_decorrelated():
 def test_default_lanes_per_backend_and_algorithm():
     """CPU: 256 lanes fed from a queue; accelerators: a lane per seed for AC, at most 2^18 for EAC
     (2^15 with the fused kernel)."""
-    from jaxeac.runner import default_lanes
+    from jaxeac.running.batch import default_lanes
 
     ac, eac = algorithm("ac"), algorithm("eac")
     assert default_lanes(ac, 10_000, "cpu") == default_lanes(eac, 10_000, "cpu") == 256

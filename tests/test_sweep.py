@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from jaxeac.cli import main
-from jaxeac.experiment import GridSettings
-from jaxeac.runner import run_seeds
-from jaxeac.sweep import Sweep, run_sweep
+from jaxeac.experiments.grid import GridSettings
+from jaxeac.running.batch import run_seeds
+from jaxeac.experiments.sweep import Sweep, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 ARGS = ["sweep", "--seeds", "24", "--chunk-size", "3", "--trials", "20", "--chances", "20",
@@ -27,7 +27,7 @@ def test_sweep_points_equal_separate_runs(tmp_path):
     base = GridSettings(seeds=6, chunk_size=4, trials=15, chances=20)
     sweep = Sweep.build(base, ["alpha=0.05,0.3", "gamma=0.5,0.9"])
     rows = run_sweep(sweep, tmp_path / "s")
-    from envs.grid import GridWorld
+    from jaxeac.envs.grid import GridWorld
 
     for row in rows:
         s = sweep.settings({"alpha": row["alpha"], "gamma": row["gamma"]})

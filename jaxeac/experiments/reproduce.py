@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats as sps
 
 from jaxeac import __version__
-from jaxeac.agent import ALGORITHMS
+from jaxeac.algorithm.agent import ALGORITHMS
 from jaxeac.errors import UsageError
 from jaxeac.io import atomic_write_json, atomic_write_text, check_writable_dir, staged_dir, to_jsonable
 
@@ -115,8 +115,8 @@ def contrast(x_baseline, x_treatment, key: int, *, resamples: int, higher_is_bet
 
 
 def mean_ci(x) -> dict:
-    """Mean with its Student-t 95 % CI (`jaxeac.experiment.mean_ci95`) and the seeds' 5–95 % range."""
-    from jaxeac.experiment import mean_ci95
+    """Mean with its Student-t 95 % CI (`jaxeac.experiments.grid.mean_ci95`) and the seeds' 5–95 % range."""
+    from jaxeac.experiments.grid import mean_ci95
 
     x = np.asarray(x, float)
     mean, sd, lo, hi = mean_ci95(x)
@@ -143,7 +143,7 @@ def greedy_reach(grid_map, policies: np.ndarray, max_steps: int) -> np.ndarray:
     policies: int [N, S] final greedy actions (G7). Paths follow G2/G4 moves for at
     most `max_steps` moves (the chances of a trial, G5), vectorised over seeds and cells.
     """
-    from envs.grid import ACTION_DELTAS
+    from jaxeac.envs.grid import ACTION_DELTAS
 
     h, w = grid_map.height, grid_map.width
     ys, xs = np.divmod(np.arange(h * w), w)
@@ -197,7 +197,7 @@ def _say(progress: bool, text: str) -> None:
 # ------------------------------------------------------------------ runs
 def _grid_run(folder: Path, settings, progress: bool, *, figures: bool, label: str) -> None:
     """Run (unless already on disk with the same config) and write one grid run folder."""
-    from jaxeac.experiment import run_grid, write_grid_outputs
+    from jaxeac.experiments.grid import run_grid, write_grid_outputs
 
     expect = {k: getattr(settings, k) for k in ("preset", "seeds", "key", "algos", "trials", "chances",
                                                 "alpha", "beta", "gamma", "temperature")}
@@ -210,7 +210,7 @@ def _grid_run(folder: Path, settings, progress: bool, *, figures: bool, label: s
 
 def _bowling_run(folder: Path, settings, progress: bool, *, figures: bool, label: str) -> None:
     """Run (unless already on disk with the same config) and write one bowling run folder."""
-    from jaxeac.bowling import run_bowling, write_bowling_outputs
+    from jaxeac.experiments.bowling import run_bowling, write_bowling_outputs
 
     settings.validate()
     if _finished(folder, dataclasses.asdict(settings)) and (folder / "curves.npz").is_file():
@@ -246,7 +246,7 @@ def _bowling_data(folder: Path, algos) -> tuple[dict, dict]:
 def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     """Paper preset, AC vs EAC: run folder, `jaxeac compare`, Fig. 3 with a sup-t band, Fig. 2 reach."""
     from jaxeac import plots
-    from jaxeac.experiment import GridSettings
+    from jaxeac.experiments.grid import GridSettings
     from jaxeac.stats import compare_run_dir, curve_bands
 
     settings = GridSettings(preset="paper", seeds=sizes.grid_seeds, key=key,
@@ -325,7 +325,7 @@ def _one_sample(x: np.ndarray, *, negative: bool) -> dict:
 
 def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     """Bowling, AC vs EAC on the C backend: run folder, `jaxeac compare`, Table I, Fig. 5 angle analysis."""
-    from jaxeac.bowling import BowlingSettings
+    from jaxeac.experiments.bowling import BowlingSettings
     from jaxeac.stats import compare_run_dir
 
     settings = BowlingSettings(seeds=sizes.bowling_seeds, key=key, chunk_size=sizes.bowling_chunk,
@@ -367,8 +367,8 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
 def step_calibration(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     """`jaxeac sweep` over size, chances, α, β; where AC's mean is the paper's 56, what does EAC do?"""
     from jaxeac import plots
-    from jaxeac.experiment import GridSettings
-    from jaxeac.sweep import Sweep, _load, run_sweep
+    from jaxeac.experiments.grid import GridSettings
+    from jaxeac.experiments.sweep import Sweep, _load, run_sweep
 
     base = GridSettings(preset="paper", seeds=sizes.calibration_seeds, key=key,
                         chunk_size=sizes.calibration_seeds)
@@ -417,8 +417,8 @@ def step_calibration(folder: Path, sizes: Sizes, key: int, progress: bool) -> di
 def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling_dir: Path) -> dict:
     """Which part of EAC does the work: memory variants, E2/E6 variants, temperature, bowling noise."""
     from jaxeac import plots
-    from jaxeac.bowling import BowlingSettings
-    from jaxeac.experiment import GridSettings
+    from jaxeac.experiments.bowling import BowlingSettings
+    from jaxeac.experiments.grid import GridSettings
     from jaxeac.stats import holm
 
     algos = tuple(dict.fromkeys(("ac", *sizes.ablation_algos)))
@@ -968,7 +968,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     A step is finished when its ``reproduce.json`` exists with the same fingerprint; a folder
     holding a step of other settings is refused (`UsageError`) before any compute.
     """
-    from jaxeac.experiment import versions
+    from jaxeac.experiments.grid import versions
 
     if isinstance(key, bool) or not isinstance(key, int | np.integer) or key < 0:
         raise UsageError(f"key must be a non-negative integer (got {key!r})")
@@ -1013,11 +1013,11 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     for c in cls:
         c["headline"] = _headline(c, records["grid"], records["bowling"])
     command = (f"jaxeac reproduce{' --quick' if quick else ''} --out {out} --key {key}" if mode != "custom"
-               else f"jaxeac.reproduce.reproduce({str(out)!r}, key={key}, sizes=<see reproduce.json>)")
+               else f"jaxeac.experiments.reproduce.reproduce({str(out)!r}, key={key}, sizes=<see reproduce.json>)")
     import jax
 
     rec = {
-        "schema": "jaxeac.reproduce/1", "mode": mode, "key": int(key), "command": command,
+        "schema": "jaxeac.experiments.reproduce/1", "mode": mode, "key": int(key), "command": command,
         "argv": " ".join(["jaxeac", *sys.argv[1:]]), "sizes": _normal(dataclasses.asdict(sizes)),
         "resamples": sizes.resamples,
         "finished": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
@@ -1039,7 +1039,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
 def export_document(run_dir, document="docs/REPLICATION.md") -> Path:
     """Copy a finished run's report.md to `document`, its figures beside it (in `<stem>_figures/`).
 
-    For committing a recorded full run: ``python -c "from jaxeac.reproduce import export_document;
+    For committing a recorded full run: ``python -c "from jaxeac.experiments.reproduce import export_document;
     export_document('runs/reproduce')"``. Figure links are rewritten to the copied files.
     """
     run_dir, document = Path(run_dir), Path(document)

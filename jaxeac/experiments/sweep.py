@@ -23,12 +23,12 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from envs.grid import GridWorld
-from jaxeac.agent import Hyper
+from jaxeac.envs.grid import GridWorld
+from jaxeac.algorithm.agent import Hyper
 from jaxeac.errors import UsageError
-from jaxeac.experiment import GridSettings, mean_ci95, welch_diff_ci95
+from jaxeac.experiments.grid import GridSettings, mean_ci95, welch_diff_ci95
 from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, check_writable_dir
-from jaxeac.runner import run_entries
+from jaxeac.running.batch import run_entries
 
 TRACED = ("alpha", "beta", "gamma", "temperature")
 STATIC = ("trials", "chances", "preset", "map_file")

@@ -18,7 +18,7 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from jaxeac import memory as mem
+from jaxeac.algorithm import memory as mem
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass, static_field
 

@@ -1,6 +1,6 @@
 """The flat loop's C chances as one fused GPU kernel (Pallas, Triton backend).
 
-The XLA loop (`jaxeac.runner`) runs each chance of every lane as a dozen GPU
+The XLA loop (`jaxeac.running.batch`) runs each chance of every lane as a dozen GPU
 kernels that pass [lanes] intermediates through memory. This kernel runs C chances
 of a block of lanes in one program: each lane's scalars (cell, trial, chance, …)
 stay in registers, and a chance touches memory only where the agent's state is
@@ -27,16 +27,16 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxeac import memory as mem
-from jaxeac.agent import RowTables
+from jaxeac.algorithm import memory as mem
+from jaxeac.algorithm.agent import RowTables
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
 
 
 def kernel_unsupported(env: Any, cfg: Any) -> str | None:
     """Why the fused kernel cannot run this env and config (None: it can)."""
-    from envs.grid import GridWorld
-    from jaxeac.agent import resolve_tables
+    from jaxeac.envs.grid import GridWorld
+    from jaxeac.algorithm.agent import resolve_tables
 
     agent = cfg.agent
     if not isinstance(env, GridWorld):
@@ -80,7 +80,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
-    from jaxeac.runner import action_counter, start_index, step_uniform
+    from jaxeac.running.batch import action_counter, start_index, step_uniform
 
     agent = cfg.agent
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials

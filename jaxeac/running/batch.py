@@ -15,7 +15,7 @@ Two loop structures give bit-identical results (tested):
   The loop stops when every seed of the chunk has run T trials.
 
 On GPUs the flat loop's C chances per block run as one fused kernel
-(`jaxeac.kernel`, chosen by `RunConfig.kernel`); it computes the same steps.
+(`jaxeac.running.kernel`, chosen by `RunConfig.kernel`); it computes the same steps.
 
 Random numbers come from one place: `step_uniform`, a counter-based hash of the
 seed's key words and (trial, chance), so no per-step key splitting is needed and
@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
-from jaxeac.agent import (
+from jaxeac.algorithm.agent import (
     AgentConfig,
     AgentState,
     Hyper,
@@ -83,7 +83,7 @@ class RunConfig:
     temperature: float = 1.0
     loop: Loop = "auto"
     lanes: int | None = None  # flat loop: seeds in flight per device; None: default_lanes
-    kernel: Kernel = "auto"  # flat loop's chances: `jaxeac.kernel` (GPUs) or XLA ops; see resolved_kernel
+    kernel: Kernel = "auto"  # flat loop's chances: `jaxeac.running.kernel` (GPUs) or XLA ops; see resolved_kernel
 
     def __post_init__(self):
         if self.kernel not in KERNELS:
@@ -106,12 +106,12 @@ class RunConfig:
 
 
 def resolved_kernel(env: Env, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:
-    """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.kernel`) or ``xla``.
+    """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.running.kernel`) or ``xla``.
 
     `auto`: the kernel on GPUs where it supports the env and config, XLA ops otherwise.
     ``pallas`` asks for the kernel anywhere; off GPUs it runs in Pallas's (slow) interpreter.
     """
-    from jaxeac.kernel import kernel_unsupported
+    from jaxeac.running.kernel import kernel_unsupported
 
     if cfg.kernel == "xla":
         return "xla"
@@ -406,7 +406,7 @@ def _flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     n_lanes = min(m, lanes)
     slot = jax.vmap(lambda c, w, h: _flat_slot(env, cfg, c, w, h))
     if kernel == "pallas":
-        from jaxeac.kernel import LANES_PER_PROGRAM, advance_chances
+        from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
 
         n_lanes = -(-n_lanes // LANES_PER_PROGRAM) * LANES_PER_PROGRAM  # whole programs; extra lanes idle
         interpret = jax.default_backend() != "gpu"

@@ -38,7 +38,7 @@ Public API::
 
 from .api import DEFAULT_CONFIG, throw
 from .backend_mjx import make_mjx_throw
-from .cli import throw_command
+from .throw_command import throw_command
 from .render import render_deck
 from .scene import (
     BACKENDS,

@@ -21,14 +21,14 @@ import jax
 import numpy as np
 from scipy import stats as sps
 
-from envs.grid import GridMap, GridWorld, get_map, load_map
+from jaxeac.envs.grid import GridMap, GridWorld, get_map, load_map
 from jaxeac import __version__
-from jaxeac.agent import ALGORITHMS, algorithm
+from jaxeac.algorithm.agent import ALGORITHMS, algorithm
 from jaxeac.errors import UsageError
 from jaxeac.io import atomic_write_json, staged_dir
-from jaxeac.memory import LAYOUTS
-from jaxeac.presets import make as make_preset
-from jaxeac.runner import RunConfig, SeedsResult, run_seeds
+from jaxeac.algorithm.memory import LAYOUTS
+from jaxeac.experiments.presets import make as make_preset
+from jaxeac.running.batch import RunConfig, SeedsResult, run_seeds
 
 
 def _positive_int(name: str, value) -> None:
@@ -193,7 +193,7 @@ def merge_parts(out: str | Path) -> GridRun:
             compile_seconds=max(x[4]["compile_seconds"] for x in pieces),
             run_seconds=max(x[4]["run_seconds"] for x in pieces),  # processes run side by side
         )
-    from envs.grid import parse_map
+    from jaxeac.envs.grid import parse_map
 
     return GridRun(settings, parse_map(config["map"]), results)
 

@@ -1,6 +1,6 @@
 """AC and EAC learning to bowl (paper §V-B, SPEC B1–B7) with the grid's agent code.
 
-The agent is the same `jaxeac.agent` code as on the grid (no copy): states are
+The agent is the same `jaxeac.algorithm.agent` code as on the grid (no copy): states are
 the 1,024 masks of standing pins (B5; chance 1 always starts from all ten =
 1023), actions the K shoulder angles (B2), the TD reward and the immediate
 reward r̃ are the pins a throw knocks (E5), a trial is 2 chances, a strike ends
@@ -30,10 +30,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
-from envs.bowling import angles as angle_grid
-from envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend
-from jaxeac.agent import (
+from jaxeac.envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
+from jaxeac.envs.bowling import angles as angle_grid
+from jaxeac.envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend
+from jaxeac.algorithm.agent import (
     AgentState,
     Hyper,
     algorithm,
@@ -46,7 +46,7 @@ from jaxeac.agent import (
 )
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.runner import RunConfig, action_counter, chunks, seed_key, seed_words, step_uniform
+from jaxeac.running.batch import RunConfig, action_counter, chunks, seed_key, seed_words, step_uniform
 
 N_PINS = 10
 N_MASKS = 1 << N_PINS  # B5: states are the sets of standing pins
@@ -148,7 +148,7 @@ def _set_rows(full, rows, part):
 def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Callable:
     """The whole chunk with MJX (implementation impl) as one jit-compiled function:
     ``(keys [M], hyper) -> BowlingRecord``."""
-    from envs.bowling.backend_mjx import make_batch_throw
+    from jaxeac.envs.bowling.backend_mjx import make_batch_throw
 
     throw_all = make_batch_throw(phys, impl=impl)
     grid = jnp.asarray(angle_grid(phys), jnp.float32)
@@ -210,7 +210,7 @@ class BowlingSettings:
     solver: SolverSettings = DEFAULT_SOLVER  # B7 constraint solver of both physics engines
 
     def validate(self) -> None:
-        from jaxeac.experiment import _positive_int, _rate, check_algos
+        from jaxeac.experiments.grid import _positive_int, _rate, check_algos
 
         for name in ("seeds", "trials", "chunk_size"):
             _positive_int(name.replace("_", " "), getattr(self, name))
@@ -324,7 +324,7 @@ def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | 
 
 def summarize_bowling(run: BowlingRun) -> dict:
     """summary.json content, as the grid's, with `return` (pins over T trials) as the primary measure."""
-    from jaxeac.experiment import summary_base
+    from jaxeac.experiments.grid import summary_base
 
     out = summary_base("bowling", "return", run.settings, run.results,
                        {a: r.total_return for a, r in run.results.items()})
@@ -338,7 +338,7 @@ def summarize_bowling(run: BowlingRun) -> dict:
 
 def table_one(run: BowlingRun, seed: int = 0) -> str:
     """Table I: per-chance pins of one seed per algorithm, and means (95 % CI) over seeds."""
-    from jaxeac.experiment import mean_ci95
+    from jaxeac.experiments.grid import mean_ci95
 
     algos = list(run.results)
     lines = [f"### Table I — pins per chance, seed {seed}", "",

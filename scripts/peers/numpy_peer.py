@@ -1,7 +1,7 @@
 """A hand-vectorised NumPy peer of the JAX runner, for speed comparisons on the same SPEC.
 
-Same model as `jaxeac.runner` with dense memories (SPEC E7): the grid world
-G1–G5 (transition tables from `envs.grid.GridWorld`), AC eqs. (1)–(4), and EAC's
+Same model as `jaxeac.running.batch` with dense memories (SPEC E7): the grid world
+G1–G5 (transition tables from `jaxeac.envs.grid.GridWorld`), AC eqs. (1)–(4), and EAC's
 Algorithm 1 with E1 (success action, else softmax over unflagged actions, else
 plain softmax), E2 (learn only on E1(c) steps), E3, E4 (last write wins), E5
 (shaped r̃) and E6 (``failure_rule="previous_trial"``).
@@ -13,7 +13,7 @@ read as one ``uint32`` word. Python loops run over trials and chances only (and
 over chances of successful trials for E4's ordered write); seeds that reached
 the goal drop out of the active set, so the work per chance shrinks as they
 succeed. Actions come from inverse-CDF sampling with one uniform per seed and
-chance, as in `jaxeac.agent.sample_softmax`.
+chance, as in `jaxeac.algorithm.agent.sample_softmax`.
 
 Randomness (R1/R2, peer reading): numbers are drawn per trial, in bulk for all
 seeds, from one ``numpy.random.Generator`` (PCG64) seeded with `seed`. The same
@@ -28,8 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from envs.grid import GridMap, GridWorld, get_map
-from jaxeac.agent import ALGORITHMS, AgentConfig
+from jaxeac.envs.grid import GridMap, GridWorld, get_map
+from jaxeac.algorithm.agent import ALGORITHMS, AgentConfig
 from jaxeac.errors import UsageError
 
 #: ``draw(trial) -> (start_index int [N], uniforms float [N, C])``: one trial's random numbers.
