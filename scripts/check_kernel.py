@@ -38,9 +38,10 @@ def main() -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench import command_line, environment
 
+    from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
-    from jaxeac.algorithm.agent import algorithm
-    from jaxeac.running.batch import RunConfig, run_seeds
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig
 
     env = GridWorld(get_map("paper"), 40)
     record = {"environment": environment(), "command": command_line(), "rows": []}

@@ -35,9 +35,10 @@ def main() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench import command_line, environment
 
+    from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
-    from jaxeac.algorithm.agent import algorithm
-    from jaxeac.running.batch import RunConfig, run_seeds
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig
 
     env = GridWorld(get_map("paper"), 40)
     devices = jax.local_devices()

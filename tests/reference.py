@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from jaxeac.algorithm.config import AgentConfig
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap
-from jaxeac.algorithm.agent import AgentConfig
-from jaxeac.running.batch import trial_randoms
+from jaxeac.rng import trial_randoms
 
 
 @dataclass

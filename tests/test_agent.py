@@ -10,24 +10,20 @@ import numpy as np
 import pytest
 
 from jaxeac.algorithm.agent import (
-    AgentConfig,
-    Hyper,
-    actor_update,
-    algorithm,
-    critic_update,
     end_trial,
     greedy_policy,
     init_agent,
     learn_step,
-    rate_at,
     record_step,
     sample_softmax,
     select_action,
     td_error,
     with_actor_critic,
 )
-from jaxeac.errors import UsageError
+from jaxeac.algorithm.config import AgentConfig, Hyper, algorithm, rate_at
 from jaxeac.algorithm.memory import dense_tables, with_committed
+from jaxeac.algorithm.tables import SplitTables, learning_increments
+from jaxeac.errors import UsageError
 
 JIT = pytest.mark.parametrize("jit", [False, True], ids=["eager", "jit"])
 TABLES = pytest.mark.parametrize("tables", ["split", "rows"])
@@ -48,22 +44,29 @@ def test_td_error_golden(jit):
 
 @JIT
 def test_critic_and_actor_updates_golden(jit):
-    values = jnp.array([0.0, 0.5, -0.25])
-    v = maybe_jit(critic_update, jit)(values, 1, 0.68, 0.1, True)
-    np.testing.assert_allclose(v, [0.0, 0.568, -0.25], rtol=1e-6)  # V(s) += α·δ
-    v = maybe_jit(critic_update, jit)(values, 1, 0.68, 0.1, False)
-    np.testing.assert_array_equal(v, values)  # E2: no learning on memory steps
-    prefs = jnp.zeros((3, 4))
-    p = maybe_jit(actor_update, jit)(prefs, 2, 3, -0.5, 0.3, True)
+    actor, critic = maybe_jit(learning_increments, jit)(0.68, True, 0.1, 0.3)
+    assert (float(actor), float(critic)) == pytest.approx((0.204, 0.068))  # (4) β·δ, (2) α·δ
+    actor, critic = maybe_jit(learning_increments, jit)(0.68, False, 0.1, 0.3)
+    assert (float(actor), float(critic)) == (0.0, 0.0)  # E2: no learning on memory steps
+
+    def learn(t, *args):
+        return t.learn(*args)
+
+    tables = SplitTables(jnp.zeros((3, 4)), jnp.array([0.0, 0.5, -0.25]))
+    t = maybe_jit(learn, jit)(tables, 1, 0, 0.68, 0.1, 0.3, True)
+    np.testing.assert_allclose(t.values, [0.0, 0.568, -0.25], rtol=1e-6)  # V(s) += α·δ
+    t = maybe_jit(learn, jit)(tables, 2, 3, -0.5, 0.1, 0.3, True)
     expected = np.zeros((3, 4))
     expected[2, 3] = -0.15  # (4): only the taken action moves, by β·δ
-    np.testing.assert_allclose(p, expected, rtol=1e-6)
+    np.testing.assert_allclose(t.preferences, expected, rtol=1e-6)
+    t = maybe_jit(learn, jit)(tables, 1, 0, 0.68, 0.1, 0.3, False)
+    np.testing.assert_array_equal(t.values, tables.values)  # E2
 
 
 @TABLES
 def test_learn_step_golden_sequence(tables):
     """Two transitions by hand: 0 --a1--> 1 (r=0), then 1 --a0--> goal (r=1, terminal)."""
-    agent = init_agent(algorithm("ac", tables=tables), 3, 2, 4, 10)
+    agent = init_agent(algorithm("ac", tables=tables).resolve(), 3, 2, 4, 10)
     agent = with_actor_critic(agent, values=[0.0, 0.2, 0.7])
     a1 = learn_step(agent, 0, 1, 0.0, 1, False, True, 0.5, 0.2, 0.9)
     # δ = 0 + 0.9·0.2 − 0 = 0.18 → V0 = 0.09, p(0,1) = 0.036
@@ -117,7 +120,7 @@ def test_select_action_e1_order():
     failed[1, 0] = True
     failed[2, :2] = True
     failed[3, :] = True
-    agent = with_tables(init_agent(cfg, 4, 4, 5, 10), [-1, 3, -1, -1], failed)
+    agent = with_tables(init_agent(cfg.resolve(), 4, 4, 5, 10), [-1, 3, -1, -1], failed)
     # (a) success memory wins even over failure flags at the same state
     assert tuple(map(int, select_action(cfg, agent, 1, 0.0, hyper()))) == (3, 0)
     # (b) two of four flagged at state 2 → uniform over {2, 3}; no learning (E2)
@@ -138,7 +141,7 @@ def test_select_action_e1_order():
 @TABLES
 def test_select_action_temperature(tables):
     cfg = algorithm("ac", tables=tables)
-    agent = with_actor_critic(init_agent(cfg, 1, 2, 1, 1), preferences=[[0.0, math.log(3.0)]])
+    agent = with_actor_critic(init_agent(cfg.resolve(), 1, 2, 1, 1), preferences=[[0.0, math.log(3.0)]])
     # τ = 1: π = [.25, .75]; τ → large: π → [.5, .5]
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1.0))[0]) == 1
     assert int(select_action(cfg, agent, 0, 0.3, hyper(1e6))[0]) == 0
@@ -159,7 +162,7 @@ def tables(agent):
 
 def test_failure_rule_previous_trial_golden_e6():
     cfg = algorithm("eac")
-    agent = init_agent(cfg, 8, 4, 5, 10)
+    agent = init_agent(cfg.resolve(), 8, 4, 5, 10)
     # trial 1 fails: no previous trial, nothing flagged (t >= 2 only)
     agent = play_trial(cfg, agent, [0, 1, 2, 3, 4], [0] * 5, [0.5, 0.4, -1.0, 0.2, 0.0], False)
     assert tables(agent)[1] == set()
@@ -177,7 +180,7 @@ def test_failure_rule_previous_trial_golden_e6():
 
 def test_failure_rule_within_trial_golden_e6():
     cfg = algorithm("eac", failure_rule="within_trial")
-    agent = init_agent(cfg, 8, 4, 5, 10)
+    agent = init_agent(cfg.resolve(), 8, 4, 5, 10)
     # r̃ = [.4, .4, −1, .1, 0]: drops at c = 3 (−1 < .4) and c = 5 (0 < .1), already in trial 1
     agent = play_trial(cfg, agent, [0, 1, 2, 3, 4], [2] * 5, [0.4, 0.4, -1.0, 0.1, 0.0], False)
     assert tables(agent)[1] == {(2, 2), (4, 2)}
@@ -185,7 +188,7 @@ def test_failure_rule_within_trial_golden_e6():
 
 def test_success_write_golden_e4():
     cfg = algorithm("eac")
-    agent = init_agent(cfg, 6, 4, 4, 10)
+    agent = init_agent(cfg.resolve(), 6, 4, 4, 10)
     # success: chronological, the last action at a state wins (state 0: 1 then 3)
     agent = play_trial(cfg, agent, [0, 1, 0], [1, 2, 3], [0.0, 0.0, 1.0], True)
     np.testing.assert_array_equal(tables(agent)[0], [3, 2, -1, -1, -1, -1])
@@ -201,7 +204,7 @@ def test_success_write_golden_e4():
 def test_memory_applies_only_after_the_trial():
     """Algorithm 1 writes memories after a trial: within the trial, lookups see the old memory."""
     cfg = algorithm("eac")
-    agent = init_agent(cfg, 6, 4, 4, 10)
+    agent = init_agent(cfg.resolve(), 6, 4, 4, 10)
     agent = record_step(cfg, agent, 2, 1, 0.0, jnp.bool_(True))
     assert int(select_action(cfg, agent, 2, 0.9, hyper())[0]) == 3  # softmax, not the pending 1
     agent = end_trial(cfg, agent, jnp.bool_(True), jnp.bool_(True))
@@ -211,12 +214,12 @@ def test_memory_applies_only_after_the_trial():
 @TABLES
 def test_ac_has_no_memory_and_greedy_policy(tables):
     ac = algorithm("ac", tables=tables)
-    agent = init_agent(ac, 2, 3, 1, 1)
+    agent = init_agent(ac.resolve(), 2, 3, 1, 1)
     assert agent.memory is None and not ac.uses_memory
     agent = with_actor_critic(agent, preferences=[[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]])
     np.testing.assert_array_equal(greedy_policy(ac, agent), [1, 0])
     eac = algorithm("eac", tables=tables)
-    e = with_tables(with_actor_critic(init_agent(eac, 2, 3, 1, 1), preferences=agent.preferences), [-1, 2],
+    e = with_tables(with_actor_critic(init_agent(eac.resolve(), 2, 3, 1, 1), preferences=agent.preferences), [-1, 2],
                     np.zeros((2, 3), bool))
     np.testing.assert_array_equal(greedy_policy(eac, e), [1, 2])  # G7: memory first
 
@@ -248,13 +251,14 @@ def test_unknown_algorithm():
 
 def test_row_tables_layout():
     """Rows of p(s, ·), V(s) padded to 32 bytes; updates (2), (4) leave the padding at zero."""
-    from jaxeac.algorithm.agent import RowTables, SplitTables, resolve_tables
+    from jaxeac.algorithm.config import resolve_tables
+    from jaxeac.algorithm.tables import RowTables, SplitTables
 
     assert resolve_tables("auto") == ("split" if jax.default_backend() == "cpu" else "rows")
-    assert isinstance(init_agent(algorithm("ac", tables="split"), 3, 4, 1, 1).tables, SplitTables)
-    agent = init_agent(algorithm("ac", tables="rows"), 3, 4, 1, 1)
+    assert isinstance(init_agent(algorithm("ac", tables="split").resolve(), 3, 4, 1, 1).tables, SplitTables)
+    agent = init_agent(algorithm("ac", tables="rows").resolve(), 3, 4, 1, 1)
     assert isinstance(agent.tables, RowTables) and agent.tables.rows.shape == (3, 8)
-    assert init_agent(algorithm("ac", tables="rows"), 3, 21, 1, 1).tables.rows.shape == (3, 24)
+    assert init_agent(algorithm("ac", tables="rows").resolve(), 3, 21, 1, 1).tables.rows.shape == (3, 24)
     agent = learn_step(agent, 1, 3, 1.0, 2, True, True, 0.5, 0.2, 0.9)  # δ = 1
     expected = np.zeros((3, 8))
     expected[1, 3], expected[1, 4] = 0.2, 0.5  # β·δ at (1, 3); α·δ in the value column

@@ -10,7 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxeac.algorithm.agent import Hyper, algorithm, init_agent
+from jaxeac.algorithm.agent import init_agent
+from jaxeac.algorithm.config import Hyper, algorithm
+from jaxeac.algorithm.memory import dense_tables
+from jaxeac.cli import main
 from jaxeac.experiments.bowling import (
     FULL_RACK,
     N_MASKS,
@@ -19,9 +22,7 @@ from jaxeac.experiments.bowling import (
     mask_index,
     run_bowling_algo,
 )
-from jaxeac.cli import main
-from jaxeac.algorithm.memory import dense_tables
-from jaxeac.running.batch import RunConfig
+from jaxeac.running.config import RunConfig
 
 HYPER = Hyper(jnp.float32(0.1), jnp.float32(0.3), jnp.float32(1.0), jnp.float32(1.0))
 
@@ -42,7 +43,7 @@ def throw_(cfg, agent, state, action, knocked, after, last):
 @pytest.mark.parametrize("tables", ["split", "rows"])
 def test_strike_is_a_success_and_is_remembered_e4(tables):
     cfg = RunConfig(trials=5, agent=algorithm("eac", tables=tables), gamma=1.0)
-    agent = init_agent(cfg.agent, N_MASKS, 3, 2, 5)
+    agent = init_agent(cfg.agent.resolve(), N_MASKS, 3, 2, 5)
     agent = throw_(cfg, agent, FULL_RACK, 2, 10, 0, False)  # strike on chance 1: the trial ends
     assert int(agent.trial) == 1 and bool(agent.outcomes[0])
     # (3) with a terminal s': δ = 10 − 0 = 10 → V(1023) = 1, p(1023, 2) = 3
@@ -54,7 +55,7 @@ def test_strike_is_a_success_and_is_remembered_e4(tables):
 
 def test_fewer_pins_than_last_trial_flags_the_throw_e6():
     cfg = RunConfig(trials=5, agent=algorithm("eac"), gamma=1.0)
-    agent = init_agent(cfg.agent, N_MASKS, 3, 2, 5)
+    agent = init_agent(cfg.agent.resolve(), N_MASKS, 3, 2, 5)
     # trial 1: 5 then 3 pins (no strike, no spare: a failure)
     agent = throw_(cfg, agent, FULL_RACK, 0, 5, 100, False)
     agent = throw_(cfg, agent, 100, 1, 3, 7, True)

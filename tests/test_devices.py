@@ -17,8 +17,9 @@ from pathlib import Path
 SCRIPT = textwrap.dedent("""
     import jax, numpy as np
     from jaxeac.envs.grid import GridWorld, get_map
-    from jaxeac.algorithm.agent import algorithm
-    from jaxeac.running.batch import RunConfig, run_seeds
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig
     assert len(jax.devices()) == 2, jax.devices()
     env = GridWorld(get_map("paper"), 40)
     configs = [RunConfig(trials=30, agent=algorithm(algo), loop=loop)

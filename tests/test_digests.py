@@ -17,10 +17,11 @@ import numpy as np
 import optax
 import pytest
 
-from jaxeac.algorithm.agent import Hyper, algorithm
-from jaxeac.experiments.grid import GridSettings, run_grid
-from jaxeac.running.batch import RunConfig, run_entries, run_seeds
+from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.experiments.grid import GridSettings, run_grid
+from jaxeac.running.batch import run_entries, run_seeds
+from jaxeac.running.config import RunConfig
 
 
 def digest(*arrays) -> str:

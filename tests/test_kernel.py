@@ -14,11 +14,14 @@ import numpy as np
 import optax
 import pytest
 
+from jaxeac.algorithm.config import algorithm
 from jaxeac.envs.grid import GridWorld, get_map
-from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
+from jaxeac.rng import seed_key, seed_words
+from jaxeac.running.batch import run_seeds
+from jaxeac.running.config import RunConfig, resolved_kernel
 from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances, kernel_unsupported
-from jaxeac.running.batch import RunConfig, _flat_init, _flat_slot, resolved_kernel, run_seeds, seed_key, seed_words
+from jaxeac.running.loops import flat_init, flat_slot
 
 ENV = GridWorld(get_map("paper"), 40)
 ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only"]
@@ -26,7 +29,7 @@ ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_on
 
 def _lanes(cfg, n, trials_done=0):
     words = jax.vmap(lambda i: seed_words(seed_key(jax.random.key(7), i)))(jnp.arange(n))
-    run = jax.vmap(lambda w: _flat_init(ENV, cfg, w))(words)
+    run = jax.vmap(lambda w: flat_init(ENV, cfg, w))(words)
     hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), cfg.hyper())
     return run, words, hyper
 
@@ -36,7 +39,7 @@ def test_kernel_block_equals_c_xla_slots(algo):
     """Three blocks of C chances from fresh lanes: every integer field equal, tables to float rounding."""
     cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"))
     run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM)
-    slot = jax.vmap(lambda c, w, h: _flat_slot(ENV, cfg, c, w, h))
+    slot = jax.vmap(lambda c, w, h: flat_slot(ENV, cfg, c, w, h))
     xla = jax.jit(lambda r: jax.lax.fori_loop(0, 3 * ENV.n_chances, lambda _, x: slot(x, words, hyper), r))
     kernel = jax.jit(lambda r: jax.lax.fori_loop(
         0, 3, lambda _, x: advance_chances(ENV, cfg, x, words, hyper, interpret=True), r))

@@ -7,10 +7,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxeac.envs.grid import GridWorld, get_map
 from jaxeac.algorithm import memory as mem
-from jaxeac.algorithm.agent import algorithm
-from jaxeac.running.batch import RunConfig, run_seeds
+from jaxeac.algorithm.config import algorithm
+from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.running.batch import run_seeds
+from jaxeac.running.config import RunConfig
 
 
 def buffer(capacity=16):
@@ -29,7 +30,7 @@ def test_buffer_success_write_last_wins_e4():
 def test_buffer_failure_write_and_flags_e6():
     m = mem.write_failure(buffer(), jnp.array([2, 2, 4, 2]), jnp.array([1, 3, 0, 1]),
                           jnp.array([1, 1, 0, 1], bool))
-    flags = mem.failure_flags(m, 2, 0, jnp.zeros(1, bool), 4)
+    flags = mem.failure_flags(m, 2, 0, jnp.zeros(1, bool))
     np.testing.assert_array_equal(flags, [False, True, False, True])
     assert int(m.failure_count) == 2  # the repeated pair (2, 1) is stored once
 
@@ -42,7 +43,7 @@ def test_buffer_full_policy_is_fifo():
     m = mem.write_success(m, jnp.array([12]), jnp.array([2]), jnp.ones(1, bool))  # evicts 10 (oldest)
     assert [int(mem.success_action(m, s, 0, none)) for s in (10, 11, 12)] == [-1, 1, 2]
     f = mem.write_failure(buffer(2), jnp.array([1, 2, 3]), jnp.array([0, 0, 0]), jnp.ones(3, bool))
-    assert [bool(mem.failure_flags(f, s, 0, none, 4)[0]) for s in (1, 2, 3)] == [False, True, True]
+    assert [bool(mem.failure_flags(f, s, 0, none)[0]) for s in (1, 2, 3)] == [False, True, True]
 
 
 def test_dense_pending_entries_follow_trial_outcomes():
@@ -65,13 +66,13 @@ def test_dense_pending_entries_follow_trial_outcomes():
     f = mem.record_failure_candidate(m, 5, 2, 0, outcomes, yes)  # trial 0 succeeded
     f = mem.record_failure_candidate(f, 6, 1, 1, outcomes, yes)  # trial 1 failed
     f = mem.record_failure_candidate(f, 6, 3, 1, outcomes, yes)
-    np.testing.assert_array_equal(mem.failure_flags(f, 5, 2, outcomes, 4), [False] * 4)
-    np.testing.assert_array_equal(mem.failure_flags(f, 6, 2, outcomes, 4), [False, True, False, True])
-    np.testing.assert_array_equal(mem.failure_flags(f, 6, 1, outcomes, 4), [False] * 4)
+    np.testing.assert_array_equal(mem.failure_flags(f, 5, 2, outcomes), [False] * 4)
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 2, outcomes), [False, True, False, True])
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 1, outcomes), [False] * 4)
     # a later candidate at state 6 commits trial 1's flags before replacing the pending ones
     f = mem.record_failure_candidate(f, 6, 0, 2, outcomes, yes)
     assert int(f.failed[6]) == 0b1010
-    np.testing.assert_array_equal(mem.failure_flags(f, 6, 3, jnp.array([True, False, False, False]), 4),
+    np.testing.assert_array_equal(mem.failure_flags(f, 6, 3, jnp.array([True, False, False, False])),
                                   [True, True, False, True])
 
 
@@ -124,14 +125,14 @@ def test_packed_word_golden():
     m = mem.record_packed(m, 6, 3, 0, outcomes, yes, yes, jnp.bool_(False))  # then a3, unflagged
     # stamp 0 (+1) << 14 | pending failed {1} << 10 | failed {} << 6 | pending a3 (+1) << 3 | none
     assert int(m.words[6]) == (1 << 14) | (0b0010 << 10) | (4 << 3)
-    np.testing.assert_array_equal(mem.failure_flags(m, 6, 0, outcomes, 4), [False] * 4)  # own trial
-    np.testing.assert_array_equal(mem.failure_flags(m, 6, 1, outcomes, 4), [False, True, False, False])
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 0, outcomes), [False] * 4)  # own trial
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 1, outcomes), [False, True, False, False])
     assert int(mem.success_action(m, 6, 1, outcomes)) == -1  # trial 0 failed: a3 not remembered
     # trial 1 (a success) visits s6 with a2: trial 0's flag is settled into the failed bits
     m = mem.record_packed(m, 6, 2, 1, outcomes, yes, yes, jnp.bool_(False))
     assert int(m.words[6]) == (2 << 14) | (0b0010 << 6) | (3 << 3)
     assert int(mem.success_action(m, 6, 2, outcomes)) == 2
-    np.testing.assert_array_equal(mem.failure_flags(m, 6, 2, outcomes, 4), [False, True, False, False])
+    np.testing.assert_array_equal(mem.failure_flags(m, 6, 2, outcomes), [False, True, False, False])
     # trial 2 visits with a0: trial 1's success commits a2; an inactive step writes nothing
     m = mem.record_packed(m, 6, 0, 2, outcomes, yes, yes, jnp.bool_(False))
     assert int(mem.success_action(m, 6, 3, outcomes)) == 2  # trial 2 failed: a2 stays

@@ -12,14 +12,16 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
+from peers.numpy_peer import run_numpy, simulate
 from scipy import stats
 
+from jaxeac.algorithm.config import algorithm
 from jaxeac.envs.grid import GridWorld, get_map, parse_map
-from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
-from peers.numpy_peer import run_numpy, simulate
 from jaxeac.experiments.presets import make
-from jaxeac.running.batch import RunConfig, run_seeds, seed_key, trial_randoms
+from jaxeac.rng import seed_key, trial_randoms
+from jaxeac.running.batch import run_seeds
+from jaxeac.running.config import RunConfig
 
 PAPER = make("paper")
 RATES = {"alpha": PAPER.alpha, "beta": PAPER.beta, "gamma": PAPER.gamma, "temperature": PAPER.temperature}

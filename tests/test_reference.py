@@ -15,10 +15,12 @@ import pytest
 from conftest import random_map_text
 from reference import reference_run
 
-from jaxeac.envs.grid import GridWorld, get_map, parse_map
-from jaxeac.algorithm.agent import algorithm
+from jaxeac.algorithm.config import algorithm
 from jaxeac.algorithm.memory import BufferMemory, dense_tables
-from jaxeac.running.batch import RunConfig, seed_key, trace_run
+from jaxeac.envs.grid import GridWorld, get_map, parse_map
+from jaxeac.rng import seed_key
+from jaxeac.running.config import RunConfig
+from jaxeac.running.loops import trace_run
 
 VARIANTS = {
     "ac": algorithm("ac"),

@@ -7,19 +7,14 @@ import numpy as np
 import optax
 import pytest
 
+from jaxeac.algorithm.config import algorithm
 from jaxeac.envs.grid import GridWorld, get_map
-from jaxeac.algorithm.agent import algorithm
 from jaxeac.errors import UsageError
-from jaxeac.running.batch import (
-    BatchOutput,
-    RunConfig,
-    empty_results,
-    make_run,
-    narrow_int,
-    run_seeds,
-    seed_key,
-    unpack_output,
-)
+from jaxeac.rng import seed_key
+from jaxeac.running.batch import run_seeds
+from jaxeac.running.config import RunConfig
+from jaxeac.running.loops import make_run
+from jaxeac.running.outputs import BatchOutput, empty_results, narrow_int, unpack_output
 
 ENV = GridWorld(get_map("paper"), 40)
 
@@ -175,7 +170,7 @@ def test_flat_loop_equals_trials_loop(algo, variant, map_seed, lanes):
 def test_step_uniform_is_uniform_and_decorrelated():
     from scipy import stats
 
-    from jaxeac.running.batch import action_counter, seed_words, step_uniform
+    from jaxeac.rng import action_counter, seed_words, step_uniform
 
     words = jax.vmap(seed_words)(jax.vmap(lambda i: seed_key(jax.random.key(0), i))(np.arange(64)))
     counters = action_counter(np.arange(200)[:, None], np.arange(41)[None, :], 40).reshape(-1)
@@ -190,7 +185,7 @@ def test_step_uniform_is_uniform_and_decorrelated():
 def test_default_lanes_per_backend_and_algorithm():
     """CPU: 256 lanes fed from a queue; accelerators: a lane per seed for AC, at most 2^18 for EAC
     (2^15 with the fused kernel)."""
-    from jaxeac.running.batch import default_lanes
+    from jaxeac.running.config import default_lanes
 
     ac, eac = algorithm("ac"), algorithm("eac")
     assert default_lanes(ac, 10_000, "cpu") == default_lanes(eac, 10_000, "cpu") == 256

@@ -38,24 +38,53 @@ the action of a state already in the success buffer changes its slot in place
 at least the number of distinct entries a run writes, both layouts give
 bit-identical runs.
 
-All functions are pure and single-stream (one seed); callers vmap.
+The agent sees one small interface whatever the layout (`Memory`): `success_action`
+and `failure_flags` for E1, `record` after every chance (E4/E6 entries), `end_trial`
+when a trial ends, and `policy_actions` for G7. The layout-specific functions below
+implement it. All functions are pure and single-stream (one seed); callers vmap.
 """
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import Literal, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
 
+from jaxeac.algorithm.config import MEMORY_LAYOUTS
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass, static_field
 
 Layout = Literal["dense", "buffer"]
-LAYOUTS = ("dense", "buffer")
+LAYOUTS = MEMORY_LAYOUTS
+
+
+class Memory(Protocol):
+    """What the agent asks of a memory layout (E1, E4, E6, G7), whichever it is."""
+
+    def success_action(self, state, trial, outcomes) -> jax.Array:
+        """E1(a): the remembered successful action at `state` during `trial`, or −1."""
+
+    def failure_flags(self, state, trial, outcomes) -> jax.Array:
+        """E1(b): bool [A], the actions flagged failed at `state` during `trial`."""
+
+    def record(self, state, action, chance, trial, outcomes, active, *, remember: bool,
+               flag: jax.Array | None) -> Memory:
+        """After chance `chance` of `trial` (if `active`): note (state, action) for E4 (if
+        `remember`) and, where `flag` (E6 met; None: no failure memory), as a failure candidate."""
+
+    def end_trial(self, length, success, ends, *, remember: bool, flag_failures: bool) -> Memory:
+        """When a trial of `length` chances ends (`ends`), with outcome `success` (E4/E6)."""
+
+    def policy_actions(self, n_states: int, trial, outcomes) -> jax.Array:
+        """int32 [S]: the success action per state in effect during `trial` (−1 where none), G7."""
 
 
 MAX_DENSE_ACTIONS = 24
+
+
+def _success_per_state(memory, n_states: int, trial, outcomes) -> jax.Array:
+    return jax.vmap(lambda s: memory.success_action(s, trial, outcomes))(jnp.arange(n_states))
 
 
 @pytree_dataclass
@@ -66,6 +95,28 @@ class DenseMemory:
     failed: jax.Array  # int32 [S]: bit a set ⇔ action a committed as failed
     failure_pending: jax.Array  # int32 [S]: (stamp + 1) << A | pending failure bits
     n_actions: int = static_field()
+
+    def success_action(self, state, trial, outcomes) -> jax.Array:
+        stamp, pending, committed = _unpack_success(self.success[state])
+        return jnp.where(_ended(stamp, trial, outcomes, success=True), pending, committed)
+
+    def failure_flags(self, state, trial, outcomes) -> jax.Array:
+        return _bits_to_flags(_failure_bits(self, state, trial, outcomes), self.n_actions)
+
+    def record(self, state, action, chance, trial, outcomes, active, *, remember, flag) -> DenseMemory:
+        memory = self
+        if remember:
+            memory = record_visit(memory, state, action, trial, outcomes, active)
+        if flag is not None:
+            memory = record_failure_candidate(memory, state, action, trial, outcomes, flag)
+        return memory
+
+    def end_trial(self, length, success, ends, *, remember, flag_failures) -> DenseMemory:
+        return self  # pending entries take effect through the trial log's outcome
+
+    policy_actions = _success_per_state
+
+
 @pytree_dataclass
 class PackedMemory:
     """E7 dense layout, both memories in one int32 word per state (A ≤ 5; see module docstring).
@@ -82,10 +133,53 @@ class PackedMemory:
     def action_bits(self) -> int:
         return packed_action_bits(self.n_actions)
 
+    def unpack(self, word) -> PackedFields:
+        """The fields of one state's word."""
+        b, n = self.action_bits, self.n_actions
+        amask, fmask = (1 << b) - 1, (1 << n) - 1
+        return PackedFields(
+            stamp=(word >> (2 * b + 2 * n)) - 1,
+            pending=((word >> b) & amask) - 1,
+            committed=(word & amask) - 1,
+            failed=(word >> (2 * b)) & fmask,
+            failed_pending=(word >> (2 * b + n)) & fmask,
+        )
+
+    def pack(self, f: PackedFields):
+        """One state's word from its fields."""
+        b, n = self.action_bits, self.n_actions
+        return (((f.stamp + 1) << (2 * b + 2 * n)) | (f.failed_pending << (2 * b + n))
+                | (f.failed << (2 * b)) | ((f.pending + 1) << b) | (f.committed + 1))
+
+    def _settled(self, state, trial, outcomes):
+        f = self.unpack(self.words[state])
+        return f, settled(f.stamp, trial, outcomes[jnp.maximum(f.stamp, 0)])
+
+    def success_action(self, state, trial, outcomes) -> jax.Array:
+        f, (succeeded, failed) = self._settled(state, trial, outcomes)
+        return packed_in_effect(f, succeeded, failed)[0]
+
+    def failure_flags(self, state, trial, outcomes) -> jax.Array:
+        f, (succeeded, failed) = self._settled(state, trial, outcomes)
+        return _bits_to_flags(packed_in_effect(f, succeeded, failed)[1], self.n_actions)
+
+    def record(self, state, action, chance, trial, outcomes, active, *, remember, flag) -> PackedMemory:
+        return record_packed(self, state, action, trial, outcomes, active, remember,
+                             flag if flag is not None else False)
+
+    def end_trial(self, length, success, ends, *, remember, flag_failures) -> PackedMemory:
+        return self  # pending entries take effect through the trial log's outcome
+
+    policy_actions = _success_per_state
+
 
 @pytree_dataclass
 class BufferMemory:
-    """E7 buffer layout: K (state, action) slots per memory, FIFO when full."""
+    """E7 buffer layout: K (state, action) slots per memory, FIFO when full.
+
+    The trial in progress is kept as a path of C (state, action, E6 flag) entries,
+    written to the slots when the trial ends (Alg. 1 lines 15–28).
+    """
 
     success_states: jax.Array  # int32 [K]
     success_actions: jax.Array  # int32 [K]
@@ -93,9 +187,44 @@ class BufferMemory:
     failure_states: jax.Array  # int32 [K]
     failure_actions: jax.Array  # int32 [K]
     failure_count: jax.Array  # int32 []
+    path_states: jax.Array  # int32 [C], the trial in progress
+    path_actions: jax.Array  # int32 [C]
+    path_flags: jax.Array  # bool [C], E6 met at that chance
+    n_actions: int = static_field()
+
+    def success_action(self, state, trial, outcomes) -> jax.Array:
+        capacity = self.success_states.shape[0]
+        match = _slot_valid(self.success_count, capacity) & (self.success_states == state)
+        return jnp.where(match.any(), self.success_actions[jnp.argmax(match)], -1)
+
+    def failure_flags(self, state, trial, outcomes) -> jax.Array:
+        capacity = self.failure_states.shape[0]
+        match = _slot_valid(self.failure_count, capacity) & (self.failure_states == state)
+        actions = jnp.arange(self.n_actions)
+        return (match[:, None] & (self.failure_actions[:, None] == actions[None, :])).any(0)
+
+    def record(self, state, action, chance, trial, outcomes, active, *, remember, flag) -> BufferMemory:
+        index = jnp.where(active, chance, chance.dtype.type(self.path_states.shape[0]))  # inactive → dropped
+        return self.replace(
+            path_states=self.path_states.at[index].set(state, mode="drop"),
+            path_actions=self.path_actions.at[index].set(action, mode="drop"),
+            path_flags=self.path_flags.at[index].set(flag if flag is not None else False, mode="drop"),
+        )
+
+    def end_trial(self, length, success, ends, *, remember, flag_failures) -> BufferMemory:
+        valid = (jnp.arange(self.path_states.shape[0]) < length) & ends
+        memory = self
+        if remember:
+            memory = write_success(memory, self.path_states, self.path_actions, valid & success)
+        if flag_failures:
+            memory = write_failure(memory, self.path_states, self.path_actions,
+                                   self.path_flags & valid & ~success)
+        return memory
+
+    policy_actions = _success_per_state
 
 
-Memory = DenseMemory | PackedMemory | BufferMemory
+AnyMemory = DenseMemory | PackedMemory | BufferMemory
 
 
 def check_dense_limits(n_actions: int, n_trials: int) -> None:
@@ -122,11 +251,12 @@ def packed_fits(n_actions: int, n_trials: int) -> bool:
 
 
 def init_memory(layout: Layout, n_states: int, n_actions: int, capacity: int,
-                n_trials: int | None = None) -> Memory:
+                n_trials: int | None = None, n_chances: int = 1) -> AnyMemory:
     """Empty memories: no success action anywhere, no failure flag.
 
     The dense layout packs both memories into one word per state when the run's trial
     count `n_trials` is given and fits (`packed_fits`), else uses three words per state.
+    The buffer layout keeps `capacity` slots per memory and a path of `n_chances` entries.
     """
     if layout == "dense" and n_trials is not None and packed_fits(n_actions, n_trials):
         return PackedMemory(words=jnp.zeros((n_states,), jnp.int32), n_actions=n_actions)
@@ -136,49 +266,49 @@ def init_memory(layout: Layout, n_states: int, n_actions: int, capacity: int,
     if layout == "buffer":
         empty = jnp.full((capacity,), -1, jnp.int32)
         zero = jnp.int32(0)
-        return BufferMemory(empty, empty, zero, empty, empty, zero)
+        path = jnp.zeros((n_chances,), jnp.int32)
+        return BufferMemory(empty, empty, zero, empty, empty, zero, path, path,
+                            jnp.zeros((n_chances,), bool), n_actions=n_actions)
     raise ValueError(f"unknown memory layout {layout!r}; choose one of {LAYOUTS}")
+
+
+def settled(stamp, trial, stamp_succeeded) -> tuple[jax.Array, jax.Array]:
+    """(succeeded, failed): whether entries stamped with trial `stamp` are in effect during
+    `trial` because that trial is over and succeeded (E4) or failed (E6); `stamp_succeeded`
+    is that trial's outcome (ignored while the stamp is −1, never visited)."""
+    over = (stamp >= 0) & (stamp < trial)
+    return over & stamp_succeeded, over & ~stamp_succeeded
 
 
 def _ended(stamp: jax.Array, trial: jax.Array, outcomes: jax.Array, success: bool) -> jax.Array:
     """Whether entries stamped with trial `stamp` are in effect during `trial`."""
-    outcome = outcomes[jnp.maximum(stamp, 0)]
-    return (stamp >= 0) & (stamp < trial) & (outcome if success else ~outcome)
+    return settled(stamp, trial, outcomes[jnp.maximum(stamp, 0)])[0 if success else 1]
 
 
 def _slot_valid(count: jax.Array, capacity: int) -> jax.Array:
     return jnp.arange(capacity) < count
 
 
-# --- lookups (E1) -------------------------------------------------------------------------
+def _bits_to_flags(bits, n_actions: int) -> jax.Array:
+    return (bits >> jnp.arange(n_actions)) & 1 == 1
 
 
-def success_action(memory: Memory, state, trial, outcomes) -> jax.Array:
+# --- lookups (E1), whatever the layout ------------------------------------------------------
+
+
+def success_action(memory: AnyMemory, state, trial, outcomes) -> jax.Array:
     """E1(a): the remembered successful action at `state` during `trial`, or −1."""
-    if isinstance(memory, PackedMemory):
-        f = _unpack_packed(memory, memory.words[state])
-        return jnp.where(_ended(f.stamp, trial, outcomes, success=True), f.pending, f.committed)
-    if isinstance(memory, DenseMemory):
-        stamp, pending, committed = _unpack_success(memory.success[state])
-        return jnp.where(_ended(stamp, trial, outcomes, success=True), pending, committed)
-    capacity = memory.success_states.shape[0]
-    match = _slot_valid(memory.success_count, capacity) & (memory.success_states == state)
-    return jnp.where(match.any(), memory.success_actions[jnp.argmax(match)], -1)
+    return memory.success_action(state, trial, outcomes)
 
 
-def failure_flags(memory: Memory, state, trial, outcomes, n_actions: int) -> jax.Array:
+def failure_flags(memory: AnyMemory, state, trial, outcomes) -> jax.Array:
     """E1(b): bool [A], the actions flagged failed at `state` during `trial`."""
-    if isinstance(memory, PackedMemory):
-        f = _unpack_packed(memory, memory.words[state])
-        bits = f.failed | jnp.where(_ended(f.stamp, trial, outcomes, success=False), f.failed_pending, 0)
-        return (bits >> jnp.arange(n_actions)) & 1 == 1
-    if isinstance(memory, DenseMemory):
-        bits = _failure_bits(memory, state, trial, outcomes)
-        return (bits >> jnp.arange(n_actions)) & 1 == 1
-    capacity = memory.failure_states.shape[0]
-    match = _slot_valid(memory.failure_count, capacity) & (memory.failure_states == state)
-    actions = jnp.arange(n_actions)
-    return (match[:, None] & (memory.failure_actions[:, None] == actions[None, :])).any(0)
+    return memory.failure_flags(state, trial, outcomes)
+
+
+def policy_actions(memory: AnyMemory, n_states: int, trial, outcomes) -> jax.Array:
+    """int32 [S]: the success-memory action per state (−1 where none), for G7."""
+    return memory.policy_actions(n_states, trial, outcomes)
 
 
 # --- dense layout: packed words and per-step pending writes ---------------------------------
@@ -231,7 +361,9 @@ def record_failure_candidate(memory: DenseMemory, state, action, trial, outcomes
     )
 
 
-class _Packed(NamedTuple):
+class PackedFields(NamedTuple):
+    """The fields of one `PackedMemory` word."""
+
     stamp: jax.Array  # trial of the last visit, −1 = never
     pending: jax.Array  # success action taken at the last visit in that trial, −1 = none
     committed: jax.Array  # success action in effect before that trial, −1 = none
@@ -239,47 +371,39 @@ class _Packed(NamedTuple):
     failed_pending: jax.Array  # bits of the actions that met E6 in that trial
 
 
-def _unpack_packed(memory: PackedMemory, word) -> _Packed:
-    b, n = memory.action_bits, memory.n_actions
-    amask, fmask = (1 << b) - 1, (1 << n) - 1
-    return _Packed(
-        stamp=(word >> (2 * b + 2 * n)) - 1,
-        pending=((word >> b) & amask) - 1,
-        committed=(word & amask) - 1,
-        failed=(word >> (2 * b)) & fmask,
-        failed_pending=(word >> (2 * b + n)) & fmask,
+def packed_in_effect(f: PackedFields, succeeded, failed) -> tuple[jax.Array, jax.Array]:
+    """(success action or −1, failed-action bits) in effect, given whether the stamped trial
+    is over and `succeeded` / `failed` (`settled`): E1 (a) and (b) for one state."""
+    return jnp.where(succeeded, f.pending, f.committed), f.failed | jnp.where(failed, f.failed_pending, 0)
+
+
+def packed_visit(f: PackedFields, trial, succeeded, failed, pending, failure_bit) -> PackedFields:
+    """A visit in `trial`: E4 and E6 lazily. The state's stamped entries are settled (a success
+    commits its action, a failure its flagged actions); `pending` (the action, or −1 without a
+    success memory) becomes the pending success action and `failure_bit` (1 << action where
+    E6 was met, else 0) joins this trial's pending failed bits."""
+    committed, failed_bits = packed_in_effect(f, succeeded, failed)
+    return PackedFields(
+        stamp=trial,
+        pending=pending,
+        committed=committed,
+        failed=failed_bits,
+        failed_pending=jnp.where(f.stamp == trial, f.failed_pending, 0) | failure_bit,
     )
-
-
-def _pack_packed(memory: PackedMemory, f: _Packed):
-    b, n = memory.action_bits, memory.n_actions
-    return (((f.stamp + 1) << (2 * b + 2 * n)) | (f.failed_pending << (2 * b + n))
-            | (f.failed << (2 * b)) | ((f.pending + 1) << b) | (f.committed + 1))
 
 
 def record_packed(
     memory: PackedMemory, state, action, trial, outcomes, active, remember, flag
 ) -> PackedMemory:
     """E4 and E6 lazily for one step of `trial` (if `active`): `action` becomes the state's
-    pending success action (if `remember`) and, if `flag` (E6 met), a pending failed action.
-
-    A first visit in a new trial settles the previous stamp's entries, whose trial is over:
-    a success commits its action, a failure its flagged actions.
-    """
-    f = _unpack_packed(memory, memory.words[state])
-    same = f.stamp == trial
-    succeeded = _ended(f.stamp, trial, outcomes, success=True)
-    failed_before = _ended(f.stamp, trial, outcomes, success=False)
-    new = _Packed(
-        stamp=jnp.asarray(trial, jnp.int32),
-        pending=jnp.where(remember, action, -1),
-        committed=jnp.where(succeeded, f.pending, f.committed),
-        failed=f.failed | jnp.where(failed_before, f.failed_pending, 0),
-        failed_pending=jnp.where(same, f.failed_pending, 0) | jnp.where(flag, 1 << action, 0),
-    )
+    pending success action (if `remember`) and, if `flag` (E6 met), a pending failed action
+    (`packed_visit`)."""
+    f = memory.unpack(memory.words[state])
+    succeeded, failed = settled(f.stamp, trial, outcomes[jnp.maximum(f.stamp, 0)])
+    new = packed_visit(f, jnp.asarray(trial, jnp.int32), succeeded, failed, jnp.where(remember, action, -1),
+                       jnp.where(flag, 1 << action, 0))
     row = jnp.where(active, state, memory.words.shape[0])  # inactive: dropped write
-    return memory.replace(words=memory.words.at[row].set(
-        _pack_packed(memory, new), mode="drop", unique_indices=True))
+    return memory.replace(words=memory.words.at[row].set(memory.pack(new), mode="drop", unique_indices=True))
 
 
 def with_committed(memory: DenseMemory | PackedMemory, success, failed) -> DenseMemory | PackedMemory:
@@ -291,9 +415,9 @@ def with_committed(memory: DenseMemory | PackedMemory, success, failed) -> Dense
     bits = (jnp.asarray(failed, jnp.int32) << jnp.arange(memory.n_actions)).sum(axis=1)
     if isinstance(memory, PackedMemory):
         none = jnp.full_like(success, -1)
-        f = _Packed(stamp=none, pending=none, committed=success, failed=bits,
-                    failed_pending=jnp.zeros_like(bits))
-        return memory.replace(words=_pack_packed(memory, f))
+        f = PackedFields(stamp=none, pending=none, committed=success, failed=bits,
+                         failed_pending=jnp.zeros_like(bits))
+        return memory.replace(words=memory.pack(f))
     return memory.replace(success=success + 1, failed=bits, failure_pending=jnp.zeros_like(bits))
 
 
@@ -301,8 +425,8 @@ def dense_tables(memory: DenseMemory | PackedMemory, trial, outcomes) -> tuple[j
     """(success int32 [S], failed bool [S, A]): the memory in effect during `trial`."""
     memory, outcomes = jax.tree.map(jnp.asarray, (memory, outcomes))
     states = jnp.arange((memory.words if isinstance(memory, PackedMemory) else memory.success).shape[0])
-    success = jax.vmap(lambda s: success_action(memory, s, trial, outcomes))(states)
-    failed = jax.vmap(lambda s: failure_flags(memory, s, trial, outcomes, memory.n_actions))(states)
+    success = jax.vmap(lambda s: memory.success_action(s, trial, outcomes))(states)
+    failed = jax.vmap(lambda s: memory.failure_flags(s, trial, outcomes))(states)
     return success, failed
 
 
@@ -347,8 +471,3 @@ def write_failure(memory: BufferMemory, states, actions, flag) -> BufferMemory:
         return mem, None
 
     return jax.lax.scan(put, memory, (states, actions, flag))[0]
-
-
-def policy_actions(memory: Memory, n_states: int, trial, outcomes) -> jax.Array:
-    """int32 [S]: the success-memory action per state (−1 where none), for G7."""
-    return jax.vmap(lambda s: success_action(memory, s, trial, outcomes))(jnp.arange(n_states))

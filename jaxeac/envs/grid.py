@@ -203,18 +203,32 @@ class GridWorld:
     def step(self, state: GridState, action: jax.Array) -> GridStep:
         """G4/G5: apply `action`; terminated on reaching the goal, truncated after C chances."""
         s = state.position
-        move = jnp.asarray(self._moves)[s * self.n_actions + action]
-        s_next, bumped = move >> 1, (move & 1) == 1
+        s_next, bumped = decode_move(jnp.asarray(self._moves)[s * self.n_actions + action])
         chance = state.chance + 1
         terminated = s_next == self.map.goal_index
-        reward = jnp.where(bumped, -1.0, jnp.where(terminated, 1.0, 0.0))
         truncated = (~terminated) & (chance >= self.n_chances)
+        reward = move_reward(bumped, terminated)
         return GridStep(GridState(s_next, chance), reward, terminated, truncated, bumped)
 
     def shaped_reward(self, s_next: jax.Array, bumped: jax.Array, goal_known: jax.Array):
-        """E5: r̃ = −1 on a bump; else R_max / (1 + ‖s' − g‖₂) once the goal is known; else 0."""
-        dist = jnp.asarray(self.goal_distance)[s_next]
-        return jnp.where(bumped, -1.0, jnp.where(goal_known, 1.0 / (1.0 + dist), 0.0))
+        """E5 at the cell reached (`shaped_reward`)."""
+        return shaped_reward(jnp.asarray(self.goal_distance)[s_next], bumped, goal_known)
+
+
+def decode_move(move) -> tuple[jax.Array, jax.Array]:
+    """(s', bumped) from an entry ``2·s' + bumped`` of `GridWorld`'s packed move table (G4)."""
+    return move >> 1, (move & 1) == 1
+
+
+def move_reward(bumped, terminated) -> jax.Array:
+    """G4: r = −1 on bumping into an obstacle, +1 on entering the goal, else 0 (also off the grid)."""
+    return jnp.where(bumped, -1.0, jnp.where(terminated, 1.0, 0.0))
+
+
+def shaped_reward(distance, bumped, goal_known) -> jax.Array:
+    """E5: r̃ = −1 on a bump; else R_max / (1 + ‖s' − g‖₂) (R_max = 1, `distance` = ‖s' − g‖₂)
+    once the goal is known; else 0."""
+    return jnp.where(bumped, -1.0, jnp.where(goal_known, 1.0 / (1.0 + distance), 0.0))
 
 
 def _transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

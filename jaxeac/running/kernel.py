@@ -7,9 +7,15 @@ stay in registers, and a chance touches memory only where the agent's state is
 indexed by the seed's cell: its row of p and V (reads at s and s', writes at s), its
 memory word, one entry of its trial log and of its r̃ slots.
 
-It is the same algorithm, step for step: Algorithm 1 with E1–E7 for the grid world,
-the same counter-based random numbers (`step_uniform`, R1) and the same order of
-floating-point operations as `take_chance` / `end_trial` / `_flat_slot`. Tests check
+It is the same algorithm, step for step, and calls the same definitions as the XLA
+loop for every piece of Algorithm 1 (`jaxeac.algorithm`: E1's `restricts`,
+`memory_choice` and `learns`, (3) `td_error`, (2)/(4) `learning_increments`, E6
+`failure_slot`/`failure_met`, the packed memory's `settled`, `packed_in_effect` and
+`packed_visit`, `log_entry`; the grid's `decode_move`, `move_reward` and
+`shaped_reward`; R1's `action_uniform` and `start_index`). What it owns, because it
+holds a block of lanes per action column in registers rather than [A]-vectors:
+loading and storing the seed's row, memory word and log entry, the per-column
+softmax draw (`_sample`), and the flags as per-column bits. Tests check
 that it matches the XLA loop bit for bit on the CPU (Pallas's interpreter runs the
 kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
@@ -28,20 +34,28 @@ import jax
 import jax.numpy as jnp
 
 from jaxeac.algorithm import memory as mem
-from jaxeac.algorithm.agent import RowTables
+from jaxeac.algorithm.agent import (
+    failure_met,
+    failure_slot,
+    learns,
+    log_entry,
+    memory_choice,
+    restricts,
+    td_error,
+)
+from jaxeac.algorithm.tables import RowTables, learning_increments
+from jaxeac.envs.grid import GridWorld, decode_move, move_reward, shaped_reward
+from jaxeac.rng import action_uniform, start_index
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
 
 
 def kernel_unsupported(env: Any, cfg: Any) -> str | None:
-    """Why the fused kernel cannot run this env and config (None: it can)."""
-    from jaxeac.envs.grid import GridWorld
-    from jaxeac.algorithm.agent import resolve_tables
-
+    """Why the fused kernel cannot run this env and (table-resolved) config (None: it can)."""
     agent = cfg.agent
     if not isinstance(env, GridWorld):
         return "the fused kernel runs the grid world only"
-    if resolve_tables(agent.tables) != "rows":
+    if agent.tables != "rows":
         return "the fused kernel needs the rows table layout (tables='rows')"
     if agent.uses_memory and not (agent.memory == "dense"
                                    and mem.packed_fits(env.n_actions, cfg.trials)):
@@ -80,8 +94,6 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
-    from jaxeac.running.batch import action_counter, start_index, step_uniform
-
     agent = cfg.agent
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
     n_in = 9
@@ -101,78 +113,57 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         position, env_chance, trial_now, c, goal_known, prev_length = carry
         active = trial_now < n_trials
         trial = jnp.minimum(trial_now, n_trials - 1)
-        u = step_uniform(words, action_counter(trial, c, n_chances))
+        u = action_uniform(words, trial, c, n_chances)
         s = position
         prefs = [rows[lane, s, a] for a in range(n_actions)]
         value = rows[lane, s, n_actions]
         logits = [p / temperature for p in prefs]
-        allowed = None  # all actions
-        from_memory = None  # E2: whether a memory chose or restricted the action (None: never)
+        allowed = restricted = remembered = None  # None: no restriction / no such memory
         if packed is not None:  # E1 (a), (b) from the seed's memory word at s
-            f = mem._unpack_packed(packed, state["memory"][lane, s])
-            outcome = log[lane, jnp.maximum(f.stamp, 0)] > 0
-            settled = (f.stamp >= 0) & (f.stamp < trial_now)
-            succeeded, failed_before = settled & outcome, settled & ~outcome
+            f = packed.unpack(state["memory"][lane, s])
+            succeeded, failed = mem.settled(f.stamp, trial_now, log[lane, jnp.maximum(f.stamp, 0)] > 0)
+            remembered, bits = mem.packed_in_effect(f, succeeded, failed)
         if agent.failure_memory:
-            bits = f.failed | jnp.where(failed_before, f.failed_pending, 0)
             flags = [(bits >> a) & 1 == 1 for a in range(n_actions)]
             n_flagged = functools.reduce(lambda n, x: n + x.astype(jnp.int32), flags[1:],
                                          flags[0].astype(jnp.int32))
-            restrict = (n_flagged > 0) & (n_flagged < n_actions)
-            allowed = [restrict & ~x | ~restrict for x in flags]
-            from_memory = restrict
-        action = _sample(logits, allowed, u)
-        if agent.success_memory:
-            remembered = jnp.where(succeeded, f.pending, f.committed)
-            has_success = remembered >= 0
-            action = jnp.where(has_success, remembered, action)
-            from_memory = has_success if from_memory is None else from_memory | has_success
-        learn = active if agent.learn_on_memory_steps or from_memory is None else active & ~from_memory
+            restricted = restricts(n_flagged, n_actions)
+            allowed = [restricted & ~x | ~restricted for x in flags]
+        action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
+        learn = learns(agent, from_memory, active)
 
-        # G4/G5: the move (`GridWorld.step`)
-        move = moves_ref[s * n_actions + action]
-        s_next, bumped = move >> 1, (move & 1) == 1
+        s_next, bumped = decode_move(moves_ref[s * n_actions + action])  # G4/G5 (`GridWorld.step`)
         terminated = s_next == env.map.goal_index
-        reward = jnp.where(bumped, -1.0, jnp.where(terminated, 1.0, 0.0))
+        reward = move_reward(bumped, terminated)
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
 
         # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
-        next_value = rows[lane, s_next, n_actions]
-        delta = reward + gamma * jnp.where(terminated, 0.0, next_value) - value
-        step = jnp.where(learn, delta, 0.0)
+        delta = td_error(reward, value, rows[lane, s_next, n_actions], gamma, terminated)
+        actor, critic = learning_increments(delta, learn, alpha, beta)
         taken = functools.reduce(lambda acc, a: jnp.where(action == a, prefs[a], acc),
                                  range(1, n_actions), prefs[0])
-        put(rows.at[lane, s, action], taken + beta * step)
-        put(rows.at[lane, s, n_actions], value + alpha * step)
+        put(rows.at[lane, s, action], taken + actor)
+        put(rows.at[lane, s, n_actions], value + critic)
 
         # E5 and the records of `record_step`
         goal_known = goal_known | (active & terminated).astype(jnp.int32)
-        distance = dist_ref[s_next]
-        shaped = jnp.where(bumped, -1.0, jnp.where(goal_known == 1, 1.0 / (1.0 + distance), 0.0))
+        shaped = shaped_reward(dist_ref[s_next], bumped, goal_known == 1)
         flag = None
         if agent.failure_memory:  # E6
-            if agent.failure_rule == "previous_trial":
-                before = rtilde[lane, jnp.minimum(c, n_chances - 1)]
-                flag = active & (c < prev_length) & (shaped < before)
-            else:
-                before = rtilde[lane, jnp.maximum(c - 1, 0)]
-                flag = active & (c >= 1) & (shaped < before)
+            before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
+            flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
             put(rtilde.at[lane, jnp.minimum(c, n_chances - 1)], shaped, active)
-        if packed is not None:  # `record_packed`
-            new = mem._Packed(
-                stamp=trial_now,
-                pending=action if agent.success_memory else jnp.full_like(action, -1),
-                committed=jnp.where(succeeded, f.pending, f.committed),
-                failed=f.failed | jnp.where(failed_before, f.failed_pending, 0),
-                failed_pending=jnp.where(f.stamp == trial_now, f.failed_pending, 0)
-                | (0 if flag is None else jnp.where(flag, 1 << action, 0)),
-            )
-            put(state["memory"].at[lane, s], mem._pack_packed(packed, new), active)
+        if packed is not None:  # `PackedMemory.record`
+            new = mem.packed_visit(
+                f, trial_now, succeeded, failed,
+                action if agent.success_memory else jnp.full_like(action, -1),
+                0 if flag is None else jnp.where(flag, 1 << action, 0))
+            put(state["memory"].at[lane, s], packed.pack(new), active)
         c = c + active.astype(jnp.int32)
 
-        # `end_trial` and the next trial's start (`_flat_slot`)
+        # `end_trial` and the next trial's start (`flat_slot`)
         ends = active & (terminated | truncated)
-        put(log.at[lane, jnp.minimum(trial_now, n_trials - 1)], jnp.where(terminated, c, -c), ends)
+        put(log.at[lane, jnp.minimum(trial_now, n_trials - 1)], log_entry(terminated, c), ends)
         prev_length = jnp.where(ends, c, prev_length)
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
@@ -192,7 +183,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
 def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     """C chances of every lane of ``run`` (a `_FlatCarry` with leaves [L, ...]) in one kernel.
 
-    Same result as C applications of the vmapped `_flat_slot` (see the module docstring).
+    Same result as C applications of the vmapped `flat_slot` (see the module docstring).
     """
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu

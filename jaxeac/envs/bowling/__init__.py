@@ -38,7 +38,6 @@ Public API::
 
 from .api import DEFAULT_CONFIG, throw
 from .backend_mjx import make_mjx_throw
-from .throw_command import throw_command
 from .render import render_deck
 from .scene import (
     BACKENDS,
@@ -53,6 +52,7 @@ from .scene import (
     initial_pins,
     throw_noise,
 )
+from .throw_command import throw_command
 
 __all__ = [
     "BACKENDS",

@@ -1,0 +1,125 @@
+"""A run's configuration and the one place where every `auto` setting is decided.
+
+`RunConfig` holds what defines one algorithm's run: static structure (trials, the
+agent's `AgentConfig`, loop, kernel, lanes) and rates (constants, traced as `Hyper`,
+or optax schedules). `RunConfig.resolve` fixes every `auto` choice — table layout,
+loop, kernel, lanes per device — for a backend and a chunk size, once, before
+tracing; the traced code only reads resolved values, and a run records them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+import jax
+import jax.numpy as jnp
+
+from jaxeac.algorithm.config import AgentConfig, Hyper, Rate
+from jaxeac.errors import UsageError
+
+Loop = Literal["auto", "flat", "trials"]
+LOOPS = ("auto", "flat", "trials")
+Kernel = Literal["auto", "xla", "pallas"]
+KERNELS = ("auto", "xla", "pallas")
+
+CPU_LANES = 256  # per core: the lanes' tables stay in the core's cache (BENCHMARKS.md)
+ACCELERATOR_MEMORY_LANES = 1 << 18  # EAC on GPUs, XLA ops: a queue beats a lane per seed (BENCHMARKS.md)
+KERNEL_MEMORY_LANES = 1 << 15  # EAC on GPUs, fused kernel: few lanes keep hot rows in cache (BENCHMARKS.md)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """One algorithm's run: trial count, step sizes (constant or optax schedule), agent, loop."""
+
+    trials: int
+    agent: AgentConfig
+    alpha: Rate = 0.1
+    beta: Rate = 0.3
+    gamma: float = 0.9
+    temperature: float = 1.0
+    loop: Loop = "auto"
+    lanes: int | None = None  # flat loop: seeds in flight per device; None: `default_lanes`
+    kernel: Kernel = "auto"  # flat loop's chances: the fused kernel (GPUs) or XLA ops; `resolved_kernel`
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise UsageError(f"unknown kernel {self.kernel!r}; choose one of {KERNELS}")
+        if self.loop not in LOOPS:
+            raise UsageError(f"unknown loop {self.loop!r}; choose one of {LOOPS}")
+
+    def hyper(self) -> Hyper:
+        """The traced constants (a scheduled rate's traced slot is unused)."""
+        def const(x):
+            return jnp.asarray(0.0 if callable(x) else x, dtype=float)
+
+        return Hyper(const(self.alpha), const(self.beta), const(self.gamma), const(self.temperature))
+
+    @property
+    def resolved_loop(self) -> Literal["flat", "trials"]:
+        """`auto`: flat unless the buffer layout needs trial-end writes."""
+        if self.loop != "auto":
+            return self.loop
+        buffered = self.agent.uses_memory and self.agent.memory == "buffer"
+        return "trials" if buffered else "flat"
+
+    @property
+    def is_resolved(self) -> bool:
+        return self.agent.tables != "auto" and self.loop != "auto" and self.kernel != "auto"
+
+    def resolve(self, env: Any = None, n_entries: int | None = None, backend: str | None = None) -> RunConfig:
+        """Every `auto` decided for `backend` (default: JAX's): tables, loop, kernel, and lanes for a
+        chunk of `n_entries` seeds (lanes stay None without it). Idempotent."""
+        backend = backend or jax.default_backend()
+        cfg = dataclasses.replace(self, agent=self.agent.resolve(backend), loop=self.resolved_loop)
+        cfg = dataclasses.replace(cfg, kernel=resolved_kernel(env, cfg, backend))
+        if cfg.lanes is None and n_entries is not None and cfg.loop == "flat":
+            cfg = dataclasses.replace(cfg, lanes=default_lanes(cfg.agent, n_entries, backend, cfg.kernel))
+        return cfg
+
+    def describe(self) -> dict:
+        """The settings as plain values (for summary.json): schedules by name."""
+        def rate(x):
+            return x if not callable(x) else getattr(x, "__name__", "schedule")
+
+        return {"trials": self.trials, "agent": dataclasses.asdict(self.agent), "alpha": rate(self.alpha),
+                "beta": rate(self.beta), "gamma": self.gamma, "temperature": self.temperature,
+                "loop": self.loop, "lanes": self.lanes, "kernel": self.kernel}
+
+
+def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:
+    """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.running.kernel`)
+    or ``xla``. `auto`: the kernel on GPUs where it supports the env and config, XLA ops
+    otherwise. ``pallas`` asks for the kernel anywhere; off GPUs it runs in Pallas's (slow)
+    interpreter."""
+    from jaxeac.running.kernel import kernel_unsupported
+
+    if cfg.kernel == "xla":
+        return "xla"
+    backend = backend or jax.default_backend()
+    why = kernel_unsupported(env, dataclasses.replace(cfg, agent=cfg.agent.resolve(backend)))
+    if cfg.resolved_loop != "flat":
+        why = "the fused kernel runs the flat loop (the buffer memory needs the trials loop)"
+    if cfg.kernel == "pallas":
+        if why is not None:
+            raise UsageError(f"{why}; use kernel='xla' (or 'auto')")
+        return "pallas"
+    return "pallas" if why is None and backend == "gpu" else "xla"
+
+
+def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None,
+                  kernel: Literal["xla", "pallas"] = "xla") -> int:
+    """Seeds in flight per device when `RunConfig.lanes` is None (measured in BENCHMARKS.md).
+
+    CPU: 256 lanes fed from a queue. Accelerators: a lane per seed for the classic
+    AC. With memories (EAC), trials end early and unevenly and a learned seed keeps
+    to a few cells, so fewer lanes fed from a queue run faster: 2^18 with XLA ops
+    (1.31x a lane per seed at 4M seeds on one H100) and 2^15 with the fused kernel
+    (1.9x its 2^18).
+    """
+    backend = backend or jax.default_backend()
+    if backend == "cpu":
+        return CPU_LANES
+    if agent.uses_memory:
+        return min(n_entries, KERNEL_MEMORY_LANES if kernel == "pallas" else ACCELERATOR_MEMORY_LANES)
+    return n_entries

@@ -1,0 +1,271 @@
+"""One seed's run as one compiled loop, in two structures with bit-identical results (tested).
+
+* ``trials`` — `trace_run`: a `lax.scan` over trials, each a `lax.scan` over C
+  chances, masked once the trial has ended. The literal shape of Algorithm 1;
+  needed by the buffer memory layout, whose writes happen at trial ends.
+* ``flat`` — the fast path: all lanes of a chunk advance one *chance* per
+  iteration and a seed whose trial ends starts its next trial at the next
+  iteration, so trials that end early (EAC's, mostly) leave no padded slots; with
+  fewer lanes than seeds, lanes take waiting seeds from a queue. On GPUs the C
+  chances of a block run as one fused kernel (`jaxeac.running.kernel`).
+
+A chance is `choose` (E1 with the seed's uniform, R1), the environment's move, and
+`learn_and_record` ((2)–(4), E5/E6 records); bowling calls the same two functions.
+All take a resolved `RunConfig` (`RunConfig.resolve`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+
+from jaxeac.algorithm.agent import (
+    AgentState,
+    end_trial,
+    greedy_policy,
+    init_agent,
+    learn_step,
+    record_step,
+    select_action,
+)
+from jaxeac.algorithm.config import Hyper, rate_at
+from jaxeac.pytree import pytree_dataclass
+from jaxeac.rng import action_uniform, seed_words, start_index
+from jaxeac.running.config import RunConfig
+from jaxeac.running.outputs import BatchOutput, SeedResult, pack_output
+
+
+class Env(Protocol):
+    """What the loops need from a tabular environment (the grid world satisfies it)."""
+
+    n_states: int
+    n_actions: int
+    n_chances: int
+    n_starts: int
+
+    def reset_at(self, start_index: jax.Array) -> Any: ...
+    def observation(self, state: Any) -> jax.Array: ...
+    def step(self, state: Any, action: jax.Array) -> Any: ...
+    def shaped_reward(self, s_next, bumped, goal_known) -> jax.Array: ...
+
+
+@pytree_dataclass
+class TrialRecord:
+    """What one trial leaves behind (per chance: state, action, r̃; and totals)."""
+
+    states: jax.Array  # int32 [C]
+    actions: jax.Array  # int32 [C]
+    rtilde: jax.Array  # float [C]
+    length: jax.Array  # int32 [], chances actually used
+    success: jax.Array  # bool []
+
+
+def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chances: int, active):
+    """E1 at `state` with the uniform of (trial, chance) of this seed (R1); (action, learns) (E2)."""
+    trial = jnp.minimum(agent.trial, cfg.trials - 1)
+    u = action_uniform(words, trial, agent.chance, n_chances)
+    return select_action(cfg.agent, agent, state, u, hyper, active)
+
+
+def learn_and_record(cfg: RunConfig, agent: AgentState, state, action, learns, reward, next_state,
+                     terminated, rtilde, active, hyper: Hyper) -> AgentState:
+    """After a chance: (2)–(4) on the transition where `learns` (E2), then r̃ and the memory
+    records (E4–E6) where `active`, with the step sizes of the current trial."""
+    trial = jnp.minimum(agent.trial, cfg.trials - 1)
+    agent = learn_step(
+        agent, state, action, reward, next_state, terminated, learns,
+        rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
+    )
+    return record_step(cfg.agent, agent, state, action, rtilde, active)
+
+
+def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, hyper: Hyper, active):
+    """Alg. 1 lines 4–14 for one chance, if `active`: E1 choice, move, (2)–(4), r̃ (E5), records.
+
+    Returns (agent, step, state, action, r̃).
+    """
+    s = env.observation(env_state)
+    action, learns = choose(cfg, agent, s, words, hyper, env.n_chances, active)
+    step = env.step(env_state, action)
+    s_next = env.observation(step.state)
+    goal_known = agent.goal_known | (active & step.terminated)  # E5: this step included
+    rtilde = env.shaped_reward(s_next, step.bumped, goal_known)
+    agent = learn_and_record(cfg, agent.replace(goal_known=goal_known), s, action, learns, step.reward,
+                             s_next, step.terminated, rtilde, active, hyper)
+    return agent, step, s, action, rtilde
+
+
+# --- the `trials` loop: literal Algorithm 1 structure -----------------------------------------
+
+
+@pytree_dataclass
+class _ChanceCarry:
+    env_state: Any
+    agent: AgentState
+    done: jax.Array
+
+
+def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words):
+    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6."""
+    trial = agent.trial
+    n_chances = env.n_chances
+
+    def chance(carry: _ChanceCarry, c):
+        live = ~carry.done
+        agent, step, s, action, rtilde = take_chance(env, cfg, carry.agent, carry.env_state, words, hyper,
+                                                     live)
+        env_state = jax.tree.map(lambda new, old: jnp.where(live, new, old), step.state, carry.env_state)
+        done = carry.done | step.terminated | step.truncated
+        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.terminated)
+
+    start = env.reset_at(start_index(words, trial, n_chances, env.n_starts))
+    end, (states, actions, rtilde, live, reached) = jax.lax.scan(
+        chance, _ChanceCarry(start, agent, jnp.bool_(False)), jnp.arange(n_chances)
+    )
+    record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any())
+    agent = end_trial(cfg.agent, end.agent, record.success, jnp.bool_(True))
+    return agent, record
+
+
+def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, TrialRecord]:
+    """One seed's run with the `trials` loop, keeping the final agent and every trial's record."""
+    cfg = cfg.resolve(env)
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    words = seed_words(key)
+    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words), agent, None, length=cfg.trials)
+
+
+def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResult]:
+    """Build ``run(seed_key, hyper) -> SeedResult`` for one seed (the `trials` loop)."""
+    cfg = cfg.resolve(env)
+
+    def run(key: jax.Array, hyper: Hyper) -> SeedResult:
+        agent, records = trace_run(env, cfg, key, hyper)
+        return SeedResult(records.success, records.length, greedy_policy(cfg.agent, agent))
+
+    return run
+
+
+# --- the `flat` loop: one chance per iteration, trials back to back ----------------------------
+
+
+@pytree_dataclass
+class _FlatCarry:
+    agent: AgentState
+    env_state: Any
+
+
+def flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    start = env.reset_at(start_index(words, 0, env.n_chances, env.n_starts))
+    return _FlatCarry(agent, start)
+
+
+def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) -> _FlatCarry:
+    """One chance of one seed; a trial that ends here is closed and the next one started."""
+    agent = carry.agent
+    active = agent.trial < cfg.trials
+    agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, words, hyper, active)
+    ends = active & (step.terminated | step.truncated)
+    agent = end_trial(cfg.agent, agent, step.terminated, ends)
+    nxt = jnp.minimum(agent.trial, cfg.trials - 1)
+    start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
+    env_state = jax.tree.map(
+        lambda fresh, moved, old: jnp.where(ends, fresh, jnp.where(active, moved, old)),
+        start, step.state, carry.env_state,
+    )
+    return _FlatCarry(agent, env_state)
+
+
+@pytree_dataclass
+class _Lane:
+    """One lane of the flat loop: the run of the seed it holds, and which entry that is."""
+
+    run: _FlatCarry
+    words: jax.Array  # uint32 [2]
+    hyper: Hyper
+    entry: jax.Array  # int32 [], index into the batch; ≥ M once the lane is idle
+
+
+def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
+    """All entries of a chunk (``words`` [M, 2], ``hyper`` leaves [M]) on min(M, lanes) lanes.
+
+    Lanes advance one chance per iteration. With a lane per entry, blocks of C
+    iterations run until every seed has run T trials and results are read out once.
+    With fewer lanes, every C iterations lanes whose seed has run T trials (up to
+    `harvest` of them) write its result and take the next waiting seed, so lanes stay
+    busy until the queue is empty (a seed's result does not depend on its lane, R1).
+    """
+    m = words.shape[0]
+    cfg = cfg.resolve(env, m)  # a no-op for a config resolved before tracing
+    n_lanes = min(m, cfg.lanes)
+    slot = jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h))
+    if cfg.kernel == "pallas":
+        from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
+
+        n_lanes = -(-n_lanes // LANES_PER_PROGRAM) * LANES_PER_PROGRAM  # whole programs; extra lanes idle
+        interpret = jax.default_backend() != "gpu"
+
+        def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, one kernel
+            return advance_chances(env, cfg, run, w, h, interpret=interpret)
+    else:
+        def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, XLA ops
+            return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, w, h), run)
+    policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
+
+    def start(entry) -> _Lane:  # a lane for `entry`; entries ≥ M give an idle lane
+        i = jnp.minimum(entry, m - 1)
+        w, h = words[i], jax.tree.map(lambda x: x[i], hyper)
+        return _Lane(flat_init(env, cfg, w), w, h, entry)
+
+    if n_lanes >= m:  # every entry has a lane from the start: no queue, read results out once
+        pad = jnp.minimum(jnp.arange(n_lanes), m - 1)  # lanes past M rerun the last entry, dropped
+        lane_words, lane_hyper = words[pad], jax.tree.map(lambda x: x[pad], hyper)
+
+        def unfinished(run: _FlatCarry):
+            return (run.agent.trial < cfg.trials).any()
+
+        def chances(run: _FlatCarry):
+            return advance(run, lane_words, lane_hyper)
+
+        first = jax.vmap(lambda w: flat_init(env, cfg, w))(lane_words)
+        agent = jax.lax.while_loop(unfinished, chances, first).agent
+        return pack_output(env, agent.log[:m], policies(agent)[:m])
+
+    lanes = jax.vmap(start)(jnp.arange(n_lanes))
+    out = pack_output(env, jnp.zeros((m, cfg.trials), jnp.int32), jnp.zeros((m, env.n_states), jnp.int32))
+
+    # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
+    # greedy policies, fresh lanes) stays small next to the block's C chances.
+    harvest = max(1, n_lanes // 8)
+
+    def block(carry):
+        lanes, out, queued = carry
+        run = advance(lanes.run, lanes.words, lanes.hyper)
+        done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
+        (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
+        got = idx < n_lanes
+        lane = jnp.minimum(idx, n_lanes - 1)
+        finished = jax.tree.map(lambda x: x[lane], run)
+        row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
+        done_out = pack_output(env, finished.agent.log, policies(finished.agent))
+        out = jax.tree.map(lambda a, new: a.at[row].set(new, mode="drop"), out, done_out)
+        nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
+        take = got & (nxt < m)
+        fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
+        target = jnp.where(take, idx, n_lanes)
+        lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
+        idle = jnp.where(got & ~take, idx, n_lanes)
+        lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
+        return lanes, out, queued + take.sum(dtype=jnp.int32)
+
+    _, out, _ = jax.lax.while_loop(lambda c: (c[0].entry < m).any(), block, (lanes, out, jnp.int32(n_lanes)))
+    return out
+
+
+def trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
+    r = jax.vmap(make_run(env, cfg))(keys, hyper)
+    return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy)
