@@ -35,6 +35,8 @@ def _stand_in(old: str, new: tuple[str, ...]) -> types.ModuleType:
     module = types.ModuleType(old, f"Deprecated: moved to {', '.join(new)}.")
 
     def __getattr__(name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
         for target in new:
             try:
                 mod = importlib.import_module(target)

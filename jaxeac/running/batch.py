@@ -21,7 +21,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxeac.algorithm.config import Hyper
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
-from jaxeac.running.config import RunConfig
+from jaxeac.running.config import RunConfig, auto_chunk_size
 from jaxeac.running.loops import Env, flat_batch, trials_batch
 from jaxeac.running.outputs import BatchOutput, SeedResult, SeedsResult, empty_results, unpack_output
 
@@ -60,6 +60,14 @@ def chunks(n_seeds: int, chunk_size: int) -> Iterator[np.ndarray]:
         yield np.arange(start, min(start + chunk_size, n_seeds), dtype=np.int32)
 
 
+def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
+    """The chunk size actually run: N split evenly into ceil(N / chunk_size) chunks (no chunk is
+    mostly padding), rounded up to a multiple of the device count."""
+    n_chunks = -(-n // chunk_size)
+    even = -(-n // n_chunks)
+    return -(-even // n_devices) * n_devices
+
+
 _COMPILED: dict = {}
 
 
@@ -85,14 +93,15 @@ def run_entries(
     root_key: int,
     seeds: np.ndarray,
     hyper: Hyper,
-    chunk_size: int = 1024,
+    chunk_size: int | None = None,
     devices: Sequence[jax.Device] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> tuple[SeedResult, float, float]:
     """Run entries (seed i, hyper i) in fixed-size chunks: one compile, bounded memory.
 
     `hyper` leaves have one value per entry, so a hyperparameter sweep shares one
-    compiled program. Chunks are split over `devices` (all local devices by default);
+    compiled program. `chunk_size` None: `auto_chunk_size` for the devices.
+    Chunks are split over `devices` (all local devices by default);
     the chunk size is rounded up to a multiple of their number, and the last chunk is
     padded with copies of its final entry whose results are dropped. Returns
     (results as numpy, compile seconds, run seconds).
@@ -100,13 +109,12 @@ def run_entries(
     n = int(seeds.size)
     if n < 1:
         raise UsageError(f"seeds must be a positive integer (got {n})")
+    devices = list(devices) if devices is not None else jax.local_devices()
+    if chunk_size is None:
+        chunk_size = auto_chunk_size(env, cfg, n, devices)
     if chunk_size < 1:
         raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
-    devices = list(devices) if devices is not None else jax.local_devices()
-    n_dev = len(devices)
-    n_chunks = -(-n // chunk_size)
-    chunk_size = -(-n // n_chunks)  # split evenly: no chunk is mostly padding
-    chunk_size = -(-chunk_size // n_dev) * n_dev
+    chunk_size = even_chunk(n, chunk_size, len(devices))
     root = jax.random.key(root_key)
     hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
 
@@ -160,15 +168,21 @@ def run_seeds(
     root_key: int,
     n_seeds: int,
     first_seed: int = 0,
-    chunk_size: int = 1024,
+    chunk_size: int | None = None,
     hyper: Hyper | None = None,
     devices: Sequence[jax.Device] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> SeedsResult:
-    """Run seeds first_seed … first_seed+N−1 of one algorithm (see `run_entries`)."""
+    """Run seeds first_seed … first_seed+N−1 of one algorithm (see `run_entries`); the result
+    records the chunk size and the resolved config (`RunConfig.resolve`) the run used."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
+    devices = list(devices) if devices is not None else jax.local_devices()
+    if chunk_size is None:
+        chunk_size = auto_chunk_size(env, cfg, int(n_seeds), devices)
+    chunk_size = even_chunk(int(n_seeds), chunk_size, len(devices))
+    resolved = cfg.resolve(env, chunk_size // len(devices), devices[0].platform)
     out, compile_seconds, run_seconds = run_entries(
         env, cfg, root_key=root_key, seeds=seeds, hyper=cfg.hyper() if hyper is None else hyper,
         chunk_size=chunk_size, devices=devices, progress=progress,
@@ -180,4 +194,6 @@ def run_seeds(
         policy=out.policy,
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
+        settings={**resolved.describe(), "chunk_size": int(chunk_size), "devices": len(devices),
+                  "backend": devices[0].platform},
     )

@@ -23,6 +23,8 @@ LOOPS = ("auto", "flat", "trials")
 Kernel = Literal["auto", "xla", "pallas"]
 KERNELS = ("auto", "xla", "pallas")
 
+CPU_CHUNK = 1 << 14  # seeds per chunk on CPUs: progress every few seconds, small outputs in flight
+GPU_CHUNK_PER_DEVICE = 1 << 20  # seeds per chunk and GPU: saturates one H100 (BENCHMARKS.md)
 CPU_LANES = 256  # per core: the lanes' tables stay in the core's cache (BENCHMARKS.md)
 ACCELERATOR_MEMORY_LANES = 1 << 18  # EAC on GPUs, XLA ops: a queue beats a lane per seed (BENCHMARKS.md)
 KERNEL_MEMORY_LANES = 1 << 15  # EAC on GPUs, fused kernel: few lanes keep hot rows in cache (BENCHMARKS.md)
@@ -123,3 +125,26 @@ def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None
     if agent.uses_memory:
         return min(n_entries, KERNEL_MEMORY_LANES if kernel == "pallas" else ACCELERATOR_MEMORY_LANES)
     return n_entries
+
+
+def auto_chunk_size(env: Any, cfg: RunConfig, n_entries: int, devices) -> int:
+    """Seeds per chunk when none is given: `CPU_CHUNK` on CPUs; on accelerators
+    `GPU_CHUNK_PER_DEVICE` per device, fewer where the run's state would not fit in half the
+    device's free memory. Results do not depend on it (R1)."""
+    from jaxeac.running.loops import state_bytes_per_seed
+
+    devices = list(devices)
+    if devices[0].platform == "cpu":
+        return max(1, min(n_entries, CPU_CHUNK))
+    per_device = GPU_CHUNK_PER_DEVICE
+    stats = devices[0].memory_stats() or {}
+    free = stats.get("bytes_limit", 0) - stats.get("bytes_in_use", 0)
+    if free > 0:
+        resolved = cfg.resolve(env, per_device, devices[0].platform)
+        lanes = resolved.lanes or per_device
+        state = state_bytes_per_seed(env, resolved)
+        out_bytes = cfg.trials + env.n_states * 4  # log and policy, at most 1 + 4 bytes each
+        need = lambda m: min(m, lanes) * state + m * out_bytes  # noqa: E731
+        while per_device > 1024 and need(per_device) > free // 2:
+            per_device //= 2
+    return max(1, min(n_entries, per_device * len(devices)))

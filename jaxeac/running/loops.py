@@ -269,3 +269,12 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
 def trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
     r = jax.vmap(make_run(env, cfg))(keys, hyper)
     return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy)
+
+
+def state_bytes_per_seed(env: Env, cfg: RunConfig) -> int:
+    """Bytes of one lane's state in the flat loop (tables, memory, log, r̃, counters)."""
+    import numpy as np
+
+    cfg = cfg.resolve(env)
+    shapes = jax.eval_shape(lambda w: flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
+    return int(sum(np.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(shapes)))

@@ -85,6 +85,7 @@ class SeedsResult:
     policy: np.ndarray  # int32 [N, S]
     compile_seconds: float
     run_seconds: float
+    settings: dict | None = None  # how it ran: the resolved `RunConfig`, chunk size, devices
 
     @property
     def successes(self) -> np.ndarray:
