@@ -231,6 +231,7 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
                 quiet=False) -> int:
+    from jaxeac.fmt import p_value
     from jaxeac.stats import compare_run_dir
 
     result = compare_run_dir(run_dir, baseline=baseline, treatment=treatment, resamples=resamples,
@@ -239,13 +240,10 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
     lo, hi = p["diff_ci95"]
     print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
           f"(95% BCa CI [{lo:+.3f}, {hi:+.3f}]), "
-          f"Welch p = {_p(p['p_welch'])}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
+          f"Welch p = {p_value(p['p_welch'], 3, sci_below=None, general=True)}, "
+          f"Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
     print(f"report in {run_dir}/report.md")
     return 0
-
-
-def _p(value: float) -> str:
-    return f"{value:.3g}" if value >= 1e-16 else "< 1e-16"
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

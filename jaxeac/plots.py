@@ -16,6 +16,7 @@ import numpy as np  # noqa: E402
 from scipy import stats as sps  # noqa: E402
 
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap  # noqa: E402
+from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
 
 COLORS = {"ac": "tab:blue", "eac": "tab:red"}
 LABELS = {"ac": "AC", "eac": "EAC"}
@@ -37,7 +38,7 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
             lo, hi = np.percentile(cum, [5, 95], axis=0)
             ax.plot(trials, lo, color=color, lw=0.6, ls=":")
             ax.plot(trials, hi, color=color, lw=0.6, ls=":")
-        if paper and algo in paper and t == 200:
+        if paper and algo in paper and t == GRID_TRIALS:
             ax.plot([t], [paper[algo]], marker="*", ms=12, color=color, ls="none",
                     label=f"paper's single {LABELS.get(algo, algo)} run: {paper[algo]}")
     ax.set_xlabel("trial")
@@ -208,7 +209,8 @@ def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict |
 
 
 def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, str] = ("preset", "chances"),
-                          axes: tuple[str, str] = ("alpha", "beta"), target: float = 56.0,
+                          axes: tuple[str, str] = ("alpha", "beta"),
+                          target: float = float(GRID_SUCCESSES["ac"]),
                           tolerance: float = 5.0):
     """EAC − AC mean successes over a sweep: one small heatmap per (facet values), axes[0] × axes[1].
 

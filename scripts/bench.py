@@ -1,12 +1,16 @@
-"""Grid-world throughput of jaxeac against a hand-vectorised NumPy peer, in the same run.
+"""Grid-world throughput of jaxeac against same-run peers: NumPy, C (OpenMP) and numba.
 
 Measures, for AC and EAC on the paper preset (SPEC G6) and each seed count:
 compile seconds, run seconds, *useful* agent-steps per second (steps actually
-taken, learning and memories included), bytes of state per seed, and the NumPy
-peer's rate on the same work (a ratio, since machines are noisy). Writes JSON;
+taken, learning and memories included), bytes of state per seed, and the peers'
+rates on the same work (ratios, since machines are noisy). The NumPy peer
+(``--numpy-seeds``) gets rows of its own; the C peer (``--c-peer``, built with the
+system C compiler, skipped without one) and the numba peer (``--numba-peer``, the
+``bench`` extra) run right after each jaxeac row at its seed count and add
+``c_steps_per_s`` / ``jaxeac_over_c`` (and ``numba_…``) to it. Writes JSON;
 ``--render`` turns one or more JSON files into the tables of BENCHMARKS.md.
 
-    python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 \
+    python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 --c-peer --numba-peer \
         --out scripts/bench_results/cpu.json
     python scripts/bench.py --render scripts/bench_results/*.json
 """
@@ -57,18 +61,20 @@ def state_bytes_per_seed(env, cfg) -> int:
     """Bytes of the per-seed loop state (agent, memories, env state, per-trial records)."""
     import jax
 
-    from jaxeac.running.batch import _flat_init
+    from jaxeac.running.loops import flat_init
 
-    shapes = jax.eval_shape(lambda w: _flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
+    cfg = cfg.resolve(env)  # the tables layout (`auto`) decides the shapes
+    shapes = jax.eval_shape(lambda w: flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
     return int(sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
 
 
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
                lanes: int | None = None, kernel: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
+    from jaxeac.algorithm.config import algorithm, resolve_tables
     from jaxeac.envs.grid import GridWorld, get_map
-    from jaxeac.algorithm.agent import algorithm, resolve_tables
-    from jaxeac.running.batch import RunConfig, resolved_kernel, run_seeds
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig, resolved_kernel
 
     env = GridWorld(get_map("paper"), 40)
     cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
@@ -103,10 +109,62 @@ def bench_numpy(algo: str, n_seeds: int, repeats: int = 1) -> dict:
             "steps_per_s": steps / best, "mean_successes": float(out["success"].sum(1).mean())}
 
 
+#: The compiled peers: name → (module, run function name), imported lazily from scripts/peers.
+COMPILED_PEERS = {"c": ("peers.c_peer", "run_c"), "numba": ("peers.numba_peer", "run_numba")}
+
+
+def prepare_peers(names: list[str], threads: int | None) -> dict:
+    """Build the C peer / compile the numba peer before any timing; a peer that cannot run here
+    is left out with a note on stderr. Returns {name: info} for the peers that will run."""
+    import importlib
+
+    ready = {}
+    for name in names:
+        module = importlib.import_module(COMPILED_PEERS[name][0])
+        if not module.available():
+            why = "no working C compiler" if name == "c" else "numba is not installed (the `bench` extra)"
+            print(f"bench.py: skipping the {name} peer: {why}", file=sys.stderr, flush=True)
+            continue
+        if name == "c":
+            info = module.info()
+            info["threads"] = threads or info["max_threads"]
+        else:
+            import numba
+
+            info = {"numba": module.version(), "compile_s": module.warm_up(),
+                    "threads": threads or numba.get_num_threads(), "threading_layer": numba.threading_layer()}
+        ready[name] = info
+    return ready
+
+
+def bench_peer(name: str, algo: str, n_seeds: int, repeats: int = 1, threads: int | None = None) -> dict:
+    """A compiled peer (C or numba, SPEC-equal in distribution) on the same work, best of `repeats`.
+
+    Useful agent-steps as jaxeac counts them: chances actually taken, over all trials and seeds."""
+    import importlib
+
+    module, fn = COMPILED_PEERS[name]
+    run = getattr(importlib.import_module(module), fn)
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = run("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
+                  temperature=1.0, n_seeds=n_seeds, seed=0, threads=threads)
+        best = min(best, time.perf_counter() - t0)
+    steps = int(out["agent_steps"].sum())
+    return {"run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
+            "mean_successes": float(out["successes"].mean())}
+
+
 def measure(args) -> dict:
-    """jaxeac rows, each followed by the NumPy peer at the same seed count (if asked for), so a
-    drifting machine slows both sides of a ratio alike; both take the best of `--repeats`."""
+    """jaxeac rows, each followed by the compiled peers and the NumPy peer at the same seed count
+    (if asked for), so a drifting machine slows both sides of a ratio alike; all take the best of
+    `--repeats`."""
     record = {"environment": environment(), "command": command_line(), "rows": []}
+    asked = [name for name, flag in (("c", args.c_peer), ("numba", args.numba_peer)) if flag]
+    peers = prepare_peers(asked, args.peer_threads)
+    if asked:
+        record["peers"] = peers
 
     def add(row: dict) -> None:
         print(json.dumps(row), flush=True)
@@ -114,7 +172,12 @@ def measure(args) -> dict:
 
     for n in args.seeds:
         for algo in ("ac", "eac"):
-            add(bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel))
+            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel)
+            for name in peers:
+                peer = bench_peer(name, algo, n, args.repeats, args.peer_threads)
+                row |= {f"{name}_{key}": value for key, value in peer.items()}
+                row[f"jaxeac_over_{name}"] = row["steps_per_s"] / peer["steps_per_s"]
+            add(row)
             if n in args.numpy_seeds:
                 add(bench_numpy(algo, n, args.repeats))
     for n in args.numpy_seeds:
@@ -224,9 +287,19 @@ def render(paths: list[Path]) -> str:
         out.append(f"#### `{path.name}`: {env['device_kind']} ({env['backend']}), {env['cpus']} CPUs, "
                    f"jax {env['jax']}, numpy {env['numpy']}, Python {env['python']}\n")
         out.append(f"Command: `{rec['command']}`\n")
+        compiled = [name for name in COMPILED_PEERS if any(f"{name}_steps_per_s" in r for r in rec["rows"])]
+        labels = {"c": "C", "numba": "numba"}
+        peer_info = rec.get("peers", {})
+        for name in compiled:
+            i = peer_info.get(name, {})
+            omp = "on" if i.get("openmp") else "off"
+            how = (f"{i.get('compiler', '?')} `{i.get('flags', '')}`, OpenMP {omp}" if name == "c"
+                   else f"numba {i.get('numba', '?')} ({i.get('threading_layer', '?')} layer)")
+            out.append(f"{labels[name]} peer: {how}, {i.get('threads', '?')} threads.\n")
         out.append("| impl | algo | tables | kernel | seeds | chunk | lanes | compile s | run s | "
-                   "useful agent-steps/s | state bytes/seed | mean successes |")
-        out.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
+                   "useful agent-steps/s | state bytes/seed | mean successes |"
+                   + "".join(f" {labels[n]} peer steps/s | jaxeac / {labels[n]} |" for n in compiled))
+        out.append("|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|---|" * len(compiled))
         for r in rec["rows"]:
             compile_s = f"{r['compile_s']:.2f}" if r.get("compile_s") is not None else "–"
             chunk = r.get("chunk", "–")
@@ -235,7 +308,9 @@ def render(paths: list[Path]) -> str:
             kernel = r.get("kernel", "xla" if r["impl"] == "jaxeac" else "–")  # older records: XLA ops
             out.append(f"| {r['impl']} | {r['algo']} | {tables} | {kernel} | {r['seeds']:,} | {chunk} | "
                        f"{lanes} | {compile_s} | {r['run_s']:.2f} | {r['steps_per_s']:.3g} | "
-                       f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |")
+                       f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |"
+                       + "".join(f" {r[f'{n}_steps_per_s']:.3g} | {r[f'jaxeac_over_{n}']:.2f}× |"
+                                 if f"{n}_steps_per_s" in r else " – | – |" for n in compiled))
         peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
         ratios = [(r["algo"], r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
                   for r in rec["rows"] if r["impl"] == "jaxeac" and (r["algo"], r["seeds"]) in peers]
@@ -243,6 +318,12 @@ def render(paths: list[Path]) -> str:
             out.append("")
             out.append("jaxeac / NumPy peer (same run, same seeds): "
                        + "; ".join(f"{a.upper()} at {n:,} seeds: **{x:.1f}×**" for a, n, x in ratios))
+        for name in compiled:
+            pairs = [(r["algo"], r["seeds"], r[f"jaxeac_over_{name}"]) for r in rec["rows"]
+                     if r["impl"] == "jaxeac" and f"jaxeac_over_{name}" in r]
+            out.append("")
+            out.append(f"jaxeac / {labels[name]} peer (same run, same seeds): "
+                       + "; ".join(f"{a.upper()} at {n:,} seeds: **{x:.2f}×**" for a, n, x in pairs))
         out.append("")
     return "\n".join(out)
 
@@ -251,6 +332,13 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[100, 1000, 10_000, 100_000])
     p.add_argument("--numpy-seeds", type=int, nargs="*", default=[10_000])
+    p.add_argument("--c-peer", action="store_true",
+                   help="time the C peer (scripts/peers/c_peer.c, OpenMP) after each jaxeac row")
+    p.add_argument("--numba-peer", action="store_true",
+                   help="time the numba peer (scripts/peers/numba_peer.py, the `bench` extra) after each "
+                   "jaxeac row")
+    p.add_argument("--peer-threads", type=int, default=None,
+                   help="threads for the C and numba peers (default: every core, as jaxeac)")
     p.add_argument("--chunk", type=int, default=8192, help="seeds per compiled chunk (split over devices)")
     p.add_argument("--repeats", type=int, default=2, help="runs per row; the best run time is kept")
     p.add_argument("--tables", choices=["auto", "split", "rows"], default="auto",
@@ -262,6 +350,8 @@ def main() -> None:
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
     args = p.parse_args()
+    if args.peer_threads is not None and args.peer_threads < 1:
+        p.error(f"--peer-threads {args.peer_threads}: need at least one thread")
     if args.lanes is not None and args.lanes < 1:
         p.error(f"--lanes {args.lanes}: need at least one lane per device")
     if args.render:

@@ -219,8 +219,8 @@ def test_ac_has_no_memory_and_greedy_policy(tables):
     agent = with_actor_critic(agent, preferences=[[0.0, 2.0, 1.0], [3.0, 0.0, 0.0]])
     np.testing.assert_array_equal(greedy_policy(ac, agent), [1, 0])
     eac = algorithm("eac", tables=tables)
-    e = with_tables(with_actor_critic(init_agent(eac.resolve(), 2, 3, 1, 1), preferences=agent.preferences), [-1, 2],
-                    np.zeros((2, 3), bool))
+    e = with_actor_critic(init_agent(eac.resolve(), 2, 3, 1, 1), preferences=agent.preferences)
+    e = with_tables(e, [-1, 2], np.zeros((2, 3), bool))
     np.testing.assert_array_equal(greedy_policy(eac, e), [1, 2])  # G7: memory first
 
 

@@ -90,11 +90,30 @@ CASES = {
 }
 
 EXPECTED: dict[str, dict[str, str]] = {
-    'grid_all_algorithms': {'ac': 'c7cc6b2cf868577a', 'eac': '51b80c7820fd7bf6', 'eac_success_only': '4463c9c271d80a97', 'eac_failure_only': '2d3d3937d401f882', 'eac_learn_on_memory': '3d28d45d3cdca270', 'eac_within_trial': 'ebf8c914aba3e96d'},
-    'grid_buffer_memory': {'eac': '40b1fcbb242798ed'},
-    'grid_row_tables': {'ac': '6e9528ac1cb70b29', 'eac': '4df59500d7de471d', 'eac_trials_loop': 'b82634b7b55f58ab'},
-    'grid_schedule_and_sweep': {'schedule': '6d92503a7d4b6b39', 'sweep': '62c035bdf92a5d6c'},
-    'bowling_c': {'ac': 'f9fb59a4caddd30c', 'eac': '768014369411bdde'},
+    'grid_all_algorithms': {
+        'ac': 'c7cc6b2cf868577a',
+        'eac': '51b80c7820fd7bf6',
+        'eac_success_only': '4463c9c271d80a97',
+        'eac_failure_only': '2d3d3937d401f882',
+        'eac_learn_on_memory': '3d28d45d3cdca270',
+        'eac_within_trial': 'ebf8c914aba3e96d',
+    },
+    'grid_buffer_memory': {
+        'eac': '40b1fcbb242798ed',
+    },
+    'grid_row_tables': {
+        'ac': '6e9528ac1cb70b29',
+        'eac': '4df59500d7de471d',
+        'eac_trials_loop': 'b82634b7b55f58ab',
+    },
+    'grid_schedule_and_sweep': {
+        'schedule': '6d92503a7d4b6b39',
+        'sweep': '62c035bdf92a5d6c',
+    },
+    'bowling_c': {
+        'ac': 'f9fb59a4caddd30c',
+        'eac': '768014369411bdde',
+    },
 }
 
 

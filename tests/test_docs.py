@@ -91,7 +91,6 @@ def test_cited_ids_regex_skips_non_citations():
     assert cited_ids(text) == {"E6": 3, "E4": 3, "G3": 3, "B2": 3, "B3": 3, "B4": 3}
 
 
-@pytest.mark.xfail(strict=False, reason="layout in progress")
 @pytest.mark.parametrize("doc", [SPEC, ARCHITECTURE], ids=lambda p: p.name)
 def test_named_module_paths_exist(doc: Path):
     text = FENCE_RE.sub("", doc.read_text(encoding="utf-8"))

@@ -1,4 +1,4 @@
-"""The fused GPU kernel (`jaxeac.running.kernel`) against the XLA loop, run by Pallas's interpreter on the CPU.
+"""The fused GPU kernel (`jaxeac.running.kernel`) against the XLA loop, in Pallas's interpreter on the CPU.
 
 On GPUs the two paths gave identical per-seed results for 20,000 seeds of every algorithm
 (BENCHMARKS.md); here the kernel body runs as XLA:CPU ops whose fusions differ from the XLA

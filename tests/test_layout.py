@@ -58,21 +58,26 @@ def test_top_level_envs_alias_is_the_same_module():
 
 
 def _module_imports() -> dict[str, set[str]]:
-    """Module → the jaxeac modules it imports at module level (imports inside functions are lazy)."""
-    graph = {}
+    """Module → the jaxeac modules it imports at module level (imports inside functions are lazy).
+
+    ``from package import submodule`` counts as importing the submodule.
+    """
+    paths = {}
     for path in PACKAGE.rglob("*.py"):
         parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        paths[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = (path, parts)
+    graph = {}
+    for name, (path, parts) in paths.items():
         deps = set()
         for node in ast.parse(path.read_text(encoding="utf-8")).body:
-            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                deps.add(node.module)
-            elif isinstance(node, ast.ImportFrom) and node.level:  # relative, inside a package
-                base = parts[:len(parts) - node.level] if parts[-1] != "__init__" else parts[:-node.level]
-                if node.module:
-                    deps.add(".".join(base + (node.module,)))
-                else:  # `from . import x`: the submodules
-                    deps.update(".".join(base + (a.name,)) for a in node.names)
+            if isinstance(node, ast.ImportFrom):
+                if node.level:  # relative, inside a package
+                    base = parts[:len(parts) - node.level] if parts[-1] != "__init__" else parts[:-node.level]
+                    module = ".".join(base + ((node.module,) if node.module else ()))
+                else:
+                    module = node.module or ""
+                subs = [f"{module}.{a.name}" for a in node.names if f"{module}.{a.name}" in paths]
+                deps.update(subs or [module])
             elif isinstance(node, ast.Import):
                 deps.update(a.name for a in node.names)
         graph[name] = {d for d in deps if d.startswith("jaxeac") and d != name}

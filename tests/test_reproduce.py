@@ -13,18 +13,18 @@ from jaxeac.errors import UsageError
 from jaxeac.experiments.reproduce import (
     QUICK,
     Sizes,
-    _supported,
     greedy_reach,
     paper_position,
     reproduce,
 )
+from jaxeac.experiments.reproduce import supported as _supported
 
 TINY = Sizes(grid_seeds=24, bowling_seeds=4, calibration_seeds=8,
              calibration_sets=("alpha=0.05,0.1", "beta=0.3,0.9"), ablation_grid_seeds=16,
              ablation_bowling_seeds=4, ablation_algos=("ac", "eac", "eac_success_only"),
              temperatures=(0.5, 1.0), noise_scales=(0.0, 1.0), resamples=200, band_resamples=200)
 VERDICTS = ("holds", "partly holds", "does not hold")
-CLAIMS = ("G1", "G2", "G3", "B1", "B2", "B3")
+CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "BOWL-1", "BOWL-2", "BOWL-3")
 
 
 @pytest.fixture(scope="module")
@@ -77,27 +77,27 @@ def test_report_numbers_equal_the_step_json(run):
     cal = json.loads((out / "calibration" / "reproduce.json").read_text())["result"]
     abl = json.loads((out / "ablations" / "reproduce.json").read_text())["result"]
 
-    g1 = section(text, "### G1 ")
+    g1 = section(text, "### GRID-1 ")
     for cell in row_cells(gstats["primary"]):
         assert cell in g1, cell
     assert gstats["primary"]["n_baseline"] == TINY.grid_seeds
     assert f"{gstats['primary']['mean_treatment']:.2f}" in g1
     assert f"lies at percentile {grid['paper_position']['eac']['percentile']:.1f} of our seeds" in g1
-    g2 = section(text, "### G2 ")
+    g2 = section(text, "### GRID-2 ")
     for cell in row_cells(gstats["secondary"]["auc_cumulative"], 4):
         assert cell in g2, cell
     for cell in row_cells(grid["greedy_reach"]["contrast"], 3):
-        assert cell in section(text, "### G3 "), cell
+        assert cell in section(text, "### GRID-3 "), cell
 
-    b1 = section(text, "### B1 ")
+    b1 = section(text, "### BOWL-1 ")
     for cell in row_cells(bstats["primary"]):
         assert cell in b1, cell
     assert bstats["primary"]["n_treatment"] == TINY.bowling_seeds
-    b2 = section(text, "### B2 ")
+    b2 = section(text, "### BOWL-2 ")
     e1 = bowl["angles"]["eac"]["theta1"]
     assert f"{e1['mean']:+.4f} [{e1['ci95'][0]:+.4f}, {e1['ci95'][1]:+.4f}]" in b2
     for cell in row_cells(bowl["angles"]["contrast_sd_theta1"], 4):
-        assert cell in section(text, "### B3 "), cell
+        assert cell in section(text, "### BOWL-3 "), cell
 
     calib = section(text, "## Calibration")
     cc = cal["closest"]
@@ -124,13 +124,13 @@ def test_verdicts_follow_the_rules(run):
     out, _ = run
     rec = json.loads((out / "reproduce.json").read_text())
     c = {x["id"]: x for x in rec["claims"]}
-    pr, pos = c["G1"]["stats"], rec["grid"]["paper_position"]
+    pr, pos = c["GRID-1"]["stats"], rec["grid"]["paper_position"]
     supported = pr["diff_ci95"][0] > 0 and pr["p_holm"] <= 0.05
     within = pos["ac"]["within_5_95"] and pos["eac"]["within_5_95"]
     expect = "holds" if supported and within else "partly holds" if supported else "does not hold"
-    assert c["G1"]["verdict"] == expect
+    assert c["GRID-1"]["verdict"] == expect
     # EAC's advantage on the paper's grid is large even at 24 seeds
-    assert supported and c["G3"]["verdict"] == "holds"
+    assert supported and c["GRID-3"]["verdict"] == "holds"
 
 
 def test_rerun_resumes_and_other_settings_are_refused(run):

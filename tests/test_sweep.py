@@ -14,8 +14,8 @@ import pytest
 
 from jaxeac.cli import main
 from jaxeac.experiments.grid import GridSettings
-from jaxeac.running.batch import run_seeds
 from jaxeac.experiments.sweep import Sweep, run_sweep
+from jaxeac.running.batch import run_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
 ARGS = ["sweep", "--seeds", "24", "--chunk-size", "3", "--trials", "20", "--chances", "20",

@@ -30,23 +30,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxeac.algorithm.agent import AgentState, end_trial, init_agent
+from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from jaxeac.envs.bowling import angles as angle_grid
 from jaxeac.envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend
-from jaxeac.algorithm.agent import (
-    AgentState,
-    Hyper,
-    algorithm,
-    end_trial,
-    init_agent,
-    learn_step,
-    rate_at,
-    record_step,
-    select_action,
-)
 from jaxeac.errors import UsageError
+from jaxeac.paper import BOWLING_PINS
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.running.batch import RunConfig, action_counter, chunks, seed_key, seed_words, step_uniform
+from jaxeac.rng import seed_key, seed_words, throw_key
+from jaxeac.running.batch import chunks
+from jaxeac.running.config import RunConfig
+from jaxeac.running.loops import choose as choose_action
+from jaxeac.running.loops import learn_and_record
 
 N_PINS = 10
 N_MASKS = 1 << N_PINS  # B5: states are the sets of standing pins
@@ -68,36 +64,32 @@ class BowlingRecord:
     success: jax.Array
 
 
-def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper):
-    """E1 at `state` with the uniform of (trial, chance); returns (angle index, learns)."""
-    u = step_uniform(words, action_counter(agent.trial, agent.chance, CHANCES))
-    return select_action(cfg.agent, agent, state, u, hyper)
+def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active=True):
+    """E1 at `state` with the uniform of (trial, chance) (`jaxeac.running.loops.choose`)."""
+    return choose_action(cfg, agent, state, words, hyper, CHANCES, jnp.asarray(active))
 
 
 def learn_from_throw(cfg: RunConfig, agent: AgentState, state, action, learns, knocked, next_state,
                      last_chance, active, hyper: Hyper) -> AgentState:
-    """(2)–(4) with r = pins knocked, E5 r̃ = pins knocked, and E4/E6 when the trial ends."""
+    """(2)–(4) with r = pins knocked, E5 r̃ = pins knocked, and E4/E6 when the trial ends
+    (`jaxeac.running.loops.learn_and_record`, then `end_trial`)."""
     reward = knocked.astype(agent.values.dtype)
     cleared = next_state == 0
     ends = active & (cleared | last_chance)
-    trial = jnp.minimum(agent.trial, cfg.trials - 1)
-    agent = learn_step(
-        agent, state, action, reward, next_state, ends, learns & active,
-        rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
-    )
-    agent = record_step(cfg.agent, agent, state, action, reward, active)
+    agent = learn_and_record(cfg, agent, state, action, learns & active, reward, next_state, ends, reward,
+                             active, hyper)
     return end_trial(cfg.agent, agent, cleared, ends)
 
 
 def noise_normals(key: jax.Array, trial, chance) -> jax.Array:
     """B3: the standard-normal noise draws [angle, speed] of one throw."""
-    return throw_noise(jax.random.fold_in(jax.random.fold_in(key, trial), chance))
+    return throw_noise(throw_key(key, trial, chance))
 
 
 @functools.lru_cache(maxsize=8)
 def _learning_steps(cfg: RunConfig):
     """jit(vmap) versions of `choose`, `learn_from_throw` and `noise_normals` over seeds."""
-    pick = jax.jit(jax.vmap(functools.partial(choose, cfg), in_axes=(0, 0, 0, None)))
+    pick = jax.jit(jax.vmap(functools.partial(choose, cfg), in_axes=(0, 0, 0, None, 0)))
     learn = jax.jit(jax.vmap(functools.partial(learn_from_throw, cfg),
                              in_axes=(0, 0, 0, 0, 0, 0, None, 0, None)))
     noise = jax.jit(jax.vmap(noise_normals, in_axes=(0, None, None)))
@@ -106,6 +98,7 @@ def _learning_steps(cfg: RunConfig):
 
 def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyper) -> BowlingRecord:
     """One chunk of seeds with the C backend: compiled learning, batched C physics in between."""
+    cfg = cfg.resolve(None)
     pick, learn, noise = _learning_steps(cfg)
     m = keys.shape[0]
     words = jax.vmap(seed_words)(keys)
@@ -118,7 +111,8 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
         state = np.full(m, FULL_RACK, np.int32)
         active = np.ones(m, bool)
         for c in range(CHANCES):
-            action, learns = jax.device_get(pick(agents, words, jnp.asarray(state), hyper))
+            chosen = pick(agents, words, jnp.asarray(state), hyper, jnp.asarray(active))
+            action, learns = jax.device_get(chosen)
             eps = np.asarray(noise(keys, t, c))
             knocked = np.zeros(m, np.int32)
             after = state.copy()
@@ -148,13 +142,14 @@ def _set_rows(full, rows, part):
 def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Callable:
     """The whole chunk with MJX (implementation impl) as one jit-compiled function:
     ``(keys [M], hyper) -> BowlingRecord``."""
+    cfg = cfg.resolve(None)
     from jaxeac.envs.bowling.backend_mjx import make_batch_throw
 
     throw_all = make_batch_throw(phys, impl=impl)
     grid = jnp.asarray(angle_grid(phys), jnp.float32)
 
     def physics(pins, action, keys, trial, chance):
-        eps_keys = jax.vmap(lambda k: jax.random.fold_in(jax.random.fold_in(k, trial), chance))(keys)
+        eps_keys = jax.vmap(lambda k: throw_key(k, trial, chance))(keys)
         return throw_all(pins, grid[action], eps_keys)
 
     def batch(keys, hyper):
@@ -168,8 +163,8 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Call
             active = jnp.ones((m,), bool)
             actions, knocks = [], []
             for c in range(CHANCES):
-                action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None))(cfg, agents, words, state,
-                                                                                  hyper)
+                action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None, 0))(cfg, agents, words, state,
+                                                                                     hyper, active)
                 res = physics(pins, action, keys, t, c)
                 knocked = jnp.where(active, res.knocked, 0)
                 after = jnp.where(active, mask_index(res.standing), state)
@@ -210,17 +205,17 @@ class BowlingSettings:
     solver: SolverSettings = DEFAULT_SOLVER  # B7 constraint solver of both physics engines
 
     def validate(self) -> None:
-        from jaxeac.experiments.grid import _positive_int, _rate, check_algos
+        from jaxeac.experiments.common import check_algos, check_positive_int, check_rate
 
         for name in ("seeds", "trials", "chunk_size"):
-            _positive_int(name.replace("_", " "), getattr(self, name))
+            check_positive_int(name.replace("_", " "), getattr(self, name))
         if isinstance(self.angles, bool) or not isinstance(self.angles, int) or self.angles < 2:
             raise UsageError(f"angles must be an integer K >= 2 (got {self.angles!r})")
         check_backend(self.backend)
-        _rate("alpha", self.alpha)
-        _rate("beta", self.beta)
-        _rate("gamma", self.gamma, upper=1.0)
-        _rate("temperature", self.temperature, positive=True)
+        check_rate("alpha", self.alpha)
+        check_rate("beta", self.beta)
+        check_rate("gamma", self.gamma, upper=1.0)
+        check_rate("temperature", self.temperature, positive=True)
         check_algos(self.algos)
         self.physics()  # BowlingConfig validates θ_max and the noise levels
 
@@ -229,8 +224,9 @@ class BowlingSettings:
                              noise_angle=self.noise_angle, noise_speed=self.noise_speed, solver=self.solver)
 
     def run_config(self, algo: str) -> RunConfig:
+        """The resolved `RunConfig` of `algo` (bowling runs the XLA steps: no grid kernel)."""
         return RunConfig(trials=self.trials, agent=algorithm(algo), alpha=self.alpha, beta=self.beta,
-                         gamma=self.gamma, temperature=self.temperature)
+                         gamma=self.gamma, temperature=self.temperature).resolve(None)
 
 
 @dataclasses.dataclass
@@ -313,10 +309,6 @@ class BowlingRun:
     results: dict[str, BowlingResult]
 
 
-#: Paper's Table I (one run each): cumulative pins over 10 trials.
-PAPER_TOTALS = {"ac": 67, "eac": 81}
-
-
 def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | None = None) -> BowlingRun:
     """Run every algorithm of (validated) `settings`."""
     return BowlingRun(settings, {a: run_bowling_algo(settings, a, progress=progress) for a in settings.algos})
@@ -324,7 +316,7 @@ def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | 
 
 def summarize_bowling(run: BowlingRun) -> dict:
     """summary.json content, as the grid's, with `return` (pins over T trials) as the primary measure."""
-    from jaxeac.experiments.grid import summary_base
+    from jaxeac.experiments.common import summary_base
 
     out = summary_base("bowling", "return", run.settings, run.results,
                        {a: r.total_return for a, r in run.results.items()})
@@ -333,12 +325,12 @@ def summarize_bowling(run: BowlingRun) -> dict:
             "mean_successes": float(r.success.sum(axis=1).mean()), "throws": r.throws,
             "throws_per_second": r.throws / r.run_seconds if r.run_seconds > 0 else None,
         }
-    return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": PAPER_TOTALS}
+    return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": BOWLING_PINS}
 
 
 def table_one(run: BowlingRun, seed: int = 0) -> str:
     """Table I: per-chance pins of one seed per algorithm, and means (95 % CI) over seeds."""
-    from jaxeac.experiments.grid import mean_ci95
+    from jaxeac.experiments.common import mean_ci95
 
     algos = list(run.results)
     lines = [f"### Table I — pins per chance, seed {seed}", "",
@@ -362,7 +354,7 @@ def table_one(run: BowlingRun, seed: int = 0) -> str:
     lines.append("")
     for a in algos:
         mean, _, lo, hi = mean_ci95(run.results[a].total_return)
-        paper = PAPER_TOTALS.get(a) if run.settings.trials == 10 else None
+        paper = BOWLING_PINS.get(a) if run.settings.trials == 10 else None
         lines.append(f"- {a.upper()}: mean total {mean:.2f} of {10 * run.settings.trials} "
                      f"(95% CI [{lo:.2f}, {hi:.2f}])" + (f"; paper's single run: {paper}" if paper else ""))
     return "\n".join(lines) + "\n"

@@ -8,51 +8,32 @@ input fails before any compute); `run_grid` runs every algorithm over seeds
 from __future__ import annotations
 
 import dataclasses
-import importlib.metadata
 import io
 import json
-import math
-import platform
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
-import jax
 import numpy as np
-from scipy import stats as sps
 
-from jaxeac.envs.grid import GridMap, GridWorld, get_map, load_map
-from jaxeac import __version__
-from jaxeac.algorithm.agent import ALGORITHMS, algorithm
-from jaxeac.errors import UsageError
-from jaxeac.io import atomic_write_json, staged_dir
+from jaxeac.algorithm.config import algorithm
 from jaxeac.algorithm.memory import LAYOUTS
+from jaxeac.envs.grid import GridMap, GridWorld, get_map, load_map
+from jaxeac.errors import UsageError
+from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported from here by older code)
+    check_algos,
+    check_key,
+    check_positive_int,
+    check_rate,
+    mean_ci95,
+    summary_base,
+    versions,
+    welch_diff_ci95,
+)
 from jaxeac.experiments.presets import make as make_preset
-from jaxeac.running.batch import RunConfig, SeedsResult, run_seeds
-
-
-def _positive_int(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
-        raise UsageError(f"{name} must be a positive integer (got {value!r})")
-
-
-def _rate(name: str, value, *, upper: float | None = None, positive: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise UsageError(f"{name} must be a finite number (got {value!r})")
-    if value < 0 or (positive and value == 0):
-        raise UsageError(f"{name} must be {'positive' if positive else 'non-negative'} (got {value!r})")
-    if upper is not None and value > upper:
-        raise UsageError(f"{name} must lie in [0, {upper:g}] (got {value!r})")
-
-
-def check_algos(algos) -> None:
-    """A non-empty list of known algorithm names, each once (raises `UsageError`)."""
-    if not algos:
-        raise UsageError("algos is empty; pass at least one of " + ", ".join(sorted(ALGORITHMS)))
-    for name in algos:
-        algorithm(name)  # raises on unknown names
-    if len(set(algos)) != len(algos):
-        raise UsageError(f"algos lists an algorithm twice ({' '.join(algos)}); list each once")
+from jaxeac.io import atomic_write_json, staged_dir
+from jaxeac.running.batch import run_seeds
+from jaxeac.running.config import RunConfig
+from jaxeac.running.outputs import SeedsResult
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,13 +71,12 @@ class GridSettings:
 
     def validate(self) -> None:
         for name in ("trials", "chances", "seeds", "chunk_size", "capacity"):
-            _positive_int(name.replace("_", " "), getattr(self, name))
-        _rate("alpha", self.alpha)
-        _rate("beta", self.beta)
-        _rate("gamma", self.gamma, upper=1.0)
-        _rate("temperature", self.temperature, positive=True)
-        if isinstance(self.key, bool) or not isinstance(self.key, int | np.integer) or self.key < 0:
-            raise UsageError(f"key must be a non-negative integer (got {self.key!r})")
+            check_positive_int(name.replace("_", " "), getattr(self, name))
+        check_rate("alpha", self.alpha)
+        check_rate("beta", self.beta)
+        check_rate("gamma", self.gamma, upper=1.0)
+        check_rate("temperature", self.temperature, positive=True)
+        check_key(self.key)
         check_algos(self.algos)
         if self.memory not in LAYOUTS:
             raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {', '.join(LAYOUTS)}")
@@ -196,72 +176,6 @@ def merge_parts(out: str | Path) -> GridRun:
     from jaxeac.envs.grid import parse_map
 
     return GridRun(settings, parse_map(config["map"]), results)
-
-
-def mean_ci95(x: np.ndarray) -> tuple[float, float, float, float]:
-    """(mean, sd, lo, hi): Student-t 95 % interval of the mean (NaN bounds when n < 2)."""
-    x = np.asarray(x, float)
-    n, mean = x.size, float(x.mean())
-    if n < 2:
-        return mean, float("nan"), float("nan"), float("nan")
-    sd = float(x.std(ddof=1))
-    half = float(sps.t.ppf(0.975, n - 1)) * sd / math.sqrt(n)
-    return mean, sd, mean - half, mean + half
-
-
-def welch_diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
-    """(mean(b) − mean(a), lo, hi) with the Welch–Satterthwaite 95 % interval."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    diff = float(b.mean() - a.mean())
-    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
-    se = math.sqrt(va + vb)
-    if se == 0:
-        return diff, diff, diff
-    df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
-    half = float(sps.t.ppf(0.975, df)) * se
-    return diff, diff - half, diff + half
-
-
-def versions() -> dict[str, str]:
-    """Versions of the packages a result depends on."""
-    import matplotlib
-    import mujoco
-    import optax
-
-    out = {
-        "jaxeac": __version__, "python": platform.python_version(), "jax": jax.__version__,
-        "jaxlib": jax.lib.__version__ if hasattr(jax.lib, "__version__") else jax.__version__,
-        "numpy": np.__version__, "optax": optax.__version__, "mujoco": mujoco.__version__,
-        "matplotlib": matplotlib.__version__, "platform": platform.platform(),
-    }
-    for dist in ("mujoco-mjx", "warp-lang"):  # the MJX backends' physics, where installed
-        try:
-            out[dist.replace("-", "_")] = importlib.metadata.version(dist)
-        except importlib.metadata.PackageNotFoundError:
-            pass
-    return out
-
-
-def summary_base(experiment: str, primary: str, settings, results: dict, measures: dict) -> dict:
-    """The summary.json fields every run folder shares (`measures`: primary measure per algorithm)."""
-    per_algo = {}
-    for algo, r in results.items():
-        mean, sd, lo, hi = mean_ci95(measures[algo])
-        per_algo[algo] = {f"mean_{primary}": mean, f"sd_{primary}": sd, f"ci95_{primary}": [lo, hi],
-                          "compile_seconds": r.compile_seconds, "run_seconds": r.run_seconds}
-    out = {
-        "experiment": experiment, "primary_measure": primary, "algos": list(settings.algos),
-        "trials": settings.trials, "seeds": settings.seeds, "key": settings.key,
-        "config": dataclasses.asdict(settings), "versions": versions(),
-        "devices": [str(d) for d in jax.devices()], "command": " ".join(["jaxeac", *sys.argv[1:]]),
-        "compile_seconds": sum(r.compile_seconds for r in results.values()),
-        "run_seconds": sum(r.run_seconds for r in results.values()),
-        "per_algo": per_algo,
-    }
-    if "ac" in measures and "eac" in measures:
-        diff, lo, hi = welch_diff_ci95(measures["ac"], measures["eac"])
-        out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
-    return out
 
 
 def summarize(run: GridRun) -> dict:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from jaxeac import paper
 from jaxeac.errors import UsageError
 
 
@@ -24,7 +25,7 @@ class GridPreset:
 
 GRID_PRESETS: dict[str, GridPreset] = {
     # G6: makes plain AC succeed about as often as the paper's AC (56 of 200).
-    "paper": GridPreset(paper_successes={"ac": 56, "eac": 163}),
+    "paper": GridPreset(paper_successes=dict(paper.GRID_SUCCESSES)),
     # The paper's layout at other sizes (jaxeac.envs.grid.paper_like_map), other settings as G6.
     **{f"paper{n}": GridPreset(map=f"paper{n}") for n in (7, 9, 13, 15, 21)},
 }

@@ -23,10 +23,11 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from jaxeac.algorithm.config import Hyper
 from jaxeac.envs.grid import GridWorld
-from jaxeac.algorithm.agent import Hyper
 from jaxeac.errors import UsageError
-from jaxeac.experiments.grid import GridSettings, mean_ci95, welch_diff_ci95
+from jaxeac.experiments.common import mean_ci95, welch_diff_ci95
+from jaxeac.experiments.grid import GridSettings
 from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, check_writable_dir
 from jaxeac.running.batch import run_entries
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxeac.fmt import compact, compact_interval, p_value, size_word
+
 FIGURES = {
     "curves": "compare_curves.png",
     "distributions": "compare_distributions.png",
@@ -14,32 +16,8 @@ FIGURES = {
 }
 
 
-def _f(x, nd=3):
-    if x is None:
-        return "—"
-    if isinstance(x, int | np.integer):
-        return str(int(x))
-    x = float(x)
-    if not math.isfinite(x):
-        return "—"
-    if x != 0 and (abs(x) < 1e-3 or abs(x) >= 1e5):
-        return f"{x:.2e}"
-    return f"{x:.{nd}f}"
-
-
-def _p(x):
-    if x is None or not math.isfinite(float(x)):
-        return "—"
-    return "< 1e-4" if x < 1e-4 else f"{x:.4f}"
-
-
-def _ci(pair, nd=3):
-    return f"[{_f(pair[0], nd)}, {_f(pair[1], nd)}]"
-
-
-def _size_word(g):
-    g = abs(g)
-    return "negligible" if g < 0.2 else "small" if g < 0.5 else "medium" if g < 0.8 else "large"
+#: This report's p-values: 4 decimals, "< 1e-4" below that.
+P_STYLE = {"digits": 4, "floor": "1e-4", "sci_below": None, "missing": "—"}
 
 
 def plain_words(stats: dict) -> str:
@@ -51,10 +29,10 @@ def plain_words(stats: dict) -> str:
     better = pr["diff"] > 0 if pr["higher_is_better"] else pr["diff"] < 0
     sig = p_holm <= alpha and not (pr["diff_ci95"][0] <= 0 <= pr["diff_ci95"][1])
     lines = [
-        f"On the primary measure ({pr['description']}), {t} averaged {_f(pr['mean_treatment'], 2)} and "
-        f"{b} {_f(pr['mean_baseline'], 2)} over {pr['n_treatment']} and {pr['n_baseline']} seeds: "
-        f"a difference of {_f(pr['diff'], 2)} (95 % CI {_ci(pr['diff_ci95'], 2)}, "
-        f"Holm-adjusted p = {_p(p_holm)})."
+        f"On the primary measure ({pr['description']}), {t} averaged {compact(pr['mean_treatment'], 2)} "
+        f"and {b} {compact(pr['mean_baseline'], 2)} over {pr['n_treatment']} and {pr['n_baseline']} seeds: "
+        f"a difference of {compact(pr['diff'], 2)} (95 % CI {compact_interval(pr['diff_ci95'], 2)}, "
+        f"Holm-adjusted p = {p_value(p_holm, **P_STYLE)})."
     ]
     if sig:
         lines.append(f"{t} is {'better' if better else 'worse'} than {b} on this measure at α = {alpha}.")
@@ -62,9 +40,9 @@ def plain_words(stats: dict) -> str:
         lines.append(f"At α = {alpha} the data do not show a difference between {t} and {b} on this measure.")
     lines.append(
         f"A randomly chosen {t} seed scores higher than a randomly chosen {b} seed with probability "
-        f"{_f(pr['a12'], 2)} (95 % CI {_ci(pr['a12_ci95'], 2)}); "
-        f"the standardised effect is {_size_word(pr['hedges_g'])} "
-        f"(Hedges' g = {_f(pr['hedges_g'], 2)})."
+        f"{compact(pr['a12'], 2)} (95 % CI {compact_interval(pr['a12_ci95'], 2)}); "
+        f"the standardised effect is {size_word(pr['hedges_g'])} "
+        f"(Hedges' g = {compact(pr['hedges_g'], 2)})."
     )
     n80 = pr["seeds_for_80pct_power"]
     if n80 is None:
@@ -92,7 +70,8 @@ def plain_words(stats: dict) -> str:
         r = cal["welch"][stats["primary"]["measure"]]
         lines.append(
             f"As a check, {b} against itself (random halves) gave Welch's test a false-positive rate of "
-            f"{_f(r['rate'], 3)} (95 % CI {_ci(r['ci95'], 3)}) against the nominal {alpha}."
+            f"{compact(r['rate'], 3)} (95 % CI {compact_interval(r['ci95'], 3)}) against the nominal "
+            f"{alpha}."
         )
     return " ".join(lines)
 
@@ -204,11 +183,13 @@ def render_markdown(stats: dict) -> str:
         role = " (primary)" if r is stats["primary"] else ""
         arrow = "↑" if r["higher_is_better"] else "↓"
         out.append(
-            f"| {r['measure']}{role} {arrow} | {_f(r['mean_baseline'])} | {_f(r['mean_treatment'])} | "
-            f"{_f(r['diff'])} {_ci(r['diff_ci95'])} | {_f(r['hedges_g'])} {_ci(r['hedges_g_ci95'])} | "
-            f"{_f(r['prob_improvement'])} {_ci(r['prob_improvement_ci95'])} | {_p(r['p_welch'])} | "
-            f"{_p(r['p_permutation'])} | {_p(r['brunner_munzel']['p'])} | {_p(r.get('p_holm'))} | "
-            f"{_f(r['seeds_for_80pct_power'])} |"
+            f"| {r['measure']}{role} {arrow} | {compact(r['mean_baseline'])} | "
+            f"{compact(r['mean_treatment'])} | {compact(r['diff'])} {compact_interval(r['diff_ci95'])} | "
+            f"{compact(r['hedges_g'])} {compact_interval(r['hedges_g_ci95'])} | "
+            f"{compact(r['prob_improvement'])} {compact_interval(r['prob_improvement_ci95'])} | "
+            f"{p_value(r['p_welch'], **P_STYLE)} | {p_value(r['p_permutation'], **P_STYLE)} | "
+            f"{p_value(r['brunner_munzel']['p'], **P_STYLE)} | {p_value(r.get('p_holm'), **P_STYLE)} | "
+            f"{compact(r['seeds_for_80pct_power'])} |"
         )
     out += ["", "↑ higher is better, ↓ lower is better. Measures:", ""]
     out += [f"- `{r['measure']}`: {r['description']}" for r in res]
@@ -217,17 +198,17 @@ def render_markdown(stats: dict) -> str:
     out += [
         "",
         f"Interquartile mean of the primary measure: "
-        f"{b} {_f(pr['iqm_baseline'])} {_ci(pr['iqm_baseline_ci95'])}, "
-        f"{t} {_f(pr['iqm_treatment'])} {_ci(pr['iqm_treatment_ci95'])} (95 % BCa).",
+        f"{b} {compact(pr['iqm_baseline'])} {compact_interval(pr['iqm_baseline_ci95'])}, "
+        f"{t} {compact(pr['iqm_treatment'])} {compact_interval(pr['iqm_treatment_ci95'])} (95 % BCa).",
         "",
         f"Seeds per method for 80 % power (two-sided t-test, α = {st['alpha']}): observed effect "
-        f"(|g| = {_f(pw['observed_d'])}) {_f(pw['seeds_for_80pct_power'])}; d = 0.2: {pw['d=0.2']}; "
-        f"d = 0.5: {pw['d=0.5']}; d = 0.8: {pw['d=0.8']}.",
+        f"(|g| = {compact(pw['observed_d'])}) {compact(pw['seeds_for_80pct_power'])}; "
+        f"d = 0.2: {pw['d=0.2']}; d = 0.5: {pw['d=0.5']}; d = 0.8: {pw['d=0.8']}.",
         "",
         "## Time to first success and success proportions",
         "",
         f"Log-rank test on the first successful trial (censored at {stats['trials']} when none): "
-        f"χ² = {_f(stats['logrank']['chi2'])}, p = {_p(stats['logrank']['p'])}.",
+        f"χ² = {compact(stats['logrank']['chi2'])}, p = {p_value(stats['logrank']['p'], **P_STYLE)}.",
         "",
         f"| outcome per seed | {b} | {t} | risk difference [95 % CI, Newcombe] "
         "| risk ratio [95 % CI, score] |",
@@ -237,8 +218,8 @@ def render_markdown(stats: dict) -> str:
         out.append(
             f"| {name} | {pr_['count_baseline']}/{pr_['n_baseline']} "
             f"| {pr_['count_treatment']}/{pr_['n_treatment']} | "
-            f"{_f(pr_['risk_difference'])} {_ci(pr_['risk_difference_ci95'])} | "
-            f"{_f(pr_['risk_ratio'])} {_ci(pr_['risk_ratio_ci95'])} |"
+            f"{compact(pr_['risk_difference'])} {compact_interval(pr_['risk_difference_ci95'])} | "
+            f"{compact(pr_['risk_ratio'])} {compact_interval(pr_['risk_ratio_ci95'])} |"
         )
     cur = stats.get("curves")
     if cur:
@@ -276,7 +257,7 @@ def render_markdown(stats: dict) -> str:
             f"{cal['splits']} random splits of the {b} seeds into two disjoint groups of "
             f"{cal['group_size']}; permutation reference {cal['resamples']} relabellings. "
             f"Each rate should be near α = {cal['alpha']} (with {cal['splits']} splits, a rate is within "
-            f"about ±{_f(2 * math.sqrt(cal['alpha'] * (1 - cal['alpha']) / cal['splits']), 3)} "
+            f"about ±{compact(2 * math.sqrt(cal['alpha'] * (1 - cal['alpha']) / cal['splits']), 3)} "
             "of α by chance).",
             "",
             "| test | measure | false-positive rate [95 % CI] |",
@@ -284,7 +265,7 @@ def render_markdown(stats: dict) -> str:
         ]
         for test, per in cal["false_positive_rate"].items():
             for name, r in per.items():
-                out.append(f"| {test} | {name} | {_f(r['rate'])} {_ci(r['ci95'])} |")
+                out.append(f"| {test} | {name} | {compact(r['rate'])} {compact_interval(r['ci95'])} |")
     elif cal:
         out += ["## Calibration", "", f"Skipped: {cal.get('skipped')}"]
     out += [
@@ -297,8 +278,8 @@ def render_markdown(stats: dict) -> str:
         f"chunks of {st['chunk']}; calibration {st['calibration_splits']} splits × "
         f"{st['calibration_resamples']} "
         f"relabellings. Versions: {', '.join(f'{k} {v}' for k, v in stats['versions'].items())}. "
-        f"Resampling took {_f(stats['timing']['resample_seconds'], 2)} s, "
-        f"everything {_f(stats['timing']['total_seconds'], 2)} s.",
+        f"Resampling took {compact(stats['timing']['resample_seconds'], 2)} s, "
+        f"everything {compact(stats['timing']['total_seconds'], 2)} s.",
         "",
     ]
     return "\n".join(out)

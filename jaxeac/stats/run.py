@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import json
 import time
-from importlib import metadata
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
@@ -24,16 +24,8 @@ from jaxeac.stats.rundir import MEASURES, describe, load_run_dir, per_seed_measu
 
 SCHEMA = "jaxeac.stats/1"
 DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
-
-
-def _versions() -> dict:
-    out = {}
-    for pkg in ("jaxeac", "jax", "jaxlib", "numpy", "scipy"):
-        try:
-            out[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
+#: What stats.json states the versions of (`jaxeac.experiments.common.versions`).
+STATS_PACKAGES = ("jaxeac", "jax", "jaxlib", "numpy", "scipy")
 
 
 def _key_record(key) -> dict:
@@ -195,7 +187,7 @@ def compare_experiment(
             "calibration_resamples": calibration_resamples,
             "bootstrap": "BCa (Efron 1987), methods resampled independently",
         },
-        "versions": _versions(),
+        "versions": versions(STATS_PACKAGES, optional=()),
         "timing": {"resample_seconds": res["resample_seconds"], "calibration_seconds": t_cal},
     }
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0

@@ -28,8 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from jaxeac.algorithm.config import ALGORITHMS, AgentConfig
 from jaxeac.envs.grid import GridMap, GridWorld, get_map
-from jaxeac.algorithm.agent import ALGORITHMS, AgentConfig
 from jaxeac.errors import UsageError
 
 #: ``draw(trial) -> (start_index int [N], uniforms float [N, C])``: one trial's random numbers.

@@ -1,0 +1,139 @@
+"""The paper's claims and the fixed rules that decide whether each holds (`VERDICT_RULES`).
+
+Claim ids: GRID-1…3 (§V-A: Fig. 2, Fig. 3) and BOWL-1…3 (§V-B: Table I, Fig. 5). They are
+not SPEC ids: SPEC G1… and B1… pin the grid world and the bowling scene.
+"""
+
+from __future__ import annotations
+
+from jaxeac import paper
+
+#: Significance level of every verdict.
+ALPHA = 0.05
+VERDICT_RULES = (
+    "Verdicts follow fixed rules, set before looking at the results. A comparison *supports* a "
+    f"direction when its 95 % CI excludes 0 and its (Holm-adjusted where declared) p ≤ {ALPHA}. "
+    "A claim **holds** when the direction is supported and, for the paper's single-run numbers, "
+    "each lies within the central 90 % (5th–95th percentile) of our seeds; it **partly holds** "
+    "when the direction is supported but a single-run number lies outside that range (or only one "
+    "half of a two-part claim is supported); it **does not hold** when the direction is not "
+    "supported or is reversed."
+)
+
+
+def supported(c: dict, p_key: str = "p_welch") -> int:
+    """+1 / −1 when the CI excludes 0 and p ≤ α (in that direction), else 0."""
+    lo, hi = c["diff_ci95"]
+    p = c.get(p_key, c["p_welch"])
+    if p is None or not p <= ALPHA:
+        return 0
+    return 1 if lo > 0 else -1 if hi < 0 else 0
+
+
+def _outside(pos: dict) -> str:
+    far = [f"the paper's {a.upper()} {pos[a]['value']} lies at percentile {pos[a]['percentile']:.1f} "
+           "of our seeds"
+           for a in ("ac", "eac") if not pos[a]["within_5_95"]]
+    return "; " + ", ".join(far) + " (outside the 5-95% range)"
+
+
+def _headline_verdict(cid, experiment, claim, paper_says, measure, stats, pos, what,
+                      reversed_why=None) -> dict:
+    """A headline claim (GRID-1, BOWL-1): EAC > AC on the primary measure (Holm), and whether both of the
+    paper's single-run results lie within our seeds' 5-95% range."""
+    d = supported(stats, "p_holm")
+    within = pos["ac"]["within_5_95"] and pos["eac"]["within_5_95"]
+    against = reversed_why if d < 0 and reversed_why else "EAC > AC is not supported"
+    return {
+        "id": cid, "experiment": experiment, "claim": claim, "paper": paper_says, "measure": measure,
+        "stats": stats,
+        "verdict": "holds" if d > 0 and within else "partly holds" if d > 0 else "does not hold",
+        "why": ("EAC > AC is supported" if d > 0 else against)
+        + (f"; both single-run {what} lie within our seeds' 5-95% range" if within else _outside(pos)),
+    }
+
+
+def judge_claims(grid: dict, gstats: dict, bowl: dict, bstats: dict) -> list[dict]:
+    """The paper's claims, each with what we found and a verdict (`VERDICT_RULES`)."""
+    g, b = paper.GRID_SUCCESSES, paper.BOWLING_PINS
+    out = []
+    # GRID-1: the end points of Fig. 3.
+    out.append(_headline_verdict(
+        "GRID-1", "grid",
+        f"EAC reaches the goal more often than AC: {g['eac']} vs {g['ac']} of {paper.GRID_TRIALS} trials",
+        f"EAC {g['eac']}, AC {g['ac']} (one run each; difference +{g['eac'] - g['ac']})", "successes",
+        gstats["primary"], grid["paper_position"], "numbers"))
+    # GRID-2: faster learning / steeper curve from the first trials.
+    auc = gstats["secondary"]["auc_cumulative"]
+    fs = gstats["secondary"]["first_success"]
+    cur = gstats["curves"]
+    early = max(1, grid["trials"] // 10)
+    d_auc = supported(auc, "p_holm")
+    sustained = cur.get("sustained_from_trial")
+    early_ok = sustained is not None and sustained <= early and cur["diff"][-1] > 0
+    out.append({
+        "id": "GRID-2", "experiment": "grid",
+        "claim": "EAC learns faster (steeper cumulative curve), steadily from the first trials; "
+                 "AC learns slowly",
+        "paper": "Fig. 3: EAC's slope higher throughout; AC speeds up only after trial "
+                 f"~{paper.GRID_AC_SPEEDUP_TRIAL}",
+        "measure": "auc_cumulative", "stats": auc, "first_success": fs, "curve": {
+            "sustained_from_trial": sustained, "first_significant_trial": cur.get("first_significant_trial"),
+            "n_significant_trials": len(cur.get("significant_trials", [])), "trials": cur["trials"]},
+        "verdict": "holds" if d_auc > 0 and early_ok else "partly holds" if d_auc > 0 else "does not hold",
+        "why": ("the area under EAC's cumulative curve is larger" if d_auc > 0 else
+                "the area under the cumulative curves does not favour EAC")
+        + (f"; EAC's per-trial success rate is higher on every trial from trial {sustained} on "
+           f"(max-T permutation, FWER {ALPHA})" if sustained else "; no sustained per-trial advantage")
+        + ("" if early_ok or d_auc <= 0 else f", which is later than the first {early} trials"),
+    })
+    # GRID-3: Fig. 2 — EAC's final policy is more optimised.
+    rc = grid["greedy_reach"]["contrast"]
+    d = supported(rc)
+    out.append({
+        "id": "GRID-3", "experiment": "grid",
+        "claim": "EAC ends with a better policy than AC (Fig. 2: greedy paths reach the goal)",
+        "paper": "Fig. 2: one EAC and one AC policy drawn; EAC's 'more optimized'",
+        "measure": "greedy_reach", "stats": rc,
+        "verdict": "holds" if d > 0 else "does not hold",
+        "why": "greedy paths of EAC's final policies reach the goal from more start cells" if d > 0 else
+        "EAC's final greedy policies do not reach the goal from more start cells than AC's",
+    })
+    # BOWL-1: the totals of Table I.
+    out.append(_headline_verdict(
+        "BOWL-1", "bowling",
+        f"EAC knocks more pins than AC: {b['eac']} vs {b['ac']} of {paper.BOWLING_MAX_PINS} (Table I)",
+        f"EAC {b['eac']}, AC {b['ac']} (one run each; difference +{b['eac'] - b['ac']})", "return",
+        bstats["primary"], bowl["paper_position"], "totals",
+        reversed_why="EAC < AC: the difference is reversed"))
+    # BOWL-2: EAC's chance-1 angle negative, chance-2 positive after ~5 trials.
+    ang = bowl["angles"]
+    e1, e2 = ang["eac"]["theta1"], ang["eac"]["theta2"]
+    neg = e1["ci95"][1] < 0 and e1["share_claimed_side_ci95"][0] > 0.5
+    posi = e2["ci95"][0] > 0 and e2["share_claimed_side_ci95"][0] > 0.5
+    lo_t, hi_t = bowl["angle_window"]
+    out.append({
+        "id": "BOWL-2", "experiment": "bowling",
+        "claim": f"After ~{paper.ANGLE_SETTLE_TRIALS} trials EAC's chance-1 angle settles negative "
+                 "(right pins), chance-2 positive (left pins)",
+        "paper": "Fig. 5: one EAC run converges to θ₁ < 0, θ₂ > 0", "measure": "theta", "stats": ang,
+        "verdict": "holds" if neg and posi else "partly holds" if neg or posi else "does not hold",
+        "why": f"over trials {lo_t}-{hi_t}, EAC's mean chance-1 angle is {e1['mean']:+.4f} rad "
+               f"({'negative' if neg else 'not reliably negative'}; "
+               f"{100 * e1['share_claimed_side']:.0f}% of seeds below 0) and its chance-2 angle "
+               f"{e2['mean']:+.4f} rad ({'positive' if posi else 'not reliably positive'}; "
+               f"{100 * e2['share_claimed_side']:.0f}% of seeds above 0)",
+    })
+    # BOWL-3: AC finds no well-defined policy, EAC does.
+    c = ang["contrast_sd_theta1"]
+    d = supported(c)
+    out.append({
+        "id": "BOWL-3", "experiment": "bowling", "claim": "AC finds no well-defined policy; EAC does",
+        "paper": "Fig. 5: AC's angles keep wandering", "measure": "sd_theta1", "stats": c,
+        "verdict": "holds" if d < 0 else "does not hold",
+        "why": (f"EAC's chance-1 angle varies less over trials {lo_t}-{hi_t} than AC's" if d < 0 else
+                f"EAC's chance-1 angle varies more than AC's over trials {lo_t}-{hi_t} (reversed)" if d > 0
+                else f"EAC's chance-1 angle does not vary less than AC's over trials {lo_t}-{hi_t}"),
+    })
+    return out
+

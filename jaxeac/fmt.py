@@ -1,0 +1,65 @@
+"""Numbers as reports and the command line print them: fixed, compact, signed, CIs, p-values.
+
+The `jaxeac reproduce` report, the `jaxeac compare` report and the CLI have always printed
+numbers in their own styles; each call site passes its digits and style explicitly, so
+one implementation serves all three without changing a byte of their output.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable
+
+
+def number(x, digits: int = 2, *, sign: bool = False, missing: str = "n/a") -> str:
+    """`x` with `digits` decimals (`sign`: always a sign); None, NaN and ±inf print as `missing`."""
+    if x is None:
+        return missing
+    x = float(x)
+    if not math.isfinite(x):
+        return missing
+    return f"{x:{'+' if sign else ''}.{digits}f}"
+
+
+def compact(x, digits: int = 3, *, sign: bool = False, missing: str = "—") -> str:
+    """As `number`, but integers as they are and 0 < |x| < 1e-3 or |x| ≥ 1e5 as x.xxe±yy."""
+    if x is None:
+        return missing
+    if isinstance(x, numbers.Integral):
+        return f"{int(x):{'+' if sign else ''}d}"
+    x = float(x)
+    if not math.isfinite(x):
+        return missing
+    if x != 0 and (abs(x) < 1e-3 or abs(x) >= 1e5):
+        return f"{x:{'+' if sign else ''}.2e}"
+    return number(x, digits, sign=sign, missing=missing)
+
+
+def interval(pair, digits: int = 2, *, sign: bool = False, form: Callable[..., str] = number) -> str:
+    """"[lo, hi]", each bound printed by `form` (`number` or `compact`)."""
+    return f"[{form(pair[0], digits, sign=sign)}, {form(pair[1], digits, sign=sign)}]"
+
+
+def compact_interval(pair, digits: int = 3) -> str:
+    """"[lo, hi]" with `compact` bounds."""
+    return interval(pair, digits, form=compact)
+
+
+def p_value(x, digits: int = 3, *, floor: str = "1e-16", sci_below: float | None = 1e-3,
+            general: bool = False, missing: str = "n/a") -> str:
+    """A p-value: "< floor" below `floor`; x.xxe−yy below `sci_below`; else `digits` decimals
+    (`general`: `digits` significant figures, format ``g``); None and NaN print as `missing`."""
+    if x is None or not math.isfinite(float(x)):
+        return missing
+    if x < float(floor):
+        return f"< {floor}"
+    if sci_below is not None and x < sci_below:
+        return f"{x:.2e}"
+    return f"{x:.{digits}{'g' if general else 'f'}}"
+
+
+def size_word(g: float, words: tuple[str, str, str, str] = ("negligible", "small", "medium", "large")) -> str:
+    """Cohen's name for the size of a standardised effect: |g| < 0.2, < 0.5, < 0.8, else."""
+    g = abs(g)
+    return words[0] if g < 0.2 else words[1] if g < 0.5 else words[2] if g < 0.8 else words[3]
