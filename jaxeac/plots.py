@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats as sps  # noqa: E402
 
-from jaxeac.envs.grid import ACTION_DELTAS, GridMap  # noqa: E402
+from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
 
 COLORS = {"ac": "tab:blue", "eac": "tab:red"}
@@ -53,13 +53,10 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
 
 def greedy_path(grid: GridMap, policy: np.ndarray, start: int, max_steps: int) -> list[int]:
     """Follow `policy` deterministically from `start` until the goal, a wall loop or `max_steps`."""
+    next_cell = transition_tables(grid)[0]  # G4
     path, s, seen = [start], start, {start}
     for _ in range(max_steps):
-        y, x = divmod(s, grid.width)
-        dx, dy = ACTION_DELTAS[int(policy[s])]
-        nx, ny = x + dx, y + dy
-        if 0 <= nx < grid.width and 0 <= ny < grid.height and not grid.obstacles[ny, nx]:
-            s = ny * grid.width + nx
+        s = int(next_cell[s, int(policy[s])])
         path.append(s)
         if s == grid.goal_index or s in seen:
             break

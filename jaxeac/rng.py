@@ -8,6 +8,7 @@ and (trial, C) for the start cell (G3). No key is split per step, every loop (th
 literal trials loop, the flat loop, the fused GPU kernel, bowling) draws the same
 numbers, and the same root key gives bit-identical results (R2).
 Bowling's execution noise (B3) comes from ``fold_in(fold_in(seed_key, trial), chance)``.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

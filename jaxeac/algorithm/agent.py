@@ -2,11 +2,14 @@
 
 Debnath & Nassour (2014): equations (1)–(4) for AC and Algorithm 1 for EAC,
 with every open point pinned by SPEC E1–E7. AC is EAC with both memories off;
-there is one code path. Callers vmap over seeds.
+there is one code path. Each piece is defined here once and called by the XLA loops
+(`jaxeac.running.loops`), the fused GPU kernel (`jaxeac.running.kernel`, as per-lane
+scalars) and bowling alike. Callers vmap over seeds.
 
 * (1) π(a|s) ∝ exp(p(s,a)/τ), preferences start at 0 (uniform policy).
 * (3) δ = r + γ·V(s') − V(s), with V(s') = 0 when s' is terminal.
 * critic: V(s) ← V(s) + α·δ;  (4) actor: p(s,a) ← p(s,a) + β·δ.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ The agent sees one small interface whatever the layout (`Memory`): `success_acti
 and `failure_flags` for E1, `record` after every chance (E4/E6 entries), `end_trial`
 when a trial ends, and `policy_actions` for G7. The layout-specific functions below
 implement it. All functions are pure and single-stream (one seed); callers vmap.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

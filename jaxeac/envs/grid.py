@@ -9,6 +9,7 @@ and at most C chances per trial (G5: truncation, kept apart from termination).
 Static structure (the map, transition tables) lives on the `GridWorld` object;
 `reset`/`step` are pure functions over the frozen `GridState`, gymnax-style.
 States are flat cell indices ``s = y * width + x``.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations
@@ -165,7 +166,7 @@ class GridWorld:
         self.map = grid_map
         self.n_chances = int(n_chances)
         self.n_states = grid_map.n_cells
-        next_state, reward, bumped = _transition_tables(grid_map)
+        next_state, reward, bumped = transition_tables(grid_map)
         self._next_state = next_state
         self._reward = reward
         self._bumped = bumped
@@ -231,7 +232,7 @@ def shaped_reward(distance, bumped, goal_known) -> jax.Array:
     return jnp.where(bumped, -1.0, jnp.where(goal_known, 1.0 / (1.0 + distance), 0.0))
 
 
-def _transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tabulate G4 for every (cell, action): next cell, reward, bumped."""
     h, w = grid_map.height, grid_map.width
     n = h * w

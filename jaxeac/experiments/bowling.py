@@ -17,6 +17,7 @@ Physics backends (B7):
 
 All consume the same random numbers: E1 uniforms from `step_uniform` and throw
 noise from ``fold_in(fold_in(fold_in(root, seed), trial), chance)``.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

@@ -169,7 +169,8 @@ def _entry_hyper(settings: list[GridSettings], per_point: int) -> Hyper:
     return Hyper(column("alpha"), column("beta"), column("gamma"), column("temperature"))
 
 
-def _load(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarray, np.ndarray]:
+def load_point(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarray, np.ndarray]:
+    """(success bool [N, T], steps [N, T]) of one algorithm at sweep point `point_id`."""
     parts = [np.load(_unit_files(out, point_id, algo, c)) for c in range(n_chunks)]
     return (np.concatenate([p["success"] for p in parts]), np.concatenate([p["steps"] for p in parts]))
 
@@ -177,7 +178,7 @@ def _load(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarra
 def _results(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) -> list[dict]:
     rows = []
     for i, point in enumerate(points):
-        successes = {a: _load(out, i, a, n_chunks)[0].sum(axis=1) for a in sweep.base.algos}
+        successes = {a: load_point(out, i, a, n_chunks)[0].sum(axis=1) for a in sweep.base.algos}
         diff = None
         if "ac" in successes and "eac" in successes:
             diff = welch_diff_ci95(successes["ac"], successes["eac"])
@@ -216,7 +217,7 @@ def _compare_points(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) 
         if (folder / "stats.json").exists():
             continue
         s = sweep.settings(point)
-        data = {a: _load(out, i, a, n_chunks) for a in s.algos}
+        data = {a: load_point(out, i, a, n_chunks) for a in s.algos}
         with staged_dir(folder) as stage:
             lines = ["algo,seed,successes,steps,first_success"]
             for a, (success, steps) in data.items():

@@ -23,6 +23,7 @@ results are compared in BENCHMARKS.md rather than promised equal.
 Supported: the grid world, rows tables, the packed dense memory or none (AC), both
 E6 rules, the E2 variant, constant step sizes. Anything else runs the XLA loop
 (`kernel_unsupported` says why).
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

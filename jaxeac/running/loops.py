@@ -12,6 +12,7 @@
 A chance is `choose` (E1 with the seed's uniform, R1), the environment's move, and
 `learn_and_record` ((2)–(4), E5/E6 records); bowling calls the same two functions.
 All take a resolved `RunConfig` (`RunConfig.resolve`).
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations

@@ -60,17 +60,9 @@ def greedy_reach(grid_map, policies: np.ndarray, max_steps: int) -> np.ndarray:
     policies: int [N, S] final greedy actions (G7). Paths follow G2/G4 moves for at
     most `max_steps` moves (the chances of a trial, G5), vectorised over seeds and cells.
     """
-    from jaxeac.envs.grid import ACTION_DELTAS
+    from jaxeac.envs.grid import transition_tables
 
-    h, w = grid_map.height, grid_map.width
-    ys, xs = np.divmod(np.arange(h * w), w)
-    nxt = np.empty((h * w, len(ACTION_DELTAS)), np.int64)
-    for a, (dx, dy) in enumerate(ACTION_DELTAS):
-        nx, ny = xs + dx, ys + dy
-        inside = (nx >= 0) & (nx < w) & (ny >= 0) & (ny < h)
-        target = np.where(inside, ny.clip(0, h - 1) * w + nx.clip(0, w - 1), np.arange(h * w))
-        blocked = grid_map.obstacles.reshape(-1)[target]
-        nxt[:, a] = np.where(blocked, np.arange(h * w), target)
+    nxt = transition_tables(grid_map)[0].astype(np.int64)  # G4
     nxt[grid_map.goal_index] = grid_map.goal_index  # the goal is terminal
     starts = grid_map.start_cells
     policies = np.asarray(policies, np.int64)

@@ -265,7 +265,7 @@ def step_calibration(folder: Path, sizes: Sizes, key: int, progress: bool) -> di
     """`jaxeac sweep` over size, chances, α, β; where AC's mean is the paper's 56, what does EAC do?"""
     from jaxeac import plots
     from jaxeac.experiments.grid import GridSettings
-    from jaxeac.experiments.sweep import Sweep, _load, run_sweep
+    from jaxeac.experiments.sweep import Sweep, load_point, run_sweep
 
     base = GridSettings(preset="paper", seeds=sizes.calibration_seeds, key=key,
                         chunk_size=sizes.calibration_seeds)
@@ -286,8 +286,8 @@ def step_calibration(folder: Path, sizes: Sizes, key: int, progress: bool) -> di
     near = [p for p in points if abs(p["ac"] - target_ac) <= CALIBRATION_TOLERANCE]
 
     def detail(p):
-        ac = _load(folder, p["point"], "ac", 1)[0].sum(axis=1)
-        eac = _load(folder, p["point"], "eac", 1)[0].sum(axis=1)
+        ac = load_point(folder, p["point"], "ac", 1)[0].sum(axis=1)
+        eac = load_point(folder, p["point"], "eac", 1)[0].sum(axis=1)
         return {**p, "eac_paper_position": paper_position(eac, target_eac),
                 "ac_paper_position": paper_position(ac, target_ac),
                 "contrast": contrast(ac, eac, sub_key(key, f"calibration/{p['point']}"),
