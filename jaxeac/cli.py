@@ -64,11 +64,21 @@ def add_grid_flags(p: argparse.ArgumentParser) -> None:
                    help="algorithms: ac, eac, eac_success_only, eac_failure_only (default: ac eac)")
     p.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
     p.add_argument("--key", type=nonneg_int, default=0, metavar="K", help="root PRNG key (R1)")
-    p.add_argument("--chunk-size", type=positive_int, default=1024, metavar="M",
-                   help="seeds per compiled batch; bounds memory (default 1024)")
+    p.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
+                   help="seeds per compiled batch; bounds memory (default: chosen for the backend and "
+                        "free device memory; results do not depend on it)")
     p.add_argument("--memory", default="dense", metavar="LAYOUT", help="memory layout: dense | buffer (E7)")
     p.add_argument("--capacity", type=positive_int, default=1024, metavar="K",
                    help="slots per memory for --memory buffer")
+
+
+def add_output_flags(p: argparse.ArgumentParser) -> None:
+    """What a grid run folder holds beyond results.parquet's per-seed measures and success curves."""
+    p.add_argument("--full-outputs", action="store_true",
+                   help="keep per-trial steps and final policies at any seed count "
+                        "(default: up to 100,000 seeds)")
+    p.add_argument("--per-seed-csv", action="store_true",
+                   help="write per_seed.csv at any seed count (default: up to 100,000 seeds)")
 
 
 def add_solver_flags(p: argparse.ArgumentParser) -> None:
@@ -100,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", default="runs/grid", metavar="DIR", help="run folder (default runs/grid)")
     g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_output_flags(g)
     g.add_argument("--num-processes", type=positive_int, default=1, metavar="P",
                    help="split the seeds over P processes (hosts); each writes DIR/part-I-of-P/")
     g.add_argument("--process-id", type=nonneg_int, default=0, metavar="I", help="this process, 0..P-1")
@@ -110,6 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("dir", metavar="DIR")
     m.add_argument("--no-compare", action="store_true", help="skip the statistics report")
     m.add_argument("--quiet", action="store_true")
+    add_output_flags(m)
 
     b = sub.add_parser("bowling", help="run AC and EAC learning to bowl in MuJoCo over many seeds")
     b.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
@@ -193,13 +205,21 @@ def cmd_grid(args: argparse.Namespace) -> int:
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:
         run = run_grid(settings, progress=bar.update)
-    return _finish_grid(run, out, compare=not args.no_compare, quiet=args.quiet)
+    return _finish_grid(run, out, compare=not args.no_compare, quiet=args.quiet,
+                        options=_output_options(args, settings.seeds))
 
 
-def _finish_grid(run, out, *, compare: bool, quiet: bool) -> int:
+def _output_options(args: argparse.Namespace, n_seeds: int):
+    from jaxeac.experiments.results import OutputOptions
+
+    return OutputOptions.auto(n_seeds, full=True if getattr(args, "full_outputs", False) else None,
+                              csv=True if getattr(args, "per_seed_csv", False) else None)
+
+
+def _finish_grid(run, out, *, compare: bool, quiet: bool, options=None) -> int:
     from jaxeac.experiments.grid import summary_table, write_grid_outputs
 
-    summary = write_grid_outputs(run, out)
+    summary = write_grid_outputs(run, out, options=options)
     print(summary_table(summary))
     print(f"results in {out}/")
     if compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2:
@@ -210,6 +230,7 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool) -> int:
 def _grid_part(args: argparse.Namespace, settings, out) -> int:
     """One process of a multi-process run: its block of seeds into DIR/part-I-of-P/."""
     from jaxeac.experiments.grid import part_folder, process_share, run_grid, write_grid_outputs
+    from jaxeac.experiments.results import CSV_SEEDS, OutputOptions
 
     if args.coordinator:
         import jax
@@ -218,7 +239,8 @@ def _grid_part(args: argparse.Namespace, settings, out) -> int:
     first, n = process_share(settings.seeds, args.process_id, args.num_processes)
     run = run_grid(settings, first_seed=first, n_seeds=n)
     folder = part_folder(out, args.process_id, args.num_processes)
-    write_grid_outputs(run, folder, figures=False)
+    write_grid_outputs(run, folder, figures=False,  # parts keep everything `jaxeac merge` joins
+                       options=OutputOptions(trial_steps=True, policies=True, per_seed_csv=n <= CSV_SEEDS))
     print(f"seeds {first}..{first + n - 1} in {folder}/; when every part is done: jaxeac merge {out}")
     return 0
 
@@ -226,7 +248,9 @@ def _grid_part(args: argparse.Namespace, settings, out) -> int:
 def cmd_merge(args: argparse.Namespace) -> int:
     from jaxeac.experiments.grid import merge_parts
 
-    return _finish_grid(merge_parts(args.dir), args.dir, compare=not args.no_compare, quiet=args.quiet)
+    run = merge_parts(args.dir)
+    return _finish_grid(run, args.dir, compare=not args.no_compare, quiet=args.quiet,
+                        options=_output_options(args, run.settings.seeds))
 
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,

@@ -9,9 +9,11 @@ import subprocess
 import sys
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from jaxeac.cli import main
+from jaxeac.experiments.results import load_grid_results
 
 SMALL = ["--seeds", "4", "--trials", "6", "--chances", "10", "--quiet", "--no-compare"]
 
@@ -74,17 +76,20 @@ def test_grid_end_to_end(tmp_path, capsys):
     assert main(["grid", *SMALL, "--out", str(out), "--key", "5"]) == 0
     printed = capsys.readouterr().out
     assert "EAC - AC" in printed and "agent-steps/s" in printed
-    assert result_files(out) == ["curves.npz", "fig2_policies.png", "fig3_cumulative_successes.png",
-                                 "per_seed.csv", "policies.npz", "summary.json"]
+    assert result_files(out) == ["fig2_policies.png", "fig3_cumulative_successes.png",
+                                 "per_seed.csv", "results.parquet", "summary.json"]
     rows = list(csv.DictReader((out / "per_seed.csv").open()))
     assert [(r["algo"], int(r["seed"])) for r in rows] == [(a, i) for a in ("ac", "eac") for i in range(4)]
-    curves = np.load(out / "curves.npz")
+    results = load_grid_results(out, ("ac", "eac"), 6)
+    table = pq.read_table(out / "results.parquet")  # one line for a user, typed columns
+    assert table.num_rows == 8 and table.schema.field("success").type.list_size == 6
+    curves = {a: r.success for a, r in results.items()}
     for algo in ("ac", "eac"):
-        success = curves[algo]
-        assert success.dtype == bool and success.shape == (4, 6)
+        success, r = curves[algo], results[algo]
+        assert success.dtype == bool and success.shape == (4, 6) and r.policy.shape == (4, 121)
         mine = [r for r in rows if r["algo"] == algo]
         np.testing.assert_array_equal([int(r["successes"]) for r in mine], success.sum(1))
-        np.testing.assert_array_equal([int(r["steps"]) for r in mine], curves[f"{algo}_steps"].sum(1))
+        np.testing.assert_array_equal([int(r["steps"]) for r in mine], results[algo].trial_steps.sum(1))
         for r, s in zip(mine, success, strict=True):
             assert int(r["first_success"]) == (np.argmax(s) + 1 if s.any() else -1)
     summary = json.loads((out / "summary.json").read_text())
@@ -99,6 +104,7 @@ def test_cli_results_match_library_and_rerun(tmp_path):
     assert main(["grid", *SMALL, "--out", str(a), "--chunk-size", "3"]) == 0
     assert main(["grid", *SMALL, "--out", str(b), "--chunk-size", "4"]) == 0
     assert (a / "per_seed.csv").read_text() == (b / "per_seed.csv").read_text()
+    assert pq.read_table(a / "results.parquet").equals(pq.read_table(b / "results.parquet"))
 
 
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, capsys):

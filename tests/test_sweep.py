@@ -100,7 +100,7 @@ def test_bad_sweep_input_before_compute(sets, message, tmp_path, capsys):
 
 
 def test_vmapped_hyper_shares_one_program(tmp_path):
-    from jaxeac import runner
+    from jaxeac.running import batch as runner
 
     runner._COMPILED.clear()
     base = GridSettings(seeds=4, chunk_size=4, trials=5, chances=5)

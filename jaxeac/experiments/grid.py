@@ -30,6 +30,7 @@ from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported fr
     welch_diff_ci95,
 )
 from jaxeac.experiments.presets import make as make_preset
+from jaxeac.experiments.results import RESULTS_FILE, OutputOptions, load_grid_results, write_grid_results
 from jaxeac.io import atomic_write_json, staged_dir
 from jaxeac.running.batch import run_seeds
 from jaxeac.running.config import RunConfig
@@ -51,7 +52,7 @@ class GridSettings:
     algos: tuple[str, ...] = ("ac", "eac")
     seeds: int = 1000
     key: int = 0
-    chunk_size: int = 1024
+    chunk_size: int | None = None  # None: `auto_chunk_size` for the backend and devices
     memory: str = "dense"
     capacity: int = 1024
 
@@ -70,7 +71,9 @@ class GridSettings:
         return filled
 
     def validate(self) -> None:
-        for name in ("trials", "chances", "seeds", "chunk_size", "capacity"):
+        sizes = ("trials", "chances", "seeds", "capacity")
+        sizes += ("chunk_size",) if self.chunk_size is not None else ()
+        for name in sizes:
             check_positive_int(name.replace("_", " "), getattr(self, name))
         check_rate("alpha", self.alpha)
         check_rate("beta", self.beta)
@@ -157,15 +160,17 @@ def merge_parts(out: str | Path) -> GridRun:
     settings = dataclasses.replace(GridSettings(), **{k: v for k, v in config.items() if k != "map"})
     settings = dataclasses.replace(settings, algos=tuple(settings.algos))
     results = {}
+    loaded = [load_grid_results(p, settings.algos, settings.trials) for p in parts]
     for algo in settings.algos:
-        pieces = []
-        for p, summary in zip(parts, summaries, strict=True):
-            with np.load(p / "curves.npz") as c, np.load(p / "policies.npz") as pol:
-                pieces.append((pol["seeds"], c[algo], c[f"{algo}_steps"], pol[algo],
-                               summary["per_algo"][algo]))
-        seeds = np.concatenate([x[0] for x in pieces])
+        pieces = [(part[algo], summary["per_algo"][algo])
+                  for part, summary in zip(loaded, summaries, strict=True)]
+        if any(x.trial_steps is None or x.policy is None for x, _ in pieces):
+            raise UsageError(f"{out}: a part holds no per-trial steps or policies; run the parts with "
+                             "--full-outputs to merge them")
+        seeds = np.concatenate([x.seeds for x, _ in pieces])
         if not np.array_equal(seeds, np.arange(settings.seeds)):
             raise UsageError(f"{out}: the parts' seeds do not cover 0..{settings.seeds - 1} exactly once")
+        pieces = [(x.seeds, x.success, x.trial_steps, x.policy, s) for x, s in pieces]
         results[algo] = SeedsResult(
             seeds=seeds, success=np.concatenate([x[1] for x in pieces]),
             steps=np.concatenate([x[2] for x in pieces]).astype(np.int32),
@@ -188,6 +193,8 @@ def summarize(run: GridRun) -> dict:
             "mean_steps": float(r.steps.sum(axis=1).mean()), "agent_steps": r.agent_steps,
             "agent_steps_per_second": r.agent_steps / r.run_seconds if r.run_seconds > 0 else None,
         }
+        if r.settings is not None:  # how it ran: every `auto` resolved (RunConfig.resolve), chunk size
+            out["per_algo"][algo]["run"] = r.settings
     total_steps = sum(r.agent_steps for r in run.results.values())
     out["agent_steps_per_second"] = total_steps / out["run_seconds"] if out["run_seconds"] > 0 else None
     return out
@@ -223,20 +230,18 @@ def per_seed_csv(run: GridRun) -> str:
     return buf.getvalue()
 
 
-def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True) -> dict:
-    """Write per_seed.csv, curves.npz, policies.npz, summary.json and figures, all or nothing."""
+def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
+                       options: OutputOptions | None = None) -> dict:
+    """Write results.parquet (and per_seed.csv for small runs), summary.json and figures, all
+    or nothing. `options`: what the folder holds (default `OutputOptions.auto` for the seed count)."""
     summary = summarize(run)
+    options = options or OutputOptions.auto(run.settings.seeds)
+    summary["outputs"] = dataclasses.asdict(options)
     with staged_dir(out) as stage:
-        (stage / "per_seed.csv").write_text(per_seed_csv(run))
-        np.savez(  # uncompressed: zlib dominated writing 10⁶-seed runs
-            stage / "curves.npz",
-            **{algo: r.success for algo, r in run.results.items()},
-            **{f"{algo}_steps": r.steps.astype(np.int16) for algo, r in run.results.items()},
-        )
-        np.savez(
-            stage / "policies.npz", seeds=next(iter(run.results.values())).seeds,
-            **{algo: r.policy.astype(np.int8) for algo, r in run.results.items()},
-        )
+        write_grid_results(stage / RESULTS_FILE, run.results, run.settings.trials, run.grid_map.n_cells,
+                           options)
+        if options.per_seed_csv:
+            (stage / "per_seed.csv").write_text(per_seed_csv(run))
         if figures:
             from jaxeac import plots
 

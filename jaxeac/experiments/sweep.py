@@ -32,6 +32,7 @@ from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, 
 from jaxeac.running.batch import run_entries
 
 TRACED = ("alpha", "beta", "gamma", "temperature")
+SAVE_UNIT = 1024  # seeds per saved part when no --chunk-size is given
 STATIC = ("trials", "chances", "preset", "map_file")
 KEYS = {"alpha": float, "beta": float, "gamma": float, "temperature": float,
         "trials": int, "chances": int, "preset": str, "map_file": str}
@@ -127,7 +128,8 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
 
     points = sweep.points()
     base = sweep.base
-    n_chunks = -(-base.seeds // base.chunk_size)
+    unit = base.chunk_size or SAVE_UNIT  # seeds per saved part: what a killed sweep resumes from
+    n_chunks = -(-base.seeds // unit)
     groups: dict[tuple, list[int]] = {}
     for i, point in enumerate(points):
         s = sweep.settings(point)
@@ -142,7 +144,7 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
                 todo = [i for i in ids if not _unit_files(out, i, algo, chunk).exists()]
                 if not todo:
                     continue
-                seeds = np.arange(chunk * base.chunk_size, min((chunk + 1) * base.chunk_size, base.seeds))
+                seeds = np.arange(chunk * unit, min((chunk + 1) * unit, base.seeds))
                 hyper = _entry_hyper([sweep.settings(points[i]) for i in todo], seeds.size)
                 res, _, _ = run_entries(env, cfg, root_key=base.key, seeds=np.tile(seeds, len(todo)),
                                         hyper=hyper, chunk_size=min(len(todo) * seeds.size, 16384))

@@ -69,9 +69,11 @@ def _read_per_seed(path: Path) -> dict:
 
 
 def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunData:
-    """Read and cross-check summary.json, per_seed.csv and curves.npz."""
+    """Read and cross-check summary.json and the per-seed results: results.parquet (grid runs,
+    `jaxeac.experiments.results`) or per_seed.csv and curves.npz (bowling, and older grid runs)."""
     path = Path(run_dir)
-    for name in ("summary.json", "per_seed.csv", "curves.npz"):
+    columnar = (path / "results.parquet").is_file()
+    for name in ("summary.json",) + (() if columnar else ("per_seed.csv", "curves.npz")):
         if not (path / name).is_file():
             raise UsageError(
                 f"{path} has no {name}; pass a run directory written by 'jaxeac grid' or 'jaxeac bowling'"
@@ -95,6 +97,8 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
             raise UsageError(f"{flag} {algo!r} is not in this run (algos: {', '.join(algos) or 'none'})")
     if baseline == treatment:
         raise UsageError("--baseline and --treatment are the same method; choose two different ones")
+    if columnar:
+        return _load_columnar(path, experiment, primary, algos, trials, (baseline, treatment))
     with np.load(path / "curves.npz") as npz:
         arrays = {k: np.asarray(npz[k]) for k in npz.files}
     per_seed = _read_per_seed(path / "per_seed.csv")
@@ -147,6 +151,22 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
                 f"per_seed.csv return for {algo} does not match curves.npz; re-run the experiment"
             )
     return RunData(path, experiment, primary, algos, trials, success, returns, per_seed)
+
+
+def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunData:
+    from jaxeac.experiments.results import load_grid_results
+
+    loaded = load_grid_results(path, pair, trials)
+    success, per_seed = {}, {}
+    for algo, r in loaded.items():
+        if r.success.shape[0] < 2:
+            raise UsageError(f"{algo} has {r.success.shape[0]} seed(s); at least 2 seeds per method "
+                             "are needed")
+        success[algo] = r.success
+        per_seed[algo] = {"seed": r.seeds.astype(float), "successes": r.successes.astype(float),
+                          "steps": r.steps_total.astype(float),
+                          "first_success": r.first_success.astype(float)}
+    return RunData(path, experiment, primary, algos, trials, success, {}, per_seed)
 
 
 def late_window(trials: int) -> int:

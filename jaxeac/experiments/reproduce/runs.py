@@ -121,14 +121,15 @@ def _say(progress: bool, text: str) -> None:
 def _grid_run(folder: Path, settings, progress: bool, *, figures: bool, label: str) -> None:
     """Run (unless already on disk with the same config) and write one grid run folder."""
     from jaxeac.experiments.grid import run_grid, write_grid_outputs
+    from jaxeac.experiments.results import RESULTS_FILE, OutputOptions
 
     expect = {k: getattr(settings, k) for k in ("preset", "seeds", "key", "algos", "trials", "chances",
                                                 "alpha", "beta", "gamma", "temperature")}
-    if _finished(folder, expect) and (folder / "curves.npz").is_file():
+    if _finished(folder, expect) and (folder / RESULTS_FILE).is_file():
         return
     with _bar(progress, settings.seeds * len(settings.algos), label) as update:
         run = run_grid(settings, progress=update)
-    write_grid_outputs(run, folder, figures=figures)
+    write_grid_outputs(run, folder, figures=figures, options=OutputOptions())  # policies: Fig. 2 reach
 
 
 def _bowling_run(folder: Path, settings, progress: bool, *, figures: bool, label: str) -> None:
@@ -143,15 +144,13 @@ def _bowling_run(folder: Path, settings, progress: bool, *, figures: bool, label
     write_bowling_outputs(run, folder, figures=figures)
 
 
-def _grid_data(folder: Path, algos) -> tuple[dict, dict]:
+def _grid_data(folder: Path, algos, trials: int) -> tuple[dict, dict]:
     """(success [N, T], final policies [N, S]) per algorithm, read back from a run folder."""
-    with np.load(folder / "curves.npz") as npz:
-        success = {a: npz[a].astype(bool) for a in algos}
-    policies = {}
-    if (folder / "policies.npz").is_file():
-        with np.load(folder / "policies.npz") as npz:
-            policies = {a: npz[a] for a in algos if a in npz.files}
-    return success, policies
+    from jaxeac.experiments.results import load_grid_results
+
+    loaded = load_grid_results(folder, algos, trials)
+    return ({a: r.success for a, r in loaded.items()},
+            {a: r.policy for a, r in loaded.items() if r.policy is not None})
 
 
 def _bowling_data(folder: Path, algos) -> tuple[dict, dict]:
@@ -176,7 +175,7 @@ def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
                             chunk_size=sizes.grid_chunk).resolved()
     _grid_run(folder, settings, progress, figures=True, label="grid: AC and EAC")
     stats = compare_run_dir(folder, resamples=sizes.resamples, key=key, progress=progress)
-    success, policies = _grid_data(folder, ("ac", "eac"))
+    success, policies = _grid_data(folder, ("ac", "eac"), settings.trials)
     cum = {a: np.cumsum(s, axis=1, dtype=np.float64) for a, s in success.items()}
     band_key = sub_key(key, "grid/fig3_band")
     bands = curve_bands(cum["ac"], cum["eac"], band_key, resamples=sizes.band_resamples)
@@ -322,7 +321,7 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
     base = GridSettings(preset="paper", seeds=sizes.ablation_grid_seeds, key=key, algos=algos,
                         chunk_size=sizes.grid_chunk).resolved()
     _grid_run(folder / "grid_algos", base, progress, figures=False, label="ablations: grid variants")
-    success, _ = _grid_data(folder / "grid_algos", algos)
+    success, _ = _grid_data(folder / "grid_algos", algos, base.trials)
     totals = {a: s.sum(axis=1) for a, s in success.items()}
     variants = []
     eac_diff = None
@@ -343,7 +342,7 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
             sub = folder / f"grid_tau{tau:g}"
             s = dataclasses.replace(base, algos=("ac", "eac"), temperature=float(tau)).resolved()
             _grid_run(sub, s, progress, figures=False, label=f"ablations: temperature {tau:g}")
-        succ, _ = _grid_data(sub, ("ac", "eac"))
+        succ, _ = _grid_data(sub, ("ac", "eac"), base.trials)
         x = {a: v.sum(axis=1) for a, v in succ.items()}
         temps.append({"temperature": float(tau), "folder": sub.name, "ac": mean_ci(x["ac"]),
                       "eac": mean_ci(x["eac"]),

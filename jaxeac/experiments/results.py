@@ -1,0 +1,225 @@
+"""A grid run folder's per-seed results: one typed, compressed, columnar file, read back in one line.
+
+``results.parquet`` holds one row per (algorithm, seed) of a grid run (SPEC G7):
+
+| column | type | what |
+|---|---|---|
+| ``algo`` | dictionary string | the algorithm (`jaxeac.algorithm.ALGORITHMS`) |
+| ``seed`` | int64 | seed i of ``fold_in(root_key, i)`` (R1) |
+| ``successes`` | int32 | successful trials of T (the primary measure) |
+| ``steps`` | int64 | agent-steps over all T trials |
+| ``first_success`` | int32 | 1-based trial of the first success, −1 if none |
+| ``success`` | fixed_size_list<bool>[T] | success per trial (Arrow booleans: one bit each) |
+| ``trial_steps`` | fixed_size_list<int16>[T] | chances used per trial (optional) |
+| ``policy`` | fixed_size_list<int8>[S] | final greedy action per cell (optional) |
+
+Written with zstd compression in row groups of `ROW_GROUP` seeds, so neither writing
+nor reading needs more than a row group of temporaries. Load it with
+``pandas.read_parquet`` / ``pyarrow.parquet.read_table``, or as numpy arrays with
+`load_grid_results`. Per-trial steps and policies take most of the bytes, so above
+`FULL_OUTPUT_SEEDS` seeds they are left out unless asked for; ``per_seed.csv`` is
+written beside it for runs of at most `CSV_SEEDS` seeds (or when asked for).
+
+Run folders of earlier releases (``per_seed.csv``, ``curves.npz``, ``policies.npz``)
+load through the same function.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from jaxeac.errors import UsageError
+
+RESULTS_FILE = "results.parquet"
+ROW_GROUP = 1 << 16  # seeds per row group: bounded temporaries when writing and reading
+FULL_OUTPUT_SEEDS = 100_000  # above this many seeds, per-trial steps and policies only on request
+CSV_SEEDS = 100_000  # per_seed.csv for runs of at most this many seeds (or on request)
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputOptions:
+    """What a grid run folder holds beyond the per-seed measures and success curves."""
+
+    trial_steps: bool = True
+    policies: bool = True
+    per_seed_csv: bool = True
+
+    @classmethod
+    def auto(cls, n_seeds: int, *, full: bool | None = None, csv: bool | None = None) -> OutputOptions:
+        """Everything for small runs; above `FULL_OUTPUT_SEEDS` / `CSV_SEEDS` seeds only the
+        per-seed measures and success curves, unless `full` / `csv` say otherwise."""
+        full = n_seeds <= FULL_OUTPUT_SEEDS if full is None else full
+        return cls(trial_steps=full, policies=full, per_seed_csv=n_seeds <= CSV_SEEDS if csv is None else csv)
+
+
+def _arrow():
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise UsageError("reading and writing results needs pyarrow; pip install pyarrow") from None
+    return pa, pq
+
+
+def _fixed_list(pa, values: np.ndarray, width: int):
+    flat = values.reshape(-1)
+    return pa.FixedSizeListArray.from_arrays(pa.array(flat), width)
+
+
+def schema(trials: int, n_states: int, options: OutputOptions):
+    """The Arrow schema of ``results.parquet`` for T trials and S cells."""
+    pa, _ = _arrow()
+    fields = [
+        pa.field("algo", pa.dictionary(pa.int8(), pa.string())), pa.field("seed", pa.int64()),
+        pa.field("successes", pa.int32()), pa.field("steps", pa.int64()),
+        pa.field("first_success", pa.int32()),
+        pa.field("success", pa.list_(pa.bool_(), trials)),
+    ]
+    if options.trial_steps:
+        fields.append(pa.field("trial_steps", pa.list_(pa.int16(), trials)))
+    if options.policies:
+        fields.append(pa.field("policy", pa.list_(pa.int8(), n_states)))
+    return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1"})
+
+
+def _batch(pa, sch, algo: str, seeds, success, steps, policy, options: OutputOptions):
+    n, trials = success.shape
+    any_success = success.any(axis=1)
+    columns = {
+        "algo": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([algo])),
+        "seed": pa.array(np.asarray(seeds, np.int64)),
+        "successes": pa.array(success.sum(axis=1, dtype=np.int32)),
+        "steps": pa.array(steps.sum(axis=1, dtype=np.int64)),
+        "first_success": pa.array(np.where(any_success, success.argmax(axis=1) + 1, -1).astype(np.int32)),
+        "success": _fixed_list(pa, np.ascontiguousarray(success, bool), trials),
+    }
+    if options.trial_steps:
+        columns["trial_steps"] = _fixed_list(pa, np.asarray(steps, np.int16), trials)
+    if options.policies:
+        columns["policy"] = _fixed_list(pa, np.asarray(policy, np.int8), policy.shape[1])
+    return pa.record_batch([columns[f.name] for f in sch], schema=sch)
+
+
+def write_grid_results(path: str | Path, results: dict, trials: int, n_states: int,
+                       options: OutputOptions) -> None:
+    """Write every algorithm's `SeedsResult` (seeds, success, steps, policy) to `path`, row group
+    by row group. The caller writes into a staging folder (`jaxeac.io.staged_dir`)."""
+    pa, pq = _arrow()
+    sch = schema(trials, n_states, options)
+    with pq.ParquetWriter(str(path), sch, compression="zstd") as writer:
+        for algo, r in results.items():
+            for start in range(0, len(r.seeds), ROW_GROUP):
+                rows = slice(start, start + ROW_GROUP)
+                writer.write_batch(_batch(pa, sch, algo, r.seeds[rows], r.success[rows], r.steps[rows],
+                                          r.policy[rows], options), row_group_size=ROW_GROUP)
+
+
+@dataclasses.dataclass
+class AlgoResults:
+    """One algorithm's per-seed results read back from a run folder (numpy arrays)."""
+
+    seeds: np.ndarray  # int64 [N]
+    success: np.ndarray  # bool [N, T]
+    successes: np.ndarray  # int [N]
+    first_success: np.ndarray  # int [N]
+    steps_total: np.ndarray  # int [N]
+    trial_steps: np.ndarray | None  # int [N, T], if the folder holds them
+    policy: np.ndarray | None  # int [N, S], if the folder holds them
+
+
+def _unpack_list(column, width: int, dtype) -> np.ndarray:
+    """A fixed_size_list column as a numpy [rows, width] array."""
+    import pyarrow as pa
+
+    chunks = [c.flatten().to_numpy(zero_copy_only=False) for c in column.chunks] if column.num_chunks else []
+    flat = np.concatenate(chunks) if chunks else np.empty(0, dtype)
+    if isinstance(column.type, pa.FixedSizeListType) and column.type.list_size != width:
+        raise ValueError(f"list width {column.type.list_size}, expected {width}")
+    return flat.astype(dtype, copy=False).reshape(-1, width)
+
+
+def _load_parquet(path: Path, algos, trials: int) -> dict[str, AlgoResults]:
+    pa, pq = _arrow()
+    import pyarrow.compute as pc
+
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        raise UsageError(f"{path} is not a readable results file ({str(exc).splitlines()[0]}); "
+                         "re-run the experiment to rewrite it") from None
+    needed = {"algo", "seed", "successes", "steps", "first_success", "success"}
+    missing = needed - set(table.column_names)
+    if missing:
+        raise UsageError(f"{path} lacks the column(s) {', '.join(sorted(missing))}; re-run the experiment")
+    out = {}
+    algo_column = table.column("algo").cast(pa.string())
+    try:
+        for algo in algos:
+            rows = table.filter(pc.equal(algo_column, algo))
+            if rows.num_rows == 0:
+                raise UsageError(f"{path} has no rows for {algo!r}; the run folder is incomplete")
+            success = _unpack_list(rows.column("success"), trials, bool)
+            n_states = rows.schema.field("policy").type.list_size if "policy" in rows.column_names else 0
+            out[algo] = AlgoResults(
+                seeds=rows.column("seed").to_numpy(), success=success,
+                successes=rows.column("successes").to_numpy(),
+                first_success=rows.column("first_success").to_numpy(),
+                steps_total=rows.column("steps").to_numpy(),
+                trial_steps=(_unpack_list(rows.column("trial_steps"), trials, np.int32)
+                             if "trial_steps" in rows.column_names else None),
+                policy=_unpack_list(rows.column("policy"), n_states, np.int32) if n_states else None,
+            )
+    except (pa.ArrowException, ValueError) as exc:
+        raise UsageError(f"{path} has malformed columns ({exc}); re-run the experiment") from None
+    for algo, r in out.items():
+        if r.success.shape[0] != r.seeds.shape[0] or not np.array_equal(r.successes, r.success.sum(1)):
+            raise UsageError(f"{path}: successes for {algo} do not match its success curves; "
+                             "re-run the experiment")
+    return out
+
+
+def _load_legacy(folder: Path, algos, trials: int) -> dict[str, AlgoResults]:
+    """Run folders of release 0.1: curves.npz (success, steps) and policies.npz."""
+    import zipfile
+
+    def read(name):
+        try:
+            with np.load(folder / name) as npz:
+                return {k: np.asarray(npz[k]) for k in npz.files}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise UsageError(f"{folder / name} is not a readable .npz file ({exc}); "
+                             "re-run the experiment") from None
+
+    curves = read("curves.npz")
+    policies = read("policies.npz") if (folder / "policies.npz").is_file() else {}
+    out = {}
+    for algo in algos:
+        if algo not in curves:
+            raise UsageError(f"{folder / 'curves.npz'} has no array {algo!r}; re-run the experiment")
+        success = curves[algo].astype(bool)
+        if success.ndim != 2 or success.shape[1] != trials:
+            raise UsageError(f"{folder / 'curves.npz'}[{algo!r}] has shape {success.shape}, "
+                             f"expected [seeds, {trials}]")
+        steps = curves.get(f"{algo}_steps")
+        out[algo] = AlgoResults(
+            seeds=policies.get("seeds", np.arange(success.shape[0])), success=success,
+            successes=success.sum(1), first_success=np.where(success.any(1), success.argmax(1) + 1, -1),
+            steps_total=steps.sum(1) if steps is not None else np.zeros(success.shape[0], np.int64),
+            trial_steps=steps.astype(np.int32) if steps is not None else None,
+            policy=policies[algo].astype(np.int32) if algo in policies else None,
+        )
+    return out
+
+
+def load_grid_results(folder: str | Path, algos, trials: int) -> dict[str, AlgoResults]:
+    """Per-seed results of `algos` from a grid run folder, new format or old."""
+    folder = Path(folder)
+    if (folder / RESULTS_FILE).is_file():
+        return _load_parquet(folder / RESULTS_FILE, algos, trials)
+    if (folder / "curves.npz").is_file():
+        return _load_legacy(folder, algos, trials)
+    raise UsageError(f"{folder} has neither {RESULTS_FILE} nor curves.npz; "
+                     "pass a run folder written by 'jaxeac grid'")
