@@ -82,7 +82,7 @@ def test_grid_end_to_end(tmp_path, capsys):
     assert [(r["algo"], int(r["seed"])) for r in rows] == [(a, i) for a in ("ac", "eac") for i in range(4)]
     results = load_grid_results(out, ("ac", "eac"), 6)
     table = pq.read_table(out / "results.parquet")  # one line for a user, typed columns
-    assert table.num_rows == 8 and table.schema.field("success").type.list_size == 6
+    assert table.num_rows == 8 and table.schema.field("success_bits").type.byte_width == 1
     curves = {a: r.success for a, r in results.items()}
     for algo in ("ac", "eac"):
         success, r = curves[algo], results[algo]

@@ -1,0 +1,134 @@
+"""Run-folder outputs that scale: the results.parquet round trip, old folders, bad files, auto options."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from jaxeac.errors import UsageError
+from jaxeac.experiments.results import (
+    CSV_SEEDS,
+    FULL_OUTPUT_SEEDS,
+    RESULTS_FILE,
+    OutputOptions,
+    load_grid_results,
+    unpack_success,
+    write_grid_results,
+)
+from jaxeac.plots import count_percentile, cumulative_counts
+from jaxeac.running.outputs import SeedsResult
+
+
+def fake_results(rng, n, trials=13, states=7, algos=("ac", "eac")):
+    out = {}
+    for algo in algos:
+        success = rng.random((n, trials)) < 0.4
+        steps = rng.integers(1, 40, (n, trials)).astype(np.int32)
+        policy = rng.integers(0, 4, (n, states)).astype(np.int32)
+        out[algo] = SeedsResult(np.arange(n, dtype=np.int64), success, steps, policy, 0.0, 0.0)
+    return out
+
+
+@pytest.mark.parametrize("trials", [1, 8, 13, 200])
+def test_round_trip_is_exact(tmp_path, rng, trials, monkeypatch):
+    import jaxeac.experiments.results as results
+
+    monkeypatch.setattr(results, "ROW_GROUP", 5)  # several row groups, one short
+    res = fake_results(rng, 23, trials=trials)
+    write_grid_results(tmp_path / RESULTS_FILE, res, trials, 7, OutputOptions())
+    back = load_grid_results(tmp_path, ("ac", "eac"), trials)
+    for algo, r in res.items():
+        b = back[algo]
+        np.testing.assert_array_equal(b.seeds, r.seeds)
+        np.testing.assert_array_equal(b.success, r.success)
+        np.testing.assert_array_equal(b.trial_steps, r.steps)
+        np.testing.assert_array_equal(b.policy, r.policy)
+        np.testing.assert_array_equal(b.successes, r.success.sum(1))
+        np.testing.assert_array_equal(b.steps_total, r.steps.sum(1))
+        first = np.where(r.success.any(1), r.success.argmax(1) + 1, -1)
+        np.testing.assert_array_equal(b.first_success, first)
+    assert pq.ParquetFile(tmp_path / RESULTS_FILE).metadata.num_row_groups == 10  # 5 + short, per algo
+
+
+def test_success_bits_by_hand(tmp_path):
+    success = np.zeros((2, 10), bool)
+    success[0, [0, 9]] = True  # bit 0 of byte 0 and bit 1 of byte 1
+    success[1, 3] = True
+    steps, policy = np.ones((2, 10), np.int32), np.zeros((2, 3), np.int32)
+    res = {"ac": SeedsResult(np.arange(2), success, steps, policy, 0, 0)}
+    write_grid_results(tmp_path / RESULTS_FILE, res, 10, 3, OutputOptions(False, False, False))
+    table = pq.read_table(tmp_path / RESULTS_FILE)
+    assert table.column("success_bits").to_pylist() == [b"\x01\x02", b"\x08\x00"]
+    assert "policy" not in table.column_names and "trial_steps" not in table.column_names
+    np.testing.assert_array_equal(unpack_success(table.column("success_bits"), 10), success)
+    back = load_grid_results(tmp_path, ("ac",), 10)["ac"]
+    assert back.policy is None and back.trial_steps is None
+
+
+def test_auto_options_by_seed_count():
+    assert OutputOptions.auto(FULL_OUTPUT_SEEDS) == OutputOptions(True, True, FULL_OUTPUT_SEEDS <= CSV_SEEDS)
+    big = OutputOptions.auto(10 * max(FULL_OUTPUT_SEEDS, CSV_SEEDS))
+    assert big == OutputOptions(False, False, False)
+    assert OutputOptions.auto(10**7, full=True, csv=True) == OutputOptions(True, True, True)
+
+
+def test_old_run_folders_still_load(tmp_path, rng):
+    res = fake_results(rng, 6)
+    np.savez(tmp_path / "curves.npz", **{a: r.success for a, r in res.items()},
+             **{f"{a}_steps": r.steps.astype(np.int16) for a, r in res.items()})
+    np.savez(tmp_path / "policies.npz", seeds=np.arange(6),
+             **{a: r.policy.astype(np.int8) for a, r in res.items()})
+    back = load_grid_results(tmp_path, ("ac", "eac"), 13)
+    np.testing.assert_array_equal(back["eac"].success, res["eac"].success)
+    np.testing.assert_array_equal(back["ac"].policy, res["ac"].policy)
+
+
+def test_compare_reads_the_new_format(tmp_path, capsys):
+    from jaxeac.cli import main
+
+    out = tmp_path / "run"
+    assert main(["grid", "--seeds", "6", "--trials", "8", "--chances", "12", "--quiet", "--out", str(out),
+                 "--no-compare"]) == 0
+    assert (out / RESULTS_FILE).is_file() and not (out / "curves.npz").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outputs"] == {"trial_steps": True, "policies": True, "per_seed_csv": True}
+    assert summary["per_algo"]["eac"]["run"]["chunk_size"] == 6  # auto, resolved and recorded
+    assert summary["per_algo"]["eac"]["run"]["loop"] == "flat"
+    assert main(["compare", str(out), "--resamples", "200"]) == 0
+    stats = json.loads((out / "stats.json").read_text())["primary"]
+    table = pq.read_table(out / RESULTS_FILE).to_pandas()
+    assert stats["n_baseline"] == stats["n_treatment"] == 6
+    assert stats["mean_treatment"] == pytest.approx(table[table.algo == "eac"].successes.mean())
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "drop_column", "no_rows"])
+def test_damaged_results_file_is_one_clear_error(tmp_path, rng, damage):
+    path = tmp_path / RESULTS_FILE
+    write_grid_results(path, fake_results(rng, 9), 13, 7, OutputOptions())
+    if damage == "truncate":
+        path.write_bytes(path.read_bytes()[:200])
+    elif damage == "garbage":
+        path.write_bytes(b"PAR1" + bytes(range(256)) * 4)
+    elif damage == "drop_column":
+        pq.write_table(pq.read_table(path).drop_columns(["success_bits"]), path)
+    algos = ("ac", "nope") if damage == "no_rows" else ("ac", "eac")
+    with pytest.raises(UsageError, match=str(path)):
+        load_grid_results(tmp_path, algos, 13)
+
+
+def test_missing_results_names_the_fix(tmp_path):
+    with pytest.raises(UsageError, match="neither results.parquet nor curves.npz"):
+        load_grid_results(tmp_path, ("ac",), 5)
+
+
+def test_figure_band_from_counts_matches_numpy(rng):
+    for n in (1, 2, 9, 500):
+        success = rng.random((n, 17)) < 0.3
+        cum = np.cumsum(success, axis=1)
+        counts = cumulative_counts(success, chunk=4)
+        assert counts.shape == (17, 18) and (counts.sum(1) == n).all()
+        for q in (5, 50, 95):
+            np.testing.assert_allclose(count_percentile(counts, q), np.percentile(cum, q, axis=0), atol=1e-12)
