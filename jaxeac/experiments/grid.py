@@ -189,13 +189,14 @@ def summarize(run: GridRun) -> dict:
                        {a: r.successes for a, r in run.results.items()})
     out["config"]["map"] = run.grid_map.text
     for algo, r in run.results.items():
+        steps = r.agent_steps
         out["per_algo"][algo] |= {
-            "mean_steps": float(r.steps.sum(axis=1).mean()), "agent_steps": r.agent_steps,
-            "agent_steps_per_second": r.agent_steps / r.run_seconds if r.run_seconds > 0 else None,
+            "mean_steps": steps / len(r.seeds), "agent_steps": steps,
+            "agent_steps_per_second": steps / r.run_seconds if r.run_seconds > 0 else None,
         }
         if r.settings is not None:  # how it ran: every `auto` resolved (RunConfig.resolve), chunk size
             out["per_algo"][algo]["run"] = r.settings
-    total_steps = sum(r.agent_steps for r in run.results.values())
+    total_steps = sum(out["per_algo"][a]["agent_steps"] for a in run.results)
     out["agent_steps_per_second"] = total_steps / out["run_seconds"] if out["run_seconds"] > 0 else None
     return out
 
