@@ -3,7 +3,9 @@
 Entry point: `compare_run_dir(run_dir, ...)` writes stats.json, report.md and
 figures. Array-level functions (per-seed values as 1-D arrays, curves as
 [seeds, trials]) are exported for notebooks; every resampling function takes
-an explicit `key` (an int seed or a `jax.random` key).
+an explicit `key` (an int seed or a `jax.random` key). Above
+`jaxeac.stats.large.LARGE_N` seeds per method the large-N path takes over (same
+outputs; which methods, and why they are equivalent at that N: `jaxeac.stats.large`).
 """
 
 from jaxeac.stats.bootstrap import bca_ci, bca_interval, iqm, iqm_ci

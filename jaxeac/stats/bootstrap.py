@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import special, stats
 
+from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction, hedges_from_moments
 from jaxeac.stats.resample import bootstrap_sums
@@ -20,7 +21,9 @@ from jaxeac.stats.resample import bootstrap_sums
 def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -> tuple[float, float]:
     """BCa interval from bootstrap replicates and per-sample jackknife values (Efron 1987).
 
-    jackknife: a list with one 1-D array of leave-one-out estimates per sample.
+    jackknife: a list with one 1-D array of leave-one-out estimates per sample, or per
+    sample a pair (estimates, counts): the leave-one-out estimate of each distinct value
+    and how many units have it (the large-N path, `jaxeac.stats.large`).
     """
     theta_star = np.asarray(theta_star, np.float64)
     if not np.isfinite(theta_hat):  # e.g. Hedges' g of two constant samples
@@ -30,6 +33,16 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     z0 = special.ndtri(pct)
     nums, dens = 0.0, 0.0
     for jk in jackknife:
+        if isinstance(jk, tuple):  # (estimate per distinct value, units with that value)
+            jk, w = (np.asarray(a, np.float64) for a in jk)
+            if not np.isfinite(jk).all():
+                nums, dens = 0.0, 0.0
+                break
+            n = w.sum()
+            u = (n - 1) * ((w @ jk) / n - jk)
+            nums += (w @ u**3) / n**3
+            dens += (w @ u**2) / n**2
+            continue
         jk = np.asarray(jk, np.float64)
         if not np.isfinite(jk).all():
             nums, dens = 0.0, 0.0  # undefined influence values: no acceleration
@@ -108,9 +121,14 @@ def bca_ci(
         raise ValueError(f"statistic must be 'mean_diff' or 'hedges_g', got {statistic!r}")
     x = check_sample(x_baseline, "x_baseline")
     y = check_sample(x_treatment, "x_treatment")
+    kb, kt = _split2(key)
+    if large.is_large(x.size, y.size):  # per-value bootstrap or ABC (`jaxeac.stats.large`)
+        from jaxeac.stats.compare import _measure_large
+
+        res = _measure_large(x, y, (kb, kt, None), resamples=resamples, alpha=alpha, permutation=False)
+        return res["diff" if statistic == "mean_diff" else "hedges_g"]
     centre = np.concatenate([x, y]).mean()
     x, y = x - centre, y - centre
-    kb, kt = _split2(key)
     sb, _ = bootstrap_sums(kb, np.stack([x, x**2], 1), resamples, chunk=chunk)
     st, _ = bootstrap_sums(kt, np.stack([y, y**2], 1), resamples, chunk=chunk)
     return bca_two_sample(statistic, x, y, sb[:, 0], sb[:, 1], st[:, 0], st[:, 1], alpha)
@@ -126,11 +144,32 @@ def bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
     return Estimate(est, lo, hi, 1 - alpha)
 
 
+def bca_two_sample_counts(statistic, vb, kb, vt, kt, sb1, sb2, st1, st2, alpha) -> Estimate:
+    """`bca_two_sample` from distinct values and their counts (v*, k*) per sample: the
+    estimate and the jackknife in O(distinct values) (the large-N path)."""
+    nb, nt = kb.sum(), kt.sum()
+    b1, b2, t1, t2 = kb @ vb, kb @ vb**2, kt @ vt, kt @ vt**2
+    est = float(_two_sample_stat(statistic, nb, b1, b2, nt, t1, t2))
+    star = _two_sample_stat(statistic, nb, sb1, sb2, nt, st1, st2)
+    jx = _two_sample_stat(statistic, nb - 1, b1 - vb, b2 - vb**2, nt, t1, t2)
+    jy = _two_sample_stat(statistic, nb, b1, b2, nt - 1, t1 - vt, t2 - vt**2)
+    lo, hi = bca_interval(est, star, [(jx, kb), (jy, kt)], alpha)
+    return Estimate(est, lo, hi, 1 - alpha)
+
+
 def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int = 1000) -> Estimate:
     """IQM of one method's per-seed values with a BCa bootstrap CI."""
     x = check_sample(x)
-    _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
     est = iqm(x)
+    if large.is_large(x.size):  # per-value bootstrap, or the normal limit (`jaxeac.stats.large`)
+        table = large.ValueTable(x, x[:0])
+        if not table.exact:
+            lo, hi = large.normal_bca(est, jackknife_iqm(x), alpha)
+            return Estimate(est, lo, hi, 1 - alpha)
+        cnt = large.multinomial_counts(large.host_rng(as_key(key)), table.kb, resamples)
+        q = large.iqm_from_counts(cnt, table.values)
+    else:
+        _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
     lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
     return Estimate(est, lo, hi, 1 - alpha)
 

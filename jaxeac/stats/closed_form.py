@@ -110,38 +110,46 @@ def hedges_g(x_baseline, x_treatment) -> float:
 
 
 # ---------------------------------------------------------------- Brunner–Munzel / A12
-def _within_ranks(sorted_vals: np.ndarray, masks: np.ndarray) -> np.ndarray:
-    """Mid-ranks of each row's masked units within that row's group; units in sorted order."""
-    _, starts, inverse = np.unique(sorted_vals, return_index=True, return_inverse=True)
-    cnt = np.add.reduceat(masks.astype(np.float64), starts, axis=1)  # [S, U]
-    less = np.cumsum(cnt, axis=1) - cnt
-    return (less + (cnt + 1) / 2)[:, inverse]
-
-
 def brunner_munzel_masks(pooled: np.ndarray, masks: np.ndarray, alpha: float = 0.05):
     """Brunner–Munzel for many splits of one pooled sample (Brunner & Munzel 2000).
 
     masks: bool [S, N], True = treatment. Returns (p̂ = P(T > B) + ½P(T = B),
     W, df, p two-sided, CI low, CI high) arrays of length S; the CI for p̂ is
     p̂ ± t_{df,1−α/2} · sqrt(n_b S²_b + n_t S²_t)/(n_b n_t) (Neubert & Brunner 2007).
+    Ranks depend only on how many units of each group share each distinct value, so
+    this is `brunner_munzel_counts` on those counts.
     """
-    order = np.argsort(pooled, kind="stable")
-    v = pooled[order]
-    mt = masks[:, order]
-    mb = ~mt
-    rc = stats.rankdata(v)  # pooled mid-ranks, same for every split
-    nt = mt.sum(1).astype(np.float64)
-    nb = mb.sum(1).astype(np.float64)
-    rt = _within_ranks(v, mt)
-    rb = _within_ranks(v, mb)
-    dt = np.where(mt, rc - rt, 0.0)
-    db = np.where(mb, rc - rb, 0.0)
-    mean_t = dt.sum(1) / nt
-    mean_b = db.sum(1) / nb
-    s2t = ((dt**2).sum(1) - nt * mean_t**2) / (nt - 1)
-    s2b = ((db**2).sum(1) - nb * mean_b**2) / (nb - 1)
-    rct = (rc * mt).sum(1) / nt
-    rcb = (rc * mb).sum(1) / nb
+    masks = np.atleast_2d(np.asarray(masks, bool))
+    _, inv = np.unique(pooled, return_inverse=True)
+    inv = inv.reshape(-1)
+    U = int(inv.max()) + 1
+    total = np.bincount(inv, minlength=U).astype(np.float64)
+    kt = np.stack([np.bincount(inv, weights=m, minlength=U) for m in masks.astype(np.float64)])
+    return brunner_munzel_counts(total - kt, kt, alpha)
+
+
+def brunner_munzel_counts(kb, kt, alpha: float = 0.05):
+    """Brunner–Munzel from counts per distinct value (ascending): kb, kt [S, U] or [U].
+
+    Same results as `brunner_munzel_masks` (mid-ranks are half-integers, so the sums
+    are exact in float64 below 2^53) in O(S · U) instead of O(S · N log N).
+    """
+    kb = np.atleast_2d(np.asarray(kb, np.float64))
+    kt = np.atleast_2d(np.asarray(kt, np.float64))
+
+    def mid_ranks(c):  # mid-rank of each value within the units counted by c
+        return np.cumsum(c, axis=1) - c + (c + 1) / 2
+
+    rc = mid_ranks(kb + kt)  # pooled mid-ranks
+    rt, rb = mid_ranks(kt), mid_ranks(kb)
+    nt, nb = kt.sum(1), kb.sum(1)
+    dt, db = rc - rt, rc - rb
+    mean_t = (kt * dt).sum(1) / nt
+    mean_b = (kb * db).sum(1) / nb
+    s2t = ((kt * dt**2).sum(1) - nt * mean_t**2) / (nt - 1)
+    s2b = ((kb * db**2).sum(1) - nb * mean_b**2) / (nb - 1)
+    rct = (kt * rc).sum(1) / nt
+    rcb = (kb * rc).sum(1) / nb
     phat = (rct - (nt + 1) / 2) / nb
     var = nb * s2b + nt * s2t
     se = np.sqrt(np.maximum(var, 0)) / (nb * nt)
@@ -191,19 +199,48 @@ def logrank_masks(time: np.ndarray, event: np.ndarray, masks: np.ndarray):
 
     time: int [N] event or censoring times; event: bool [N]; masks bool [S, N]
     (True = treatment). Returns (chi2, p, observed_t, expected_t) of length S.
+    Only counts per (time, event) pair enter, so this is `logrank_counts` on them.
     """
-    times, inv = np.unique(time[event], return_inverse=True)
+    time = np.asarray(time)
+    event = np.asarray(event, bool)
+    masks = np.atleast_2d(np.asarray(masks, bool))
+    times, inv = np.unique(time, return_inverse=True)
+    code = 2 * inv.reshape(-1) + event  # category (time, event)
+    C = 2 * times.size
+    total = np.bincount(code, minlength=C).astype(np.float64)
+    treat = np.stack([np.bincount(code, weights=m, minlength=C) for m in masks.astype(np.float64)])
+    return logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), total, treat)
+
+
+def logrank_counts(time_c, event_c, total_c, treat_c):
+    """Log-rank test from counts per category: category c has time `time_c[c]` and event flag
+    `event_c[c]`; `total_c` [C] units in both groups, `treat_c` [S, C] in the treatment group of
+    each of S splits. Returns (chi2, p, observed_t, expected_t) of length S. O(S · C).
+    """
+    time_c = np.asarray(time_c)
+    event_c = np.asarray(event_c, bool)
+    total_c = np.asarray(total_c, np.float64)
+    treat_c = np.atleast_2d(np.asarray(treat_c, np.float64))
+    ev = np.nonzero(event_c & (total_c > 0))[0]
+    ev = ev[np.argsort(time_c[ev], kind="stable")]  # one category per event time (pairs are unique)
+    times = time_c[ev]
     if times.size == 0:
-        s = masks.shape[0]
+        s = treat_c.shape[0]
         return np.zeros(s), np.ones(s), np.zeros(s), np.zeros(s)
-    ev = np.zeros((time.size, times.size))
-    ev[np.nonzero(event)[0], inv] = 1.0
-    at_risk = (time[:, None] >= times[None, :]).astype(np.float64)  # [N, J]
-    m = masks.astype(np.float64)
-    d_t = m @ ev  # [S, J] events in treatment
-    d = ev.sum(0)  # [J] events in both groups
-    n_t = m @ at_risk  # [S, J] at risk in treatment
-    n_all = at_risk.sum(0)  # [J]
+    order = np.argsort(time_c, kind="stable")
+    first = np.searchsorted(time_c[order], times, side="left")
+
+    def events(cnt):  # [..., C] -> [..., J]: events at each event time
+        return cnt[..., ev]
+
+    def at_risk(cnt):  # [..., C] -> [..., J]: units with time >= times[j]
+        tail = np.cumsum(cnt[..., order][..., ::-1], axis=-1)[..., ::-1]
+        return tail[..., first]
+
+    d_t = events(treat_c)  # [S, J] events in treatment
+    d = events(total_c)  # [J] events in both groups
+    n_t = at_risk(treat_c)  # [S, J] at risk in treatment
+    n_all = at_risk(total_c)  # [J]
     e_t = d * n_t / n_all
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.where(n_all > 1, d * (n_t / n_all) * (1 - n_t / n_all) * (n_all - d) / (n_all - 1), 0.0)

@@ -9,6 +9,11 @@ the difference of means with a BCa CI (Efron 1987), Welch's t-test (Welch
 CI, and the seeds needed for 80 % power. Holm (1979) adjusts the declared
 family of measures. An AC-versus-AC calibration checks each test's false-positive
 rate on random disjoint splits of the baseline seeds.
+
+Above `large.LARGE_N` seeds per method the same results come from the large-N path
+(`_analyse_large`, `_calibrate_large`): resampling per distinct value, exact, where a
+measure takes few values, and named asymptotically exact methods elsewhere; see
+`jaxeac.stats.large` for which, why and the references.
 """
 
 from __future__ import annotations
@@ -22,13 +27,15 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
+from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bootstrap import (
     bca_interval,
     bca_two_sample,
+    bca_two_sample_counts,
     jackknife_iqm,
 )
-from jaxeac.stats.curves import curve_columns, curve_results, is_binary, welch_t_stat
+from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary, welch_t_stat
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
 
 POWER_DS = (0.2, 0.5, 0.8)
@@ -72,6 +79,9 @@ def permutation_test(
     """
     x = cf.check_sample(x_baseline, "x_baseline")
     y = cf.check_sample(x_treatment, "x_treatment")
+    if large.is_large(x.size, y.size):
+        res = _measure_large(x, y, key, resamples=resamples, alpha=0.05, bootstrap=False, iqm=False)
+        return cf.TestResult(res["t_welch"], res["p_permutation"])
     c = np.concatenate([x, y]).mean()
     x, y = x - c, y - c
     z = np.stack([np.r_[x, y], np.r_[x, y] ** 2], 1)
@@ -110,6 +120,10 @@ def _analyse(
             "pass the same measures for both"
         )
     nb, nt = mb[names[0]].size, mt[names[0]].size
+    if large.is_large(nb, nt):
+        return _analyse_large(
+            mb, mt, key, curves=curves, resamples=resamples, alpha=alpha, higher_is_better=higher_is_better
+        )
     xb = np.stack([mb[k] for k in names], 1)
     xt = np.stack([mt[k] for k in names], 1)
     centre = np.concatenate([xb, xt]).mean(0)
@@ -129,6 +143,7 @@ def _analyse(
     wait_b = dispatch_bootstrap(k_b, zb, resamples, chunk=chunk, iqm=True)
     wait_t = dispatch_bootstrap(k_t, zt, resamples, chunk=chunk, iqm=True)
     wait_p = dispatch_permutation(k_p, np.concatenate([zb, zt]), nt, resamples, chunk=perm_chunk)
+    t_dispatch = time.perf_counter() - t0
     # closed-form parts on the host while XLA draws the resamples
     out = {}
     for j, name in enumerate(names):
@@ -165,8 +180,12 @@ def _analyse(
             "seeds_for_80pct_power": pw["seeds_for_80pct_power"],
             "power": pw,
         }
+    t_closed = time.perf_counter()
     (boot_b, iqm_b), (boot_t, iqm_t), perm = wait_b(), wait_t(), wait_p()
     t_resample = time.perf_counter() - t0
+    t_wait = time.perf_counter() - t_closed
+    t_closed = t_closed - t0 - t_dispatch
+    t1 = time.perf_counter()
     tot = zb.sum(0) + zt.sum(0)
     for j, name in enumerate(names):
         x, y = xb[:, j], xt[:, j]
@@ -187,6 +206,8 @@ def _analyse(
         lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
         out[first][f"iqm_{side}"] = est + centre[0]
         out[first][f"iqm_{side}_ci95"] = [lo + centre[0], hi + centre[0]]
+    t_bca = time.perf_counter() - t1
+    t1 = time.perf_counter()
     curve = None
     if curves is not None:
         K = 2 * M
@@ -199,7 +220,176 @@ def _analyse(
             alpha,
             binary,
         )
-    return {"measures": out, "curves": curve, "resample_seconds": t_resample}
+    pieces = {
+        "dispatch_resampling": t_dispatch,
+        "closed_form_and_ranks": t_closed,
+        "resampling_wait": t_wait,
+        "bca_iqm_and_permutation_p": t_bca,
+        "curve_bands_and_maxT": time.perf_counter() - t1,
+    }
+    return {"measures": out, "curves": curve, "resample_seconds": t_resample, "pieces": pieces}
+
+
+def _measure_large(
+    x, y, key, *, resamples, alpha, bootstrap=True, permutation=True, iqm=False, centre=None, table=None
+) -> dict:
+    """Resampled results of one measure above `large.LARGE_N` seeds (see `jaxeac.stats.large`).
+
+    key: (bootstrap baseline, bootstrap treatment, permutation) keys, or one key to split.
+    x, y: raw per-seed values; the sums use them less `centre` (default: the pooled mean).
+    Returns the t statistic, p_permutation (permutation=True), diff and Hedges' g intervals
+    (bootstrap=True), the IQM intervals (iqm=True) and the methods used.
+    """
+    if not isinstance(key, tuple):
+        key = tuple(jax.random.split(as_key(key), 3))
+    k_b, k_t, k_p = key
+    c = np.concatenate([x, y]).mean() if centre is None else centre
+    xc, yc = x - c, y - c
+    nb, nt = x.size, y.size
+    t_obs = float(welch_t_stat(nb, xc.sum(), (xc**2).sum(), nt, yc.sum(), (yc**2).sum()))
+    table = large.ValueTable(x, y) if table is None else table
+    v = table.values - c
+    out = {"t_welch": t_obs, "distinct_values": table.distinct}
+    if table.exact:
+        out["methods"] = {
+            "bootstrap": large.REFERENCES["bootstrap_per_value"],
+            "permutation": large.REFERENCES["permutation_per_value"],
+        }
+        if permutation:
+            pooled = table.kb + table.kt
+            h = large.hypergeometric_counts(large.host_rng(k_p), pooled, nt, resamples)
+            pt1, pt2 = large.moment_sums(h, v)
+            tot1, tot2 = pooled @ v, pooled @ (v * v)
+            t_star = welch_t_stat(nb, tot1 - pt1, tot2 - pt2, nt, pt1, pt2)
+            out["p_permutation"] = float(_perm_p(t_obs, t_star[:, None])[0])
+        if bootstrap or iqm:  # everything below is O(distinct values) per resample
+            sums, groups = [], []
+            for side, k, counts in (("baseline", k_b, table.kb), ("treatment", k_t, table.kt)):
+                keep = counts > 0
+                kk, vv = counts[keep].astype(np.float64), v[keep]
+                groups.append((vv, kk))
+                cnt = large.multinomial_counts(large.host_rng(k), counts[keep], resamples)
+                sums.append(large.moment_sums(cnt, vv))
+                if iqm:
+                    q = large.iqm_from_counts(cnt, vv)
+                    est = float(large.iqm_from_counts(kk[None], vv)[0])
+                    jk = (large.jackknife_iqm_counts(kk, vv), kk)
+                    lo, hi = bca_interval(est, q, [jk], alpha)
+                    out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
+            (vb, kb), (vt, kt) = groups
+            if bootstrap:
+                for stat, name in (("mean_diff", "diff"), ("hedges_g", "hedges_g")):
+                    out[name] = bca_two_sample_counts(stat, vb, kb, vt, kt, *sums[0], *sums[1], alpha)
+        return out
+    out["methods"] = {
+        "bootstrap": large.REFERENCES["abc"],
+        "permutation": large.REFERENCES["normal_permutation"],
+    }
+    out["p_permutation"] = float(large.normal_permutation_p(t_obs))
+    if bootstrap:
+        out["diff"] = large.abc_two_sample("mean_diff", xc, yc, alpha)
+        out["hedges_g"] = large.abc_two_sample("hedges_g", xc, yc, alpha)
+    if iqm:
+        out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
+        for side, z in (("baseline", xc), ("treatment", yc)):
+            n_ = z.size
+            est = float(np.mean(np.sort(z)[n_ // 4 : n_ - n_ // 4]))
+            lo, hi = large.normal_bca(est, jackknife_iqm(z), alpha)
+            out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
+    return out
+
+
+def _analyse_large(
+    mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better
+) -> dict:
+    """`_analyse` above `large.LARGE_N` seeds per method: same results dict, scalable methods."""
+    names = list(mb)
+    nb, nt = mb[names[0]].size, mt[names[0]].size
+    k_b, k_t, k_p = jax.random.split(as_key(key), 3)
+    pieces: dict = {}
+    t0 = time.perf_counter()
+    moments = binary = None
+    if curves is not None:  # per-chunk sums on the device while the host does the measures
+        binary = is_binary(*curves)
+        moments = [large.curve_moments(c) for c in curves]
+    pieces["dispatch_curve_sums"] = time.perf_counter() - t0
+    out, scale = {}, {}
+    for j, name in enumerate(names):
+        t1 = time.perf_counter()
+        xr, yr = mb[name], mt[name]
+        c = np.concatenate([xr, yr]).mean()
+        x, y = xr - c, yr - c
+        hib = True if higher_is_better is None else bool(higher_is_better.get(name, True))
+        t, df, p = cf.welch_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
+        table = large.ValueTable(xr, yr)
+        a, w, bm_df, bm_p, a_lo, a_hi = (
+            float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)
+        )
+        g = float(cf.hedges_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum()))
+        pw = _power(g, alpha)
+        t2 = time.perf_counter()
+        res = _measure_large(
+            xr,
+            yr,
+            tuple(jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)),
+            resamples=resamples,
+            alpha=alpha,
+            bootstrap=True,
+            iqm=j == 0,
+            centre=c,
+            table=table,
+        )
+        t3 = time.perf_counter()
+        pieces[f"closed_form_and_ranks[{name}]"] = t2 - t1
+        pieces[f"resampling[{name}]"] = t3 - t2
+        scale[name] = {"distinct_values": res["distinct_values"], **res["methods"]}
+        diff, hg = res["diff"], res["hedges_g"]
+        out[name] = {
+            "measure": name,
+            "higher_is_better": hib,
+            "n_baseline": nb,
+            "n_treatment": nt,
+            "mean_baseline": float(xr.mean()),
+            "mean_treatment": float(yr.mean()),
+            "sd_baseline": float(xr.std(ddof=1)),
+            "sd_treatment": float(yr.std(ddof=1)),
+            "diff": float(yr.mean() - xr.mean()),
+            "diff_ci95": [diff.low, diff.high],
+            "t_welch": float(t),
+            "df_welch": float(df),
+            "p_welch": float(p),
+            "p_permutation": res["p_permutation"],
+            "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
+            "hedges_g": g,
+            "hedges_g_ci95": [hg.low, hg.high],
+            "a12": a,
+            "a12_ci95": [a_lo, a_hi],
+            "prob_improvement": a if hib else 1 - a,
+            "prob_improvement_ci95": [a_lo, a_hi] if hib else [1 - a_hi, 1 - a_lo],
+            "seeds_for_80pct_power": pw["seeds_for_80pct_power"],
+            "power": pw,
+        }
+        if j == 0:
+            for side in ("baseline", "treatment"):
+                est, lo, hi = res[f"iqm_{side}"]
+                out[name][f"iqm_{side}"] = est
+                out[name][f"iqm_{side}_ci95"] = [lo, hi]
+    curve = None
+    if curves is not None:
+        t1 = time.perf_counter()
+        mom = [m() for m in moments]
+        pieces["curve_sums_wait"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        curve = curve_results_large(mom[0], mom[1], (k_b, k_t, k_p), resamples, alpha, binary)
+        pieces["curve_bands_and_maxT"] = time.perf_counter() - t1
+    return {
+        "measures": out,
+        "curves": curve,
+        "resample_seconds": time.perf_counter() - t0,
+        "pieces": pieces,
+        "scale": scale,
+        "curve_moments": None if curves is None else mom,
+    }
 
 
 def compare_measures(
@@ -244,7 +434,7 @@ def dispatch_calibration(key, n: int, splits: int, resamples: int):
     """Start drawing the calibration's random halves of n seeds: `splits` splits, then
     `resamples` reference relabellings, all uniform k-of-N subsets with N = 2·(n // 2)."""
     h = n // 2
-    if h < 2:
+    if h < 2 or large.is_large(n):  # the large-N calibration draws per value (see `calibrate`)
         return lambda: None
     return dispatch_subsets(as_key(key), 2 * h, h, splits + resamples)
 
@@ -259,6 +449,7 @@ def calibrate(
     alpha: float = 0.05,
     time_event=None,
     labels=None,
+    moments=None,
 ) -> dict:
     """False-positive rates of each test on random disjoint halves of one method's seeds.
 
@@ -266,13 +457,26 @@ def calibrate(
     (time, event) for the log-rank test. Each split is a uniform random half; the
     permutation reference set (`resamples` relabellings) is shared by all splits.
     labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
-    already started (the draws then overlap other work).
+    already started (the draws then overlap other work). Above `large.LARGE_N` seeds
+    the halves are drawn per distinct value (measures) and per block of seeds (curves),
+    see `_calibrate_large`; moments: the curves' `large.curve_moments`, if at hand.
     """
     names = list(measures)
     n = measures[names[0]].size
     h = n // 2
     if h < 2:
         return {"skipped": f"needs at least 4 baseline seeds, got {n}"}
+    if large.is_large(n):
+        return _calibrate_large(
+            measures,
+            curves,
+            key,
+            splits=splits,
+            resamples=resamples,
+            alpha=alpha,
+            time_event=time_event,
+            moments=moments,
+        )
     N = 2 * h
     x = np.stack([measures[k][:N] for k in names], 1)
     x = x - x.mean(0)
@@ -332,4 +536,103 @@ def calibrate(
         "group_size": h,
         "alpha": alpha,
         "false_positive_rate": rates,
+    }
+
+
+def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_event, moments) -> dict:
+    """`calibrate` above `large.LARGE_N` seeds.
+
+    Measure j: each random half is a multivariate hypergeometric count per distinct value
+    under fold_in(key, j) (exact); the permutation reference is `resamples` more such halves
+    where the main comparison resamples that measure exactly, else the test's normal limit.
+    Log-rank: counts per (time, event) under fold_in(key, M). Curves: exact random halves of
+    the seeds drawn on the device under fold_in(key, CURVE_STREAM); the max-T reference is
+    the Gaussian limit used by the main comparison (draws under fold_in(key, CURVE_STREAM + 1)).
+    """
+    key = as_key(key)
+    names = list(measures)
+    n = measures[names[0]].size
+    h = n // 2
+    N = 2 * h
+    M = len(names)
+    x = np.stack([measures[k][:N] for k in names], 1)
+    x = x - x.mean(0)
+    wait_curve = None
+    if curves is not None:
+        c = np.asarray(curves)[:N]
+        binary = is_binary(c)
+        cols = c if binary else np.concatenate([c, c * c], 1)
+        wait_curve = large.dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
+    rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
+    methods: dict = {}
+    for j, name in enumerate(names):
+        vals, inv = np.unique(x[:, j], return_inverse=True)
+        K = np.bincount(inv.reshape(-1), minlength=vals.size)
+        exact = vals.size <= large.MAX_DISTINCT
+        rng = large.host_rng(jax.random.fold_in(key, j))
+        H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
+        s1, s2 = large.moment_sums(H, vals)
+        tot1, tot2 = K @ vals, K @ (vals * vals)
+        a1, a2 = s1[:splits], s2[:splits]
+        _, _, p_w = cf.welch_from_moments(h, tot1 - a1, tot2 - a2, h, a1, a2)
+        t_split = welch_t_stat(h, tot1 - a1, tot2 - a2, h, a1, a2)
+        if exact:
+            r1, r2 = s1[splits:], s2[splits:]
+            p_perm = _perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
+        else:
+            p_perm = large.normal_permutation_p(t_split)
+        p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
+        rates["welch"][name] = _rate(p_w, alpha)
+        rates["permutation"][name] = _rate(p_perm, alpha)
+        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
+        methods[name] = {
+            "distinct_values": int(vals.size),
+            "permutation": large.REFERENCES["permutation_per_value" if exact else "normal_permutation"],
+        }
+    if time_event is not None:
+        tm, ev = (np.asarray(a)[:N] for a in time_event)
+        times, inv = np.unique(tm, return_inverse=True)
+        code = 2 * inv.reshape(-1) + np.asarray(ev, bool)
+        K = np.bincount(code, minlength=2 * times.size)
+        H = large.hypergeometric_counts(large.host_rng(jax.random.fold_in(key, M)), K, h, splits)
+        p_lr = cf.logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), K, H)[1]
+        rates["logrank"] = {"first_success": _rate(p_lr, alpha)}
+    if curves is not None:
+        T = c.shape[1]
+        treat = wait_curve()
+        tot = cols.sum(0, dtype=np.float64)
+        sq = None if binary else slice(T, 2 * T)
+
+        def part(a, s):
+            return None if s is None else a[..., s]
+
+        base = tot - treat
+        t_split = welch_t_stat(h, base[:, :T], part(base, sq), h, treat[:, :T], part(treat, sq))
+        max_split = np.abs(t_split).max(1)
+        mom = moments
+        if mom is None or mom["n"] != N:
+            if mom is not None and mom["n"] == N + 1:  # drop the odd seed out
+                last = np.asarray(curves)[N].astype(np.float64)
+                mom = {"n": N, "s": mom["s"] - last, "G": mom["G"] - np.outer(last, last)}
+            else:
+                mom = large.curve_moments(c)()
+        rng = large.host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
+        max_ref = large.gaussian_max_abs(rng, large.covariance(mom), resamples)
+        p_curve = (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
+        rates["curve_maxT"] = {"any_trial": _rate(p_curve, alpha)}
+        methods["curve_maxT"] = large.REFERENCES["max_t_gaussian"]
+    return {
+        "description": "baseline against itself: random disjoint halves; the rate is the share of splits "
+        "a test calls significant (expected: alpha)",
+        "splits": splits,
+        "resamples": resamples,
+        "group_size": h,
+        "alpha": alpha,
+        "false_positive_rate": rates,
+        "large_n": {
+            "threshold": large.LARGE_N,
+            "halves": "measures: multivariate hypergeometric counts per distinct value; curves: exact "
+            "random halves of the seeds (selection sampling on the device)",
+            "methods": methods,
+        },
     }

@@ -66,7 +66,8 @@ def check_curves(curves_baseline, curves_treatment, trials: int | None = None):
 
 
 def is_binary(*arrays) -> bool:
-    return all(np.isin(np.unique(a), (0.0, 1.0)).all() for a in arrays)
+    """Whether every entry is 0 or 1 (O(N), no sort)."""
+    return all(a.dtype == np.bool_ or bool(((a == 0) | (a == 1)).all()) for a in map(np.asarray, arrays))
 
 
 def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
@@ -100,6 +101,27 @@ def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
     tot, tot2 = sb + st, (None if binary else ssb + sst)
     t_star = welch_t_stat(nb, tot - pt, None if binary else tot2 - pst, nt, pt, pst)
     max_star = np.abs(t_star).max(1)
+    return _summary(
+        mb,
+        mt,
+        seb,
+        set_,
+        (cb_crit, ct_crit, cd_crit),
+        t_obs,
+        max_star,
+        alpha,
+        binary,
+        "bootstrap sup-t (Montiel Olea & Plagborg-Moller 2019)",
+        "single-step max-T permutation, FWER over trials (Westfall & Young 1993)",
+    )
+
+
+def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_method, test_method) -> dict:
+    """The curve results from means, SEs, sup-t critical values and the max-T reference draws."""
+    T = mb.size
+    cb_crit, ct_crit, cd_crit = crits
+    diff = mt - mb
+    sed = np.sqrt(seb**2 + set_**2)
     thr = np.abs(t_obs)
     with np.errstate(invalid="ignore"):
         thr = np.where(np.isfinite(thr), thr - 1e-6 * np.maximum(thr, 1e-12), thr)
@@ -124,15 +146,62 @@ def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
         "diff": diff,
         "band_diff": [diff - cd_crit * sed, diff + cd_crit * sed],
         "sup_t_critical": {"baseline": cb_crit, "treatment": ct_crit, "diff": cd_crit},
-        "band_method": "bootstrap sup-t (Montiel Olea & Plagborg-Moller 2019)",
+        "band_method": band_method,
         "t_welch": t_obs,
         "p_maxT": p_adj,
         "maxT_critical": float(np.quantile(max_star, 1 - alpha)),
-        "test_method": "single-step max-T permutation, FWER over trials (Westfall & Young 1993)",
+        "test_method": test_method,
         "significant_trials": trial[sig].tolist(),
         "first_significant_trial": int(trial[sig][0]) if sig.any() else None,
         "sustained_from_trial": sustained,
     }
+
+
+def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: float, binary: bool) -> dict:
+    """Curve statistics above `large.LARGE_N` seeds, from per-chunk moments (`large.curve_moments`).
+
+    Means and SEs are exact; the sup-t critical values come from the Gaussian multiplier
+    bootstrap N(0, Σ̂/n) per method (the diff band from the same draws, as the seed
+    bootstrap does), the max-T reference from the normal limit N(0, R_pooled) of the
+    permutation law (see `jaxeac.stats.large`). keys: (baseline, treatment, permutation).
+    """
+    from jaxeac.stats import large
+
+    nb, nt = mom_b["n"], mom_t["n"]
+
+    def sq(m):
+        return None if binary else np.diag(m["G"])
+
+    sb, st = mom_b["s"], mom_t["s"]
+    mb, vb = _mean_var(nb, sb, sq(mom_b))
+    mt, vt = _mean_var(nt, st, sq(mom_t))
+    seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
+    k_b, k_t, k_p = (jax.random.fold_in(k, large.CURVE_STREAM) for k in keys)
+    dev_b = large.gaussian_draws(large.host_rng(k_b), large.covariance(mom_b) / nb, resamples)
+    dev_t = large.gaussian_draws(large.host_rng(k_t), large.covariance(mom_t) / nt, resamples)
+    zero = np.zeros_like(mb)
+    sed = np.sqrt(seb**2 + set_**2)
+    crits = (
+        _sup_t(dev_b, zero, seb, alpha),
+        _sup_t(dev_t, zero, set_, alpha),
+        _sup_t(dev_t - dev_b, zero, sed, alpha),
+    )
+    pooled = {"n": nb + nt, "s": sb + st, "G": mom_b["G"] + mom_t["G"]}
+    max_star = large.gaussian_max_abs(large.host_rng(k_p), large.covariance(pooled), resamples)
+    t_obs = welch_t_stat(nb, sb, sq(mom_b), nt, st, sq(mom_t))
+    return _summary(
+        mb,
+        mt,
+        seb,
+        set_,
+        crits,
+        t_obs,
+        max_star,
+        alpha,
+        binary,
+        large.REFERENCES["sup_t_gaussian"],
+        large.REFERENCES["max_t_gaussian"],
+    )
 
 
 def curve_columns(c, binary):
@@ -155,9 +224,17 @@ def curve_bands(
     (see `curve_results`); `band_*` are [lower, upper] arrays that hold over all
     trials jointly with probability 1 − α.
     """
+    from jaxeac.stats import large
+
+    kb, kt, kp = jax.random.split(as_key(key), 3)
+    raw_b, raw_t = np.asarray(curves_baseline), np.asarray(curves_treatment)
+    if raw_b.ndim == 2 and raw_t.ndim == 2 and large.is_large(raw_b.shape[0], raw_t.shape[0]):
+        check_curves(raw_b[:2], raw_t[:2], trials)
+        binary = is_binary(raw_b, raw_t)
+        mom_b, mom_t = large.curve_moments(raw_b), large.curve_moments(raw_t)
+        return curve_results_large(mom_b(), mom_t(), (kb, kt, kp), resamples, alpha, binary)
     cb, ct = check_curves(curves_baseline, curves_treatment, trials)
     binary = is_binary(cb, ct)
-    kb, kt, kp = jax.random.split(as_key(key), 3)
     zb, zt = curve_columns(cb, binary), curve_columns(ct, binary)
     bb, _ = bootstrap_sums(kb, zb, resamples, chunk=chunk)
     bt, _ = bootstrap_sums(kt, zt, resamples, chunk=chunk)

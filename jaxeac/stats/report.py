@@ -124,10 +124,9 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
     fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3))
     for ax, name in zip(np.atleast_1d(axes), names, strict=True):
         for side, algo in (("baseline", b), ("treatment", t)):
-            v = np.sort(data["measures"][name][side])
-            ax.step(
-                v, np.arange(1, v.size + 1) / v.size, where="post", color=colors[algo], label=algo.upper()
-            )
+            # the ECDF at its distinct values: the same steps as one point per seed, at 10^6 seeds too
+            v, cnt = np.unique(data["measures"][name][side], return_counts=True)
+            ax.step(v, np.cumsum(cnt) / cnt.sum(), where="post", color=colors[algo], label=algo.upper())
         ax.set_title(name, fontsize=9)
         ax.set_ylabel("share of seeds ≤ x", fontsize=8)
     np.atleast_1d(axes)[0].legend(fontsize=8)
@@ -149,6 +148,43 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
     fig.subplots_adjust(left=0.3, right=0.96, top=0.95, bottom=0.25)
     fig.savefig(out / FIGURES["improvement"], dpi=80)
     plt.close(fig)
+
+
+def _large(stats: dict) -> bool:
+    return stats["settings"].get("scale", {}).get("path") == "large-N"
+
+
+def scale_paragraph(stats: dict) -> list[str]:
+    """Which methods the large-N path used (`jaxeac.stats.large`); nothing below its threshold."""
+    if not _large(stats):
+        return []
+    sc = stats["settings"]["scale"]
+    exact = [k for k, m in sc["measures"].items() if m["bootstrap"].startswith("exact")]
+    asym = [k for k in sc["measures"] if k not in exact]
+    text = (
+        f"At this scale (above {sc['large_n_threshold']:,} seeds per method) the statistics take the "
+        "large-N path (`jaxeac.stats.large`). "
+    )
+    if exact:
+        text += (
+            f"{', '.join(exact)} (at most {sc['max_distinct_values_exact']:,} distinct values): resampled "
+            "exactly, as counts per distinct value (bootstrap: multinomial, Efron 1979; permutations: "
+            "multivariate hypergeometric), the same law as resampling seeds. "
+        )
+    if asym:
+        text += (
+            f"{', '.join(asym)} (more distinct values): ABC intervals, the analytic form of BCa "
+            "(DiCiccio & Efron 1992), and the normal limit of the studentised permutation test "
+            "(Janssen 1997). "
+        )
+    if "curves" in sc:
+        text += f"Curves: {sc['curves']['bands']}; trials that differ: {sc['curves']['trials_differ']}. "
+    text += (
+        "ABC agrees with BCa of unlimited resamples to O(N^-3/2); the normal and Gaussian limits of these "
+        "two-sided statistics differ from the exact laws by O(1/N) (for 0/1 data plus a lattice term "
+        "of order 1/√N times a small constant), below the Monte Carlo error of the resampling at this N."
+    )
+    return ["", text]
 
 
 def render_markdown(stats: dict) -> str:
@@ -191,6 +227,7 @@ def render_markdown(stats: dict) -> str:
             f"{p_value(r['brunner_munzel']['p'], **P_STYLE)} | {p_value(r.get('p_holm'), **P_STYLE)} | "
             f"{compact(r['seeds_for_80pct_power'])} |"
         )
+    out += scale_paragraph(stats)
     out += ["", "↑ higher is better, ↓ lower is better. Measures:", ""]
     out += [f"- `{r['measure']}`: {r['description']}" for r in res]
     pr = stats["primary"]
@@ -231,7 +268,8 @@ def render_markdown(stats: dict) -> str:
             f"![learning curves]({FIGURES['curves']})",
             "",
             f"Bands: {cur['band_method']}, holding over all {cur['trials']} trials at once. "
-            f"Trials where the methods differ: {cur['test_method']}, {st['permutations']} permutations; "
+            f"Trials where the methods differ: {cur['test_method']}, {st['permutations']} "
+            f"{'draws of that limit' if _large(stats) else 'permutations'}; "
             f"{len(sig)} of {cur['trials']} trials significant"
             + (f" (first: {cur['first_significant_trial']}" if sig else "")
             + (f"; every trial from {cur['sustained_from_trial']} on" if cur["sustained_from_trial"] else "")
@@ -258,7 +296,14 @@ def render_markdown(stats: dict) -> str:
             f"{cal['group_size']}; permutation reference {cal['resamples']} relabellings. "
             f"Each rate should be near α = {cal['alpha']} (with {cal['splits']} splits, a rate is within "
             f"about ±{compact(2 * math.sqrt(cal['alpha'] * (1 - cal['alpha']) / cal['splits']), 3)} "
-            "of α by chance).",
+            "of α by chance)."
+            + (
+                " At this scale each half of a measure is drawn as counts per distinct value "
+                "(multivariate hypergeometric, exact), each half for the curves as an exact random half "
+                "of the seeds, and the curve test's reference is its Gaussian limit, as in the comparison."
+                if "large_n" in cal
+                else ""
+            ),
             "",
             "| test | measure | false-positive rate [95 % CI] |",
             "|---|---|---|",

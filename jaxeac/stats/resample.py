@@ -13,7 +13,8 @@ Draws are made `chunk` resamples at a time under one jitted function with
 static shapes, so memory stays bounded (≈ chunk · n floats) for any R;
 chunk c uses `jax.random.fold_in(key, c)` (inside the jitted function, so
 dispatching the next chunk never waits for the last), and results depend only
-on (key, R, chunk).
+on (key, R, chunk). This is the path up to `large.LARGE_N` seeds per method; above
+it, work per resample must not grow with the seeds (`jaxeac.stats.large`).
 """
 
 from __future__ import annotations

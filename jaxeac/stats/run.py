@@ -17,6 +17,7 @@ from jaxeac.errors import UsageError
 from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
 from jaxeac.stats import closed_form as cf
+from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
 from jaxeac.stats.report import FIGURES, render_markdown, write_figures
@@ -43,6 +44,33 @@ def _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
         raise UsageError(f"--alpha {alpha} must be between 0 and 0.5, e.g. 0.05")
     if calibration_splits < 0 or calibration_resamples < 1:
         raise UsageError("calibration splits must be >= 0 and calibration resamples >= 1")
+
+
+def _scale_record(res: dict, nb: int, nt: int, calibration_splits: int) -> dict:
+    """Which path the statistics took, and above `large.LARGE_N` which method each piece used."""
+    out = {
+        "large_n_threshold": large.LARGE_N,
+        "max_distinct_values_exact": large.MAX_DISTINCT,
+        "path": "large-N" if large.is_large(nb, nt) else "seed resampling",
+    }
+    if out["path"] == "large-N":
+        out["measures"] = res["scale"]
+        if res["curves"] is not None:
+            out["curves"] = {
+                "bands": res["curves"]["band_method"],
+                "trials_differ": res["curves"]["test_method"],
+            }
+        out["calibration"] = (
+            "per-value halves (measures), exact halves of the seeds (curves)"
+            if large.is_large(nb) and calibration_splits > 0
+            else "seed halves as below the threshold"
+        )
+        out["note"] = (
+            f"above {large.LARGE_N} seeds per method: resampling per distinct value (exact) for measures "
+            f"with at most {large.MAX_DISTINCT} distinct values; asymptotically exact methods otherwise "
+            "and for the curves (see jaxeac.stats.large)"
+        )
+    return out
 
 
 def compare_experiment(
@@ -72,8 +100,10 @@ def compare_experiment(
         )
     T = sb.shape[1]
     bowling = returns_baseline is not None
+    t_measures = time.perf_counter()
     mb = per_seed_measures(sb, returns_baseline)
     mt = per_seed_measures(st, returns_treatment)
+    t_measures = time.perf_counter() - t_measures
     names = [k for k in mb if not k.startswith("_")]
     vb = {k: mb[k] for k in names}
     vt = {k: mt[k] for k in names}
@@ -102,6 +132,7 @@ def compare_experiment(
     measures = res["measures"]
     for k in names:
         measures[k]["description"] = describe(k, T)
+    t_lr = time.perf_counter()
     lr = cf.logrank(mb["_time"], mb["_event"], mt["_time"], mt["_event"])
     measures["first_success"]["logrank"] = {"chi2": lr.statistic, "p": lr.pvalue}
     tests = {k: DECLARED_TESTS.get(k, "Welch t") for k in names}
@@ -131,6 +162,7 @@ def compare_experiment(
             "risk_ratio_ci95": [rr.low, rr.high],
             "risk_ratio_method": "Miettinen-Nurminen (1985) score",
         }
+    t_lr = time.perf_counter() - t_lr
     t_cal = time.perf_counter()
     if calibration_splits > 0:
         cal = calibrate(
@@ -142,6 +174,7 @@ def compare_experiment(
             alpha=alpha,
             time_event=(mb["_time"], mb["_event"]),
             labels=cal_labels,
+            moments=(res.get("curve_moments") or [None])[0],
         )
     else:
         cal = {"skipped": "calibration_splits = 0"}
@@ -186,9 +219,19 @@ def compare_experiment(
             "calibration_splits": calibration_splits,
             "calibration_resamples": calibration_resamples,
             "bootstrap": "BCa (Efron 1987), methods resampled independently",
+            "scale": _scale_record(res, sb.shape[0], st.shape[0], calibration_splits),
         },
         "versions": versions(STATS_PACKAGES, optional=()),
-        "timing": {"resample_seconds": res["resample_seconds"], "calibration_seconds": t_cal},
+        "timing": {
+            "resample_seconds": res["resample_seconds"],
+            "calibration_seconds": t_cal,
+            "pieces": {
+                "per_seed_measures": t_measures,
+                **res.get("pieces", {}),
+                "logrank_and_proportions": t_lr,
+                "calibration": t_cal,
+            },
+        },
     }
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
     plot = {"measures": {k: {"baseline": vb[k], "treatment": vt[k]} for k in names}}
@@ -214,7 +257,9 @@ def compare_run_dir(
     """
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
+    t_load = time.perf_counter()
     data = load_run_dir(run_dir, baseline, treatment)
+    t_load = time.perf_counter() - t_load
     bowling = data.experiment == "bowling"
     expected = "return" if bowling else "successes"
     if data.primary_measure != expected:
@@ -247,8 +292,11 @@ def compare_run_dir(
         bar.update()
     stats["run_dir"] = str(Path(run_dir))
     stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
+    stats["timing"]["load_seconds"] = t_load
+    t_out = time.perf_counter()
     with staged_dir(run_dir) as stage:
         write_figures(stats, plot, stage)
+        stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
         (stage / "report.md").write_text(render_markdown(clean), encoding="utf-8")

@@ -1,0 +1,429 @@
+"""The comparison at 10^5–10^6 and more seeds per method (SPEC §6): the large-N path.
+
+While neither method has more than `LARGE_N` seeds, `compare` draws seed indices and
+labels one by one (`resample`): O(N) work per resample, and results bit for bit as
+before. Above `LARGE_N` seeds in either method (`is_large`) every analysis of the report
+takes O(N) (ranks: O(N log N)) once, plus work per resample that does not grow with N:
+
+Exact (the same law as drawing seeds one by one):
+
+* Bootstrap of a per-seed measure with at most `MAX_DISTINCT` distinct values
+  (successes, late success rate and first success for T < 1024 trials; total pins
+  for T ≤ 102): seeds with equal
+  values are interchangeable, so a resample of n seeds is a multinomial count per
+  distinct value, Mult(n, k/n) (Efron 1979), O(D) per resample. The IQM of a
+  resample comes from the same counts (sum of the k smallest from cumulative counts).
+* Permutation test of such a measure: the treatment group's counts per distinct
+  value under a random relabelling are multivariate hypergeometric (Fisher 1935).
+* Brunner–Munzel and A12 from counts per distinct value (mid-ranks); log-rank from
+  counts per (time, event); per-trial means, SEs and covariances of the curves from
+  per-chunk sums of integer counts on the device (`curve_moments`).
+* Calibration of the measures' tests: each random half is a multivariate
+  hypergeometric count per distinct value; of the curve test: exact random halves
+  of the seeds (selection sampling on the device, in blocks of seeds).
+
+The per-value draws use NumPy's exact samplers (BTPE binomial, Kachitvichyanukul &
+Schmeiser 1988; HRUA hypergeometric, Stadlober 1989) on the host, seeded from the
+JAX key, so a large-N result does not depend on the device.
+
+Asymptotically exact, and only above `LARGE_N`:
+
+* Curves, sup-t bands: the Gaussian multiplier bootstrap (Chernozhukov, Chetverikov
+  & Kato 2013). Given the data its law is exactly N(0, Σ̂/n), with Σ̂ the per-trial
+  covariance from exact per-chunk sums, so it is drawn through Σ̂'s square root at
+  O(T²) per draw; the sup-t critical value is the (1 − α) quantile of max_t |Z_t|/se_t
+  (Montiel Olea & Plagborg-Møller 2019 define the band through this Gaussian limit;
+  the seed bootstrap estimates the same quantile).
+* Curves, trials where the methods differ: single-step max-T (Westfall & Young 1993)
+  with the multivariate normal limit of the permutation distribution of the per-trial
+  Welch t, N(0, R) with R the pooled per-trial correlation (combinatorial CLT, Hájek
+  1961; studentised statistics, Janssen 1997; max-T p-values from that limit as in
+  Hothorn, Bretz & Westfall 2008).
+* A measure with more than `MAX_DISTINCT` distinct values (the normalised area under
+  the cumulative-success curve, continuous data): the BCa intervals of the difference
+  and of Hedges' g become ABC intervals (DiCiccio & Efron 1992; Efron & Tibshirani
+  1993, §22.6), the analytic form of BCa; the permutation p-value becomes its normal
+  limit 2Φ(−|t|) (Janssen 1997); the IQM interval (if it is the first measure) the
+  BCa formula on the bootstrap's normal limit with jackknife SE and acceleration.
+
+Why these are equivalent at that N. ABC endpoints agree with those of BCa with
+infinitely many resamples to O_p(n^-3/2), a share O(1/n) of the interval's width
+(DiCiccio & Efron 1992, 1996), while BCa from 10^4 resamples carries a Monte Carlo
+error near 1 % of the width. The normal and Gaussian limits replace laws of two-sided
+statistics (|t|, max_t |t_t|), whose O(N^-1/2) Edgeworth term is odd and cancels, so
+they differ from the exact laws by O(1/N) (Hall 1992, §3.5), plus for 0/1 data a
+lattice term below φ(z)/(2·sqrt(N p (1 − p))) (Esseen 1945): at N > `LARGE_N` and
+per-trial rates in [0.05, 0.95] under 1e-3 on a probability, against a Monte Carlo
+standard error of 2e-3 on a p-value near 0.05 from 10^4 draws. `tests/test_stats_scale.py`
+checks each against the exact computation: the laws (two-sample KS) and critical
+values within Monte Carlo bands just above `LARGE_N`, ABC against BCa and the normal
+permutation p against exact permutations at 2·10^5 seeds.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from scipy import special
+
+from jaxeac.stats import closed_form as cf
+from jaxeac.stats._rng import mulhi32, random_words
+
+#: Above this many seeds in either method the large-N path is used.
+LARGE_N = 20_000
+#: A measure with at most this many distinct values (pooled) is resampled exactly per value.
+MAX_DISTINCT = 1024
+#: Seeds per block in the device sums (float32 sums of 0..100 stay exact integers below 2^24).
+BLOCK = 65_536
+#: fold_in index of the curve draws under the bootstrap and permutation keys (measures use 0..M-1).
+CURVE_STREAM = 1_000_000
+
+REFERENCES = {
+    "bootstrap_per_value": "exact: multinomial counts per distinct value (Efron 1979)",
+    "permutation_per_value": "exact: multivariate hypergeometric counts per distinct value (Fisher 1935)",
+    "abc": "ABC interval, analytic BCa (DiCiccio & Efron 1992)",
+    "normal_permutation": "normal limit of the studentised permutation test, 2Φ(−|t|) (Janssen 1997)",
+    "normal_bca": "BCa on the normal limit, jackknife SE and acceleration (Efron 1987)",
+    "sup_t_gaussian": "Gaussian multiplier sup-t band, N(0, Σ̂) from per-chunk sums "
+    "(Chernozhukov, Chetverikov & Kato 2013; Montiel Olea & Plagborg-Moller 2019)",
+    "max_t_gaussian": "single-step max-T, multivariate normal limit of the permutation law "
+    "(Westfall & Young 1993; Hajek 1961; Janssen 1997; Hothorn, Bretz & Westfall 2008)",
+}
+
+
+def is_large(*n: int) -> bool:
+    """Whether a comparison with these seeds per method takes the large-N path."""
+    return max(int(k) for k in n) > LARGE_N
+
+
+def host_rng(key) -> np.random.Generator:
+    """A NumPy generator seeded from the words of a JAX key (the same on every device)."""
+    words = np.asarray(jax.random.key_data(key), np.uint32).reshape(-1)
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(w) for w in words])))
+
+
+# ---------------------------------------------------------------- per-value tables
+class ValueTable:
+    """Distinct values of a pooled sample and the counts of each group (ascending values)."""
+
+    def __init__(self, x_baseline: np.ndarray, x_treatment: np.ndarray):
+        xb, xt = np.asarray(x_baseline, np.float64), np.asarray(x_treatment, np.float64)
+        self.nb, self.nt = int(xb.size), int(xt.size)
+        pooled = np.concatenate([xb, xt])
+        lo, hi = pooled.min(), pooled.max()
+        if hi - lo < 2**22 and np.array_equal(pooled, np.round(pooled)):  # small integers: O(N), no sort
+            span = int(hi - lo) + 1
+            kb = np.bincount((xb - lo).astype(np.int64), minlength=span)
+            kt = np.bincount((xt - lo).astype(np.int64), minlength=span)
+            keep = (kb + kt) > 0
+            self.values = (np.arange(span, dtype=np.float64) + lo)[keep]
+            self.kb, self.kt = kb[keep], kt[keep]
+            return
+        self.values, inv = np.unique(pooled, return_inverse=True)
+        inv = inv.reshape(-1)
+        U = self.values.size
+        self.kb = np.bincount(inv[: self.nb], minlength=U)
+        self.kt = np.bincount(inv[self.nb :], minlength=U)
+
+    @property
+    def distinct(self) -> int:
+        return int(self.values.size)
+
+    @property
+    def exact(self) -> bool:
+        return self.distinct <= MAX_DISTINCT
+
+
+def multinomial_counts(rng: np.random.Generator, counts: np.ndarray, resamples: int) -> np.ndarray:
+    """Bootstrap resamples as counts per value: Mult(n, counts/n), [R, D] float64."""
+    counts = np.asarray(counts, np.int64)
+    n = int(counts.sum())
+    return rng.multinomial(n, counts / n, size=resamples).astype(np.float64)
+
+
+def hypergeometric_counts(rng: np.random.Generator, counts: np.ndarray, n_take: int, reps: int):
+    """Counts per value of `reps` uniform n_take-subsets of the units: [reps, D] float64."""
+    counts = np.asarray(counts, np.int64)
+    return rng.multivariate_hypergeometric(counts, int(n_take), size=reps, method="marginals").astype(
+        np.float64
+    )
+
+
+def moment_sums(c: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sums of values and squares of each row of counts c [R, D]."""
+    return c @ values, c @ (values * values)
+
+
+def iqm_from_counts(c: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """IQM (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of each resample in
+    counts per ascending value c [R, D]: (F(n − g) − F(g)) / (n − 2g), F(k) the sum of the
+    k smallest, g = n // 4."""
+    n = int(round(c[0].sum()))
+    g = n // 4
+    cum = np.cumsum(c, axis=1)
+    cum_v = np.cumsum(c * values, axis=1)
+
+    def smallest(k):
+        j = np.minimum((cum < k).sum(1), c.shape[1] - 1)  # value holding the k-th smallest
+        rows = np.arange(c.shape[0])
+        before = np.where(j > 0, cum[rows, np.maximum(j - 1, 0)], 0.0)
+        before_v = np.where(j > 0, cum_v[rows, np.maximum(j - 1, 0)], 0.0)
+        return before_v + (k - before) * values[j]
+
+    return (smallest(n - g) - smallest(g)) / (n - 2 * g)
+
+
+def jackknife_iqm_counts(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Leave-one-out IQM for a unit of each distinct value (ascending values, counts > 0)."""
+    drop = np.asarray(counts, np.float64)[None] - np.eye(counts.size)
+    return iqm_from_counts(drop, values)
+
+
+# ---------------------------------------------------------------- asymptotic intervals and tests
+def _two_sample_f(statistic: str, nb: int, nt: int):
+    def f(theta):
+        mb, qb, mt, qt = theta
+        if statistic == "mean_diff":
+            return mt - mb
+        return cf.hedges_from_moments(nb, nb * mb, nb * qb, nt, nt * mt, nt * qt)
+
+    return f
+
+
+def _grad_hess(f, theta: np.ndarray, h: np.ndarray):
+    """Central-difference gradient and Hessian of a smooth f: R^p -> R at theta."""
+    p = theta.size
+    f0 = float(f(theta))
+    grad = np.empty(p)
+    hess = np.empty((p, p))
+    e = np.eye(p) * h
+    for i in range(p):
+        fp, fm = float(f(theta + e[i])), float(f(theta - e[i]))
+        grad[i] = (fp - fm) / (2 * h[i])
+        hess[i, i] = (fp - 2 * f0 + fm) / h[i] ** 2
+        for j in range(i):
+            v = (
+                float(f(theta + e[i] + e[j]))
+                - float(f(theta + e[i] - e[j]))
+                - float(f(theta - e[i] + e[j]))
+                + float(f(theta - e[i] - e[j]))
+            ) / (4 * h[i] * h[j])
+            hess[i, j] = hess[j, i] = v
+    return f0, grad, hess
+
+
+def abc_two_sample(statistic: str, x: np.ndarray, y: np.ndarray, alpha: float = 0.05) -> cf.Estimate:
+    """ABC interval (DiCiccio & Efron 1992; `abcnon` of Efron & Tibshirani 1993, §22.6) for
+    mean(y) − mean(x) or Hedges' g, the two samples resampled independently.
+
+    The statistic is a smooth function f of the group means of (x, x²); the empirical
+    influence values, the acceleration, the bias and curvature corrections and the
+    endpoints f(θ̂ + λδ) are all closed-form sums over the units (O(n)).
+    """
+    nb, nt = x.size, y.size
+    f = _two_sample_f(statistic, nb, nt)
+    ub = np.stack([x, x * x], 1)
+    ut = np.stack([y, y * y], 1)
+    theta = np.r_[ub.mean(0), ut.mean(0)]
+    sd = np.r_[ub.std(0), ut.std(0)]
+    h = 1e-3 * np.where(sd > 0, sd, np.maximum(1e-8 * np.abs(theta), 1e-12))
+    t0, grad, hess = _grad_hess(f, theta, h)
+    if not np.isfinite(t0):
+        return cf.Estimate(t0, t0, t0, 1 - alpha)
+    parts = []
+    for k, (u, n) in enumerate(((ub, nb), (ut, nt))):
+        du = u - u.mean(0)
+        g_k, h_k = grad[2 * k : 2 * k + 2], hess[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
+        L = du @ g_k
+        Q = np.einsum("ij,jk,ik->i", du, h_k, du)
+        parts.append((du, L, Q, n))
+    var = sum((L**2).sum() / n**2 for _, L, _, n in parts)
+    if not var > 0:
+        return cf.Estimate(t0, t0, t0, 1 - alpha)
+    sig = math.sqrt(var)
+    a = sum((L**3).sum() / n**3 for _, L, _, n in parts) / (6 * sig**3)
+    direction = np.concatenate([du.T @ L / (n**2 * sig) for du, L, _, n in parts])  # δ in θ-space
+    bhat = sum(Q.sum() / (2 * n**2) for _, _, Q, n in parts)
+    cq = direction @ hess @ direction / (2 * sig)
+    curv = bhat / sig - cq
+    z0 = special.ndtri(2 * special.ndtr(a) * special.ndtr(-curv))
+    ends = []
+    for q in (alpha / 2, 1 - alpha / 2):
+        w = z0 + special.ndtri(q)
+        lam = w / (1 - a * w) ** 2
+        ends.append(float(f(theta + lam * direction)))
+    return cf.Estimate(t0, min(ends), max(ends), 1 - alpha)
+
+
+def normal_bca(est: float, jackknife: np.ndarray, alpha: float = 0.05) -> tuple[float, float]:
+    """BCa endpoints with the bootstrap law replaced by its normal limit N(est, se²): z0 = 0,
+    se and acceleration from the jackknife values (Efron 1987)."""
+    jk = np.asarray(jackknife, np.float64)
+    n = jk.size
+    u = (n - 1) * (jk.mean() - jk)
+    se = math.sqrt(((jk - jk.mean()) ** 2).sum() * (n - 1) / n)
+    dens = (u**2).sum()
+    a = (u**3).sum() / (6 * dens**1.5) if dens > 0 else 0.0
+    out = []
+    for q in (alpha / 2, 1 - alpha / 2):
+        z = special.ndtri(q)
+        out.append(est + se * z / (1 - a * z))
+    return float(out[0]), float(out[1])
+
+
+def normal_permutation_p(t_obs) -> np.ndarray:
+    """Two-sided p of the studentised permutation test from its N(0, 1) limit (Janssen 1997)."""
+    t = np.abs(np.asarray(t_obs, np.float64))
+    return np.where(np.isfinite(t), 2 * special.ndtr(-t), 0.0)
+
+
+# ---------------------------------------------------------------- curves from per-chunk sums
+@partial(jax.jit, static_argnames=("block",))
+def _gram(c, block: int):
+    n, T = c.shape
+    pad = (-n) % block
+    c = jnp.pad(c, ((0, pad), (0, 0))).reshape(-1, block, T)
+
+    def body(acc, x):
+        x = x.astype(jnp.float32)
+        g = lax.dot_general(x, x, (((0,), (0,)), ((), ())), preferred_element_type=jnp.float32)
+        return (acc[0] + g.astype(jnp.int32), acc[1] + x.sum(0).astype(jnp.int32)), None
+
+    init = (jnp.zeros((T, T), jnp.int32), jnp.zeros((T,), jnp.int32))
+    (g, s), _ = lax.scan(body, init, c)
+    return g, s
+
+
+def _small_integers(c: np.ndarray, block: int = BLOCK, power: int = 2) -> bool:
+    """Whether c fits int8 and per-block float32 sums of products of `power` entries are exact
+    (below 2^24) with int32 totals."""
+    if c.dtype == np.bool_:
+        return c.shape[0] < 2**31
+    if not np.issubdtype(c.dtype, np.integer):
+        return False
+    m = int(np.abs(c).max(initial=0)) ** power
+    return m <= 127**power and m * block < 2**24 and m * c.shape[0] < 2**31
+
+
+def curve_moments(c) -> dict:
+    """Seeds n, per-trial sums s [T] and cross-products G = cᵀc [T, T] of curves [n, T].
+
+    Integer curves (success, pins) are summed on the device in blocks of `BLOCK` seeds
+    (float32 products, exact below 2^24, totals in int32), others in float64 on the host.
+    Returns a function that waits for the device and gives the dict.
+    """
+    c = np.asarray(c)
+    if _small_integers(c):
+        dev = _gram(jnp.asarray(c.astype(np.int8) if c.dtype != np.bool_ else c), BLOCK)
+
+        def wait():
+            g, s = (np.asarray(v, np.float64) for v in dev)
+            return {"n": c.shape[0], "s": s, "G": g}
+
+        return wait
+    x = c.astype(np.float64)
+    res = {"n": c.shape[0], "s": x.sum(0), "G": x.T @ x}
+    return lambda: res
+
+
+def covariance(m: dict) -> np.ndarray:
+    """Unbiased per-trial covariance from curve moments."""
+    n, s, G = m["n"], m["s"], m["G"]
+    mean = s / n
+    return (G - n * np.outer(mean, mean)) / (n - 1)
+
+
+def _sqrt_psd(cov: np.ndarray) -> np.ndarray:
+    w, v = np.linalg.eigh((cov + cov.T) / 2)
+    return v * np.sqrt(np.clip(w, 0, None))
+
+
+def gaussian_draws(rng: np.random.Generator, cov: np.ndarray, reps: int, chunk: int = 2000):
+    """`reps` draws of N(0, cov) as rows [reps, T] (through the symmetric square root)."""
+    root = _sqrt_psd(cov)
+    out = np.empty((reps, cov.shape[0]))
+    for i in range(0, reps, chunk):
+        k = min(chunk, reps - i)
+        out[i : i + k] = rng.standard_normal((k, cov.shape[0])) @ root.T
+    return out
+
+
+def gaussian_max_abs(rng: np.random.Generator, cov: np.ndarray, reps: int) -> np.ndarray:
+    """max_t |Z_t| over trials with positive variance, Z ~ N(0, corr(cov)), `reps` draws."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    ok = sd > 0
+    if not ok.any():
+        return np.zeros(reps)
+    corr = cov[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
+    return np.abs(gaussian_draws(rng, corr, reps)).max(1)
+
+
+# ---------------------------------------------------------------- calibration: exact random halves
+@partial(jax.jit, static_argnames=("block", "exact", "steps"))
+def _subset_sums(key, c, need, block: int, exact: bool, steps: int = 32):
+    """Column sums of c [n, T] over uniform subsets given their counts per block of `block`
+    seeds, need [S, B]: selection sampling (Knuth Algorithm S) inside every (subset, block)
+    at once, one scan step per position in the block (words of position i from
+    fold_in(key, i)); the sums are taken `steps` positions at a time, as one matmul."""
+    n, T = c.shape
+    S, B = need.shape
+    pad = B * block - n
+    cb = jnp.pad(c, ((0, pad), (0, 0))).reshape(B, block // steps, steps, T).transpose(1, 2, 0, 3)
+    sizes = jnp.minimum(n - jnp.arange(B, dtype=jnp.int32) * block, block)  # seeds in each block
+    acc_type = jnp.int32 if exact else jnp.float32
+
+    def select(need, i):
+        rem = sizes - i  # seeds left in each block, this one included; <= 0: padding
+        words = random_words(jax.random.fold_in(key, i), (S, B))
+        take = (mulhi32(words, jnp.maximum(rem, 1).astype(jnp.uint32)[None]) < need) & (rem > 0)[None]
+        return need - take.astype(jnp.uint32), take
+
+    def chunk(carry, xs):
+        need, acc = carry
+        j, x = xs  # x: [steps, B, T], the seeds at positions j·steps ... in every block
+        need, takes = lax.scan(select, need, j * steps + jnp.arange(steps))  # [steps, S, B]
+        part = lax.dot_general(
+            takes.astype(jnp.float32),
+            x.astype(jnp.float32),
+            (((0, 2), (0, 1)), ((), ())),
+            preferred_element_type=jnp.float32,
+        )
+        return (need, acc + part.astype(acc_type)), None
+
+    init = (need.astype(jnp.uint32), jnp.zeros((S, T), acc_type))
+    (left, acc), _ = lax.scan(chunk, init, (jnp.arange(block // steps), cb))
+    return acc, left
+
+
+def dispatch_subset_sums(key, c: np.ndarray, k: int, reps: int, block: int = 4096):
+    """Start the column sums [reps, T] of c [n, T] over `reps` uniform k-of-n subsets of the
+    seeds, exactly: the subset's counts per block of `block` seeds are multivariate
+    hypergeometric (drawn on the host under `key`), then each block's members come from
+    selection sampling on the device (under fold_in(key, 1)). Sums are exact for small
+    integers (success, pins and their squares), float32 otherwise."""
+    c = np.asarray(c)
+    n = c.shape[0]
+    nblocks = -(-n // block)
+    sizes = np.minimum(n - np.arange(nblocks) * block, block)
+    need = hypergeometric_counts(host_rng(key), sizes, k, reps).astype(np.int32)
+    steps = 32 if block % 32 == 0 else 1  # positions per matmul
+    exact = _small_integers(c, block=steps * nblocks, power=1)
+    if exact:
+        c = c if c.dtype == np.bool_ else c.astype(np.int8)
+    else:
+        c = c.astype(np.float32)
+    acc, left = _subset_sums(
+        jax.random.fold_in(key, 1), jnp.asarray(c), jnp.asarray(need), block, exact, steps
+    )
+
+    def wait():
+        if np.asarray(left).any():  # Algorithm S takes exactly the count asked of each block
+            raise AssertionError("subset draw left units unselected")
+        return np.asarray(acc, np.float64)
+
+    return wait
