@@ -14,6 +14,9 @@ Above `large.LARGE_N` seeds per method the same results come from the large-N pa
 (`_analyse_large`, `_calibrate_large`): resampling per distinct value, exact, where a
 measure takes few values, and named asymptotically exact methods elsewhere; see
 `jaxeac.stats.large` for which, why and the references.
+
+(Over 400 lines on purpose: each analysis and its large-N form sit side by side, so
+the place where a result switches path, and what it keeps equal, is visible in one file.)
 """
 
 from __future__ import annotations

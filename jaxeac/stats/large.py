@@ -58,6 +58,9 @@ standard error of 2e-3 on a p-value near 0.05 from 10^4 draws. `tests/test_stats
 checks each against the exact computation: the laws (two-sample KS) and critical
 values within Monte Carlo bands just above `LARGE_N`, ABC against BCa and the normal
 permutation p against exact permutations at 2·10^5 seeds.
+
+(Just over 400 lines: the large-N building blocks and the argument for each are kept
+in one module, next to the docstring that justifies them.)
 """
 
 from __future__ import annotations
