@@ -2,12 +2,15 @@
 
 Files are first written into a hidden staging folder beside the target folder
 and moved into place with `os.replace` (atomic on POSIX) only once everything
-has been written, so a run killed midway leaves no half-written result.
+has been written, so a run killed midway leaves no half-written result. A full
+disk (ENOSPC, EDQUOT) while writing is a `DiskFullError` naming the folder, and
+one process at a time writes a folder (`folder_lock`, an advisory lock).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -21,9 +24,27 @@ import numpy as np
 from jaxeac.errors import UsageError
 
 
+def check_out_path(path: str | os.PathLike, flag: str = "--out") -> Path:
+    """An output folder name that names a folder: not empty, no NUL byte (nothing is created)."""
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    if not text.strip():
+        raise UsageError(f"{flag} is empty; name a folder for the results, e.g. {flag} runs/mine")
+    if "\0" in text:
+        raise UsageError(f"{flag} {text!r} contains a NUL byte; name a folder without one")
+    try:
+        os.stat(text)
+    except (FileNotFoundError, NotADirectoryError):
+        pass
+    except OSError as exc:  # a name too long, a loop of links, no permission to look
+        raise UsageError(f"{flag} {text}: {exc.strerror or exc}; choose another folder") from None
+    return Path(text)
+
+
 def check_writable_dir(path: str | os.PathLike) -> Path:
     """Create `path` if needed and check that files can be written there."""
-    out = Path(path)
+    out = check_out_path(path)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a directory; choose another path")
     try:
@@ -39,7 +60,12 @@ def check_writable_dir(path: str | os.PathLike) -> Path:
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write `data` to `path` through a temporary file and a rename."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        if is_disk_full(exc):
+            raise disk_full_error(exc, path) from exc
+        raise
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -49,9 +75,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if is_disk_full(exc):
+            raise disk_full_error(exc, path) from exc
         raise
 
 
@@ -93,11 +121,154 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
             (stage / "per_seed.csv").write_text(...)
         # all files now in `out`; if the block raised, `out` is untouched
     """
-    out = check_writable_dir(out)
-    stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+    with folder_lock(out):
+        out = check_writable_dir(out)
+        stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+        try:
+            yield stage
+            for item in sorted(stage.iterdir()):
+                os.replace(item, out / item.name)
+        except Exception as exc:  # an OSError, or a library's error raised from one
+            if is_disk_full(exc):
+                raise disk_full_error(exc, out) from exc
+            raise
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+# ------------------------------------------------------------------ a full disk
+
+_FULL_ERRNOS = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+_FULL_TEXTS = ("no space left on device", "disk quota exceeded")
+
+
+def is_disk_full(exc: BaseException | None) -> bool:
+    """Whether `exc`, or an exception it was raised from, is a full disk (ENOSPC) or quota (EDQUOT)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS:
+            return True
+        if isinstance(exc, OSError) and any(t in str(exc).lower() for t in _FULL_TEXTS):
+            return True  # pyarrow and zipfile report some write errors with the text only
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def disk_full_error(exc: BaseException, path: str | os.PathLike) -> DiskFullError:
+    """The `DiskFullError` of `exc` (see `is_disk_full`) while writing `path`."""
+    code = exc.errno if isinstance(exc, OSError) and exc.errno in _FULL_ERRNOS else errno.ENOSPC
+    return DiskFullError(code, os.strerror(code), os.fspath(path))
+
+
+class DiskFullError(OSError):
+    """Writing `filename` (an output folder) ran out of disk space or quota; nothing was left half-written."""
+
+    def __str__(self) -> str:
+        quota = self.errno == getattr(errno, "EDQUOT", None)
+        what = "the disk quota is exceeded" if quota else "the disk is full (no space left on device)"
+        return (f"{what} while writing {self.filename}: what was being written was not saved and no file "
+                "is left half-written; free some space or choose another --out")
+
+
+# ------------------------------------------------------------------ one writer per folder
+
+LOCK_NAME = ".jaxeac.lock"
+_HELD: dict[str, list] = {}  # real path of a folder this process holds -> [lock fd, depth]
+
+
+@contextlib.contextmanager
+def folder_lock(out: str | os.PathLike) -> Iterator[Path]:
+    """Hold an advisory lock on output folder `out` (created if needed) for the block.
+
+    A second process locking the same folder gets a `UsageError` at once (no waiting), so
+    two runs never write one folder together. Re-entrant within a process (a command that
+    holds its folder can write into it). The lock file, ``out/.jaxeac.lock``, is removed on
+    release; folders this call created are removed again if they are still empty.
+    """
+    out = check_out_path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} exists and is not a directory; choose another path")
+    created = _make_dirs(out)
+    key = os.path.realpath(out)
+    if key in _HELD:
+        _HELD[key][1] += 1
+        try:
+            yield out
+        finally:
+            _HELD[key][1] -= 1
+        return
     try:
-        yield stage
-        for item in sorted(stage.iterdir()):
-            os.replace(item, out / item.name)
+        fd = _acquire(out / LOCK_NAME, out)
+    except BaseException:
+        _remove_if_empty(created)
+        raise
+    _HELD[key] = [fd, 1]
+    try:
+        yield out
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        del _HELD[key]
+        with contextlib.suppress(OSError):
+            os.unlink(out / LOCK_NAME)  # while still locked: a waiting process sees a new file
+        os.close(fd)
+        _remove_if_empty(created)
+
+
+def _make_dirs(out: Path) -> list[Path]:
+    """mkdir -p `out`; the folders it created, innermost first."""
+    missing = []
+    p = out.absolute()
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _remove_if_empty([m for m in missing if m.exists()])
+        if is_disk_full(exc):
+            raise disk_full_error(exc, out) from exc
+        reason = exc.strerror or exc
+        raise UsageError(f"cannot write to --out {out}: {reason}; choose a writable folder") from None
+    return missing
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    for folder in folders:  # innermost first
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+
+
+def _acquire(path: Path, out: Path) -> int:
+    """Open and flock `path` (non-blocking); make sure it is still the file at `path`."""
+    import fcntl
+
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as exc:
+            if is_disk_full(exc):
+                raise disk_full_error(exc, out) from exc
+            reason = exc.strerror or exc
+            raise UsageError(f"cannot write to --out {out}: {reason}; choose a writable folder") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode("ascii", "replace").strip()
+            os.close(fd)
+            who = f" (process {holder})" if holder.isdigit() else ""
+            raise UsageError(f"{out} is being written by another jaxeac run{who}; wait for it to finish "
+                             "or choose another --out") from None
+        except OSError:  # a filesystem without flock (some network mounts): go on unlocked
+            return fd
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            with contextlib.suppress(OSError):  # the holder's pid, for the message (a full disk: none)
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{os.getpid()}\n".encode())
+            return fd
+        os.close(fd)  # the previous holder removed it as we opened it: take the new one

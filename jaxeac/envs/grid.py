@@ -93,39 +93,69 @@ class GridMap:
 
 
 def parse_map(text: str, *, source: str = "map") -> GridMap:
-    """Parse and validate an ASCII map (G1); raise `UsageError` naming the problem."""
+    """Parse and validate an ASCII map (G1); raise `UsageError` naming the problem.
+
+    A leading UTF-8 byte-order mark (as some editors save) is ignored.
+    """
+    text = text.removeprefix("\ufeff")
     rows = [line.rstrip() for line in text.strip().splitlines()]
     if not rows or rows == [""]:
         raise UsageError(f"{source} is empty; give one row of '.', '#' and 'G' per line")
     widths = {len(r) for r in rows}
     if len(widths) != 1:
+        shown = sorted(widths)
+        shown = shown if len(shown) <= 8 else [*shown[:4], "...", *shown[-2:]]
         raise UsageError(
-            f"{source} has ragged rows (lengths {sorted(widths)}); make every row the same width"
+            f"{source} has ragged rows (lengths {', '.join(map(str, shown))}); make every row the same width"
         )
     bad = sorted({ch for r in rows for ch in r} - set(".#G"))
     if bad:
+        shown = "".join(bad[:12]) + ("..." if len(bad) > 12 else "")
         raise UsageError(
-            f"{source} has unknown characters {''.join(bad)!r}; use only '.', '#' and 'G'"
+            f"{source} has unknown characters {shown!r}; use only '.', '#' and 'G'"
         )
-    goals = [(x, y) for y, r in enumerate(rows) for x, ch in enumerate(r) if ch == "G"]
-    if len(goals) != 1:
-        raise UsageError(f"{source} must have exactly one goal 'G' (found {len(goals)})")
-    obstacles = np.array([[ch == "#" for ch in r] for r in rows], dtype=bool)
-    grid = GridMap(len(rows), len(rows[0]), obstacles, goals[0], "\n".join(rows) + "\n")
+    cells = np.frombuffer("".join(rows).encode("ascii"), np.uint8).reshape(len(rows), len(rows[0]))
+    goal_ys, goal_xs = np.nonzero(cells == ord("G"))
+    if goal_ys.size != 1:
+        raise UsageError(f"{source} must have exactly one goal 'G' (found {goal_ys.size})")
+    obstacles = cells == ord("#")
+    goal = (int(goal_xs[0]), int(goal_ys[0]))
+    grid = GridMap(len(rows), len(rows[0]), obstacles, goal, "\n".join(rows) + "\n")
     if grid.start_cells.size == 0:
         raise UsageError(f"{source} has no free start cell besides the goal; add a '.' cell")
     return grid
 
 
 def load_map(path: str | Path) -> GridMap:
-    """Read a map file (G1); a missing or unreadable file is a `UsageError`."""
+    """Read a map file (G1, UTF-8, a byte-order mark allowed); a missing, unreadable, non-text or
+    oversized file (a device such as /dev/zero; over 64 MiB, about as many cells, far beyond any
+    run's memory) is a `UsageError`."""
+    import os
+    import stat
+
+    max_bytes = 64 << 20
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, "rb") as fh:
+            mode = os.fstat(fh.fileno()).st_mode
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+                raise UsageError(f"map file {path} is a device, not a text file; pass a map file")
+            data = fh.read(max_bytes + 1)
     except FileNotFoundError:
         raise UsageError(f"map file {path} does not exist; check the --map path") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UsageError(f"cannot read map file {path}: {exc}; pass a readable text file") from None
+    except IsADirectoryError:
+        raise UsageError(f"map file {path} is a folder; pass the path of a map file") from None
+    except OSError as exc:
+        reason = exc.strerror or exc
+        raise UsageError(f"cannot read map file {path}: {reason}; pass a readable text file") from None
+    if len(data) > max_bytes:
+        raise UsageError(f"map file {path} is larger than {max_bytes >> 20} MiB (about {max_bytes:,} cells, "
+                         "beyond any run's memory); pass a smaller map")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"map file {path} is not UTF-8 text ({exc.reason} at byte {exc.start}); "
+                         "save it as plain text") from None
     return parse_map(text, source=f"map file {path}")
 
 

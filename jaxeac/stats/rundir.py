@@ -126,7 +126,10 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
                 )
             returns[algo] = r.astype(np.int64)
         cols = per_seed.get(algo)
-        if cols is None or cols.get("successes", np.empty(0)).shape[0] != c.shape[0]:
+        if cols is not None and "successes" not in cols:
+            raise UsageError(f"per_seed.csv has no numeric 'successes' column for {algo} (columns: "
+                             f"{', '.join(cols) or 'none'}); re-run the experiment to rewrite it")
+        if cols is None or cols["successes"].shape[0] != c.shape[0]:
             n_csv = 0 if cols is None else len(next(iter(cols.values()), []))
             raise UsageError(
                 f"per_seed.csv has {n_csv} rows for {algo} but curves.npz has {c.shape[0]} seeds; "
