@@ -1,167 +1,49 @@
 """The `jaxeac` command line: `jaxeac grid`, `jaxeac compare`, ...
 
 Bad input prints one line ``error: ...`` on stderr and exits with code 2, before
-any compute and without writing result files.
+any compute and without writing result files. Argument types, flag groups and the
+checks run before compute are in `jaxeac.cli_args`; this module holds the parser, one
+function per subcommand and the top-level fault handling (a little over 400 lines,
+kept together so every command's path from flags to files reads in one place).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import sys
 from collections.abc import Sequence
 
+from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from here as before)
+    KEY_LIMIT,
+    MIN_CONTACT_CAP,
+    Parser,
+    add_compare_flags,
+    add_grid_flags,
+    add_output_flags,
+    add_solver_flags,
+    check_bowling_memory_layout,
+    check_compare_size,
+    finite_float,
+    fit_grid,
+    fit_sweep,
+    folder_name,
+    host_port,
+    int_at_least,
+    nonneg_int,
+    positive_int,
+    prng_key,
+    render_path,
+    render_targets,
+    show,
+    solver_settings,
+)
 from jaxeac.errors import UsageError
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but errors are one line (`error: ...`) and exit code 2."""
-
-    def error(self, message: str):  # noqa: D401 - argparse API
-        raise UsageError(f"{self.prog}: {message}")
-
-
-def _show(text: str, limit: int = 40) -> str:
-    """A bad value for a one-line message: quoted, escaped, cut to `limit` characters."""
-    return repr(text[:limit]) + ("..." if len(text) > limit else "")
-
-
-def _int_at_least(minimum: int, what: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{_show(text)} is not an integer") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{_show(text.strip())} must be a {what} integer")
-        return value
-
-    return parse
-
-
-positive_int = _int_at_least(1, "positive")  # counts: rejects 1.5, 0, -3, 'ten'
-nonneg_int = _int_at_least(0, "non-negative")  # process ids, caps
-
-KEY_LIMIT = 1 << 32  # = jaxeac.experiments.common.KEY_LIMIT
-
-
-def prng_key(text: str) -> int:
-    """A root PRNG key in 0..2^32-1: `jax.random.key` keeps only key mod 2^32, so a larger key
-    would silently rerun a smaller one's random numbers under another name."""
-    value = nonneg_int(text)
-    if value >= KEY_LIMIT:
-        raise argparse.ArgumentTypeError(
-            f"{_show(text.strip(), 24)} is out of range: keys are 32-bit, 0..{KEY_LIMIT - 1} (a larger key "
-            f"would repeat key {value % KEY_LIMIT}'s results)")
-    return value
-
-
-def finite_float(text: str) -> float:
-    """A finite number (rejects nan, inf)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{_show(text)} is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{_show(text.strip())} is not a finite number")
-    return value
-
-
-def host_port(text: str) -> str:
-    """HOST:PORT of a coordinator: a host name, IPv4 or [IPv6] address and a port in 1..65535."""
-    host, sep, port = text.strip().rpartition(":")
-    example = "e.g. host0:1234 or [::1]:1234"
-    if not sep or not host:
-        raise argparse.ArgumentTypeError(f"{_show(text)} is not HOST:PORT ({example})")
-    if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
-        raise argparse.ArgumentTypeError(f"port {_show(port)} of {_show(text)} must be a number in 1..65535 "
-                                         f"({example})")
-    bracketed = host.startswith("[") and host.endswith("]")
-    name = host[1:-1] if bracketed else host
-    allowed = set("0123456789abcdefABCDEF:.%") if bracketed else None
-    ok = bool(name) and name.isascii() and (
-        set(name) <= allowed if bracketed else all(c.isalnum() or c in ".-_" for c in name))
-    if not ok:
-        raise argparse.ArgumentTypeError(f"host {_show(host)} of {_show(text)} is not a host name or address "
-                                         f"({example}: IPv6 addresses go in brackets)")
-    return f"{host}:{int(port)}"
-
-
-def folder_name(text: str) -> str:
-    """An output or run folder: a non-empty name (`''` would mean the current folder) without NUL."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty name is not a folder; name one, e.g. runs/mine")
-    if "\0" in text:
-        raise argparse.ArgumentTypeError(f"{_show(text)} contains a NUL byte; name a folder without one")
-    return text
-
-
-def add_grid_flags(p: argparse.ArgumentParser) -> None:
-    """The grid-world flags shared by `grid` and `sweep`; unset flags come from the preset."""
-    p.add_argument("--preset", default="paper", help="settings preset (default: paper, SPEC G6)")
-    p.add_argument("--map", dest="map_file", metavar="FILE", help="ASCII map file (SPEC G1)")
-    p.add_argument("--trials", type=positive_int, metavar="T", help="trials per run")
-    p.add_argument("--chances", type=positive_int, metavar="C", help="steps per trial (G5)")
-    p.add_argument("--alpha", type=finite_float, metavar="A", help="critic step size α")
-    p.add_argument("--beta", type=finite_float, metavar="B", help="actor step size β")
-    p.add_argument("--gamma", type=finite_float, metavar="G", help="discount γ in [0, 1]")
-    p.add_argument("--temperature", type=finite_float, metavar="TAU", help="softmax temperature τ > 0")
-    p.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO",
-                   help="algorithms: ac, eac, eac_success_only, eac_failure_only (default: ac eac)")
-    p.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
-    p.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
-    p.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
-                   help="seeds per compiled batch; bounds memory (default: chosen for the backend and "
-                        "free device memory; results do not depend on it)")
-    p.add_argument("--memory", default="dense", metavar="LAYOUT", help="memory layout: dense | buffer (E7)")
-    p.add_argument("--capacity", type=positive_int, default=1024, metavar="K",
-                   help="slots per memory for --memory buffer")
-
-
-def add_output_flags(p: argparse.ArgumentParser) -> None:
-    """What a grid run folder holds beyond results.parquet's per-seed measures and success curves."""
-    p.add_argument("--full-outputs", action="store_true",
-                   help="keep per-trial steps and final policies at any seed count "
-                        "(default: up to 100,000 seeds)")
-    p.add_argument("--per-seed-csv", action="store_true",
-                   help="write per_seed.csv at any seed count (default: up to 100,000 seeds)")
-
-
-def add_solver_flags(p: argparse.ArgumentParser) -> None:
-    """The bowling physics' constraint-solver settings (B7)."""
-    p.add_argument("--solver", default="newton", metavar="newton|cg",
-                   help="constraint solver (default newton; cg is faster in MJX on GPUs, less exact)")
-    p.add_argument("--iterations", type=positive_int, default=4, metavar="N", help="solver iterations")
-    p.add_argument("--ls-iterations", type=positive_int, default=8, metavar="N",
-                   help="line-search iterations")
-    p.add_argument("--contact-cap", type=positive_int, default=32, metavar="N",
-                   help="MJX: contacts kept per condim group (keep >= 30: the pins' 30 feet are one group)")
-    p.add_argument("--pair-cap", type=nonneg_int, default=0, metavar="N",
-                   help="MJX: closest geom pairs tested per collision group (0 = every pair)")
-
-
-#: The smallest --contact-cap that keeps the physics: MJX caps each condim group of candidate
-#: contacts, and the pins' 30 foot-floor contacts form one group (envs/bowling/xmls/bowling.xml),
-#: so a lower cap drops feet of standing pins and changes which pins fall.
-MIN_CONTACT_CAP = 30
-
-
-def _solver_settings(args: argparse.Namespace):
-    """The SolverSettings of the flags add_solver_flags adds (validated on construction)."""
-    from jaxeac.envs.bowling import SolverSettings
-
-    if args.contact_cap < MIN_CONTACT_CAP:
-        raise UsageError(f"--contact-cap {args.contact_cap} is below {MIN_CONTACT_CAP}: the pins' "
-                         f"{MIN_CONTACT_CAP} foot contacts form one contact group, so a lower cap drops "
-                         f"feet of standing pins and changes the physics; use {MIN_CONTACT_CAP} or more "
-                         "(default 32)")
-    return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
+    parser = Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     g = sub.add_parser("grid", help="run AC and EAC on the grid world over many seeds")
@@ -237,17 +119,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def add_compare_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--baseline", default="ac", help="baseline algorithm (default ac)")
-    p.add_argument("--treatment", default="eac", help="treatment algorithm (default eac)")
-    p.add_argument("--resamples", type=positive_int, default=10_000, metavar="R",
-                   help="bootstrap and permutation resamples (default 10000)")
-    p.add_argument("--alpha", dest="test_alpha", type=finite_float, default=0.05,
-                   help="significance level (default 0.05)")
-    p.add_argument("--key", dest="stats_key", type=prng_key, default=0, metavar="K",
-                   help="PRNG key of the resampling, 0..2^32-1")
-
-
 def _claim_out(args: argparse.Namespace, path, lock_path=None):
     """Check the output folder `path` and hold it (or `lock_path`, a part of it) for the rest of the
     command: a second run into the same folder is refused until this one ends."""
@@ -265,19 +136,6 @@ def _claim_existing(args: argparse.Namespace, path) -> None:
 
     if Path(path).is_dir():
         _claim_out(args, path)
-
-
-def _fit_grid(args: argparse.Namespace, settings, grid_map):
-    """Refuse sizes that cannot fit in memory or finish (`check_grid_resources`), with the numbers;
-    an automatic chunk size that would not fit becomes the largest that does."""
-    import dataclasses
-
-    from jaxeac.experiments.common import check_grid_resources
-    from jaxeac.experiments.grid import process_share
-
-    first, n = process_share(settings.seeds, args.process_id, args.num_processes)
-    chunk = check_grid_resources(settings, grid_map, n_seeds=n, first_seed=first)
-    return settings if chunk == settings.chunk_size else dataclasses.replace(settings, chunk_size=chunk)
 
 
 def _init_distributed(args: argparse.Namespace) -> None:
@@ -318,7 +176,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         raise UsageError("--coordinator only applies to a multi-process run; add --num-processes P "
                          "--process-id I, or drop --coordinator")
     _init_distributed(args)  # before the size check: JAX's backends must not have started yet
-    settings = _fit_grid(args, settings, grid_map)  # sizes that cannot fit or finish fail here
+    settings = fit_grid(args, settings, grid_map)  # sizes that cannot fit or finish fail here
     part = part_folder(args.out, args.process_id, args.num_processes) if args.num_processes > 1 else None
     out = _claim_out(args, args.out, part)
     if args.num_processes > 1:
@@ -389,44 +247,13 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
     return 0
 
 
-def _check_compare_size(run_dir, resamples: int) -> None:
-    """Refuse --resamples whose statistics cannot fit in memory (trials from the run's summary.json)."""
-    import json
-    from pathlib import Path
-
-    from jaxeac.experiments.common import check_compare_resources
-
-    try:
-        trials = int(json.loads((Path(run_dir) / "summary.json").read_text())["trials"])
-    except (OSError, ValueError, KeyError, TypeError):
-        trials = 1  # compare_run_dir names what is wrong with the folder
-    check_compare_resources(resamples, trials)
-
-
 def cmd_compare(args: argparse.Namespace) -> int:
     if not (0 < args.test_alpha < 1):
         raise UsageError(f"--alpha must lie in (0, 1) (got {args.test_alpha})")
-    _check_compare_size(args.dir, args.resamples)
+    check_compare_size(args.dir, args.resamples)
     _claim_existing(args, args.dir)
     return run_compare(args.dir, baseline=args.baseline, treatment=args.treatment,
                        resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key)
-
-
-def _check_bowling_memory_layout(settings) -> None:
-    """EAC's memories (dense layout: bowling has no other) hold at most 24 actions and, with K
-    angles, fewer than min(2^(31-K), 32767) trials: say so in the bowling flags' terms."""
-    from jaxeac.algorithm.config import algorithm
-    from jaxeac.algorithm.memory import MAX_DENSE_ACTIONS
-
-    if not any(algorithm(a).uses_memory for a in settings.algos):
-        return
-    if settings.angles > MAX_DENSE_ACTIONS:
-        raise UsageError(f"--angles {settings.angles}: EAC's memories hold at most {MAX_DENSE_ACTIONS} "
-                         f"angles; use --angles {MAX_DENSE_ACTIONS} or fewer (or --algos ac)")
-    most = min(1 << (31 - settings.angles), 32_767) - 1
-    if settings.trials > most:
-        raise UsageError(f"--trials {settings.trials}: with {settings.angles} angles EAC's memories hold "
-                         f"at most {most:,} trials; use --trials {most:,} or fewer (or fewer angles)")
 
 
 def cmd_bowling(args: argparse.Namespace) -> int:
@@ -438,10 +265,10 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
-        beta=args.beta, gamma=args.gamma, solver=_solver_settings(args),
+        beta=args.beta, gamma=args.gamma, solver=solver_settings(args),
     )
     settings.validate()
-    _check_bowling_memory_layout(settings)
+    check_bowling_memory_layout(settings)
     from jaxeac.experiments.common import check_bowling_resources
 
     check_bowling_resources(settings)  # sizes that cannot fit or finish fail here, with the numbers
@@ -463,62 +290,14 @@ def cmd_bowling(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render_targets(path, n_throws: int) -> list:
-    """The files `throw_command` draws for `n_throws` throws into `path` (`<stem>_<i>.png` for several)."""
-    from pathlib import Path
-
-    path = Path(path)
-    if n_throws == 1:
-        return [path]
-    return [path.with_name(f"{path.stem}_{i}{path.suffix}") for i in range(n_throws)]
-
-
-def _render_path(text: str, n_throws: int) -> str:
-    """The PNG file `throw --render` writes (``.png`` added to a name without a suffix, so the
-    path reported is the one written); refuses empty names, folders, other suffixes and
-    folders that do not exist (nothing is created)."""
-    from pathlib import Path
-
-    if not text.strip() or "\0" in text:
-        raise UsageError(f"--render {_show(text)} is not a file name; name a .png file, e.g. "
-                         "--render deck.png")
-    path = Path(text)
-    for probe in (path, path.parent):
-        try:
-            os.stat(probe)
-        except (FileNotFoundError, NotADirectoryError):
-            pass
-        except OSError as exc:  # a name too long, a loop of links
-            raise UsageError(f"--render {text}: {exc.strerror or exc}; pick another path") from None
-    if path.is_dir() or text.endswith(("/", os.sep)):
-        raise UsageError(f"--render {text} is a folder; name a file in it, e.g. --render "
-                         f"{(path / 'deck.png').as_posix()}")
-    if path.suffix == "":
-        path = path.with_name(path.name + ".png")
-    elif path.suffix.lower() != ".png":
-        raise UsageError(f"--render {text}: pictures are PNG files; name a .png file, e.g. "
-                         f"{path.with_suffix('.png')}")
-    folder = path.parent
-    if not folder.is_dir():
-        problem = "is not a folder" if folder.exists() else "does not exist"
-        raise UsageError(f"--render {text}: folder {folder} {problem}; create it first or pick "
-                         "another path")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise UsageError(f"--render {text}: cannot write to folder {folder}; pick a writable folder")
-    for target in _render_targets(path, n_throws):
-        if target.is_dir():
-            raise UsageError(f"--render would write {target}, which is a folder; pick another file name")
-    return str(path)
-
-
 def cmd_throw(args: argparse.Namespace) -> int:
     import json
 
     from jaxeac.envs.bowling import BowlingConfig, throw_command
 
-    cfg = BowlingConfig(theta_max=args.theta_max, solver=_solver_settings(args))
-    render = None if args.render is None else _render_path(args.render, len(args.angles))
-    targets = [] if render is None else _render_targets(render, len(args.angles))
+    cfg = BowlingConfig(theta_max=args.theta_max, solver=solver_settings(args))
+    render = None if args.render is None else render_path(args.render, len(args.angles))
+    targets = [] if render is None else render_targets(render, len(args.angles))
     fresh = [t for t in targets if not t.exists()]
     try:
         result = throw_command(args.angles, args.noise, args.backend, render, cfg, seed=args.key)
@@ -542,27 +321,6 @@ def _grid_settings(args: argparse.Namespace):
     )
 
 
-def _fit_sweep(sweep):
-    """`check_grid_resources` at every point of a sweep (each distinct size once); an automatic
-    chunk size too large for some point becomes the largest that fits them all."""
-    import dataclasses
-
-    from jaxeac.experiments.common import check_grid_resources
-
-    seen, chunks = set(), []
-    for point in sweep.points():
-        settings = sweep.settings(point)
-        size = (settings.preset, settings.map_file, settings.trials, settings.chances)
-        if size in seen:
-            continue
-        seen.add(size)
-        chunks.append(check_grid_resources(settings, settings.grid_map()))
-    if sweep.base.chunk_size is None and any(c is not None for c in chunks):
-        sweep = dataclasses.replace(sweep, base=dataclasses.replace(
-            sweep.base, chunk_size=min(c for c in chunks if c is not None)))
-    return sweep
-
-
 def cmd_sweep(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -571,7 +329,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     base = _grid_settings(args)
     base.resolved()  # validate the flags before the swept values
     sweep = Sweep.build(base, args.sets)
-    sweep = _fit_sweep(sweep)  # sizes that cannot fit or finish fail here, at any point
+    sweep = fit_sweep(sweep)  # sizes that cannot fit or finish fail here, at any point
     _claim_out(args, args.out)
     total = len(sweep.points()) * base.seeds * len(base.algos)
     with tqdm(total=total, unit="run", disable=args.quiet, desc="sweep", file=sys.stderr) as bar:
