@@ -272,3 +272,34 @@ def _acquire(path: Path, out: Path) -> int:
                 os.write(fd, f"{os.getpid()}\n".encode())
             return fd
         os.close(fd)  # the previous holder removed it as we opened it: take the new one
+
+
+def read_json_object(path: str | os.PathLike, fix: str = "re-run the command that wrote it") -> dict:
+    """A JSON file that must hold an object (summary.json, a sweep manifest); anything else
+    (missing, unreadable, not UTF-8, not JSON, a list) is one `UsageError` naming the file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UsageError(f"{path} is missing; {fix}") from None
+    except UnicodeDecodeError:
+        raise UsageError(f"{path} is not UTF-8 text (a damaged or foreign file); {fix}") from None
+    except OSError as exc:
+        raise UsageError(f"cannot read {path} ({exc.strerror or exc}); {fix}") from None
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{path} is not valid JSON ({exc.msg} at line {exc.lineno}); {fix}") from None
+    if not isinstance(obj, dict):
+        raise UsageError(f"{path} holds a JSON {type(obj).__name__}, not an object; {fix}")
+    return obj
+
+
+def json_field(obj: dict, key: str, kind: type | tuple, path, fix: str = "re-run the command that wrote it"):
+    """`obj[key]` if it is of `kind` (bools are not ints), else one `UsageError` naming file and field."""
+    value = obj.get(key)
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if value is None or isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
+        expected = " or ".join(k.__name__ for k in kinds)
+        raise UsageError(f"{path}: field {key!r} is {value!r}, expected {expected}; {fix}")
+    return value

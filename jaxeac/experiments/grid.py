@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported fr
 )
 from jaxeac.experiments.presets import make as make_preset
 from jaxeac.experiments.results import RESULTS_FILE, OutputOptions, load_grid_results, write_grid_results
-from jaxeac.io import atomic_write_json, staged_dir
+from jaxeac.io import atomic_write_json, json_field, read_json_object, staged_dir
 from jaxeac.running.batch import run_seeds
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import SeedsResult
@@ -147,22 +146,36 @@ def merge_parts(out: str | Path) -> GridRun:
     parts = sorted(out.glob(f"{PART_PREFIX}*-of-*"))
     if not parts:
         raise UsageError(f"{out} has no {PART_PREFIX}NNNN-of-NNNN folders; run `jaxeac grid --num-processes`")
-    count = int(parts[0].name.rsplit("-of-", 1)[1])
+    counts = {p.name.rsplit("-of-", 1)[1] for p in parts}
+    if len(counts) != 1 or not next(iter(counts)).isdigit():
+        raise UsageError(f"{out}: part folders of different or unreadable counts "
+                         f"({', '.join(sorted(counts))}); remove the stray ones or rerun the processes")
+    count = int(next(iter(counts)))
     expected = [part_folder(out, i, count).name for i in range(count)]
     missing = sorted(set(expected) - {p.name for p in parts})
     if missing or len(parts) != count:
         raise UsageError(f"{out}: parts missing or extra ({', '.join(missing) or 'mixed counts'}); "
                          "rerun the missing processes")
-    summaries = [json.loads((p / "summary.json").read_text()) for p in parts]
-    config = summaries[0]["config"]
-    if any(s["config"] != config for s in summaries):
+    fix = "rerun that process"
+    summaries = [read_json_object(p / "summary.json", fix) for p in parts]
+    configs = [json_field(s, "config", dict, p / "summary.json", fix)
+               for s, p in zip(summaries, parts, strict=True)]
+    config = configs[0]
+    if any(c != config for c in configs):
         raise UsageError(f"{out}: the parts come from runs with different settings; rerun them together")
-    settings = dataclasses.replace(GridSettings(), **{k: v for k, v in config.items() if k != "map"})
-    settings = dataclasses.replace(settings, algos=tuple(settings.algos))
+    fields = {f.name for f in dataclasses.fields(GridSettings)}
+    if not isinstance(config.get("map"), str) or not set(config) - {"map"} <= fields:
+        raise UsageError(f"{parts[0] / 'summary.json'}: its config is not a grid run's; {fix}")
+    try:
+        settings = dataclasses.replace(GridSettings(), **{k: v for k, v in config.items() if k != "map"})
+        settings = dataclasses.replace(settings, algos=tuple(settings.algos)).resolved()
+    except (TypeError, UsageError) as exc:
+        raise UsageError(f"{parts[0] / 'summary.json'}: its config does not describe a run ({exc}); "
+                         f"{fix}") from None
     results = {}
     loaded = [load_grid_results(p, settings.algos, settings.trials) for p in parts]
     for algo in settings.algos:
-        pieces = [(part[algo], summary["per_algo"][algo])
+        pieces = [(part[algo], summary.get("per_algo", {}).get(algo, {}))
                   for part, summary in zip(loaded, summaries, strict=True)]
         if any(x.trial_steps is None or x.policy is None for x, _ in pieces):
             raise UsageError(f"{out}: a part holds no per-trial steps or policies; run the parts with "
@@ -175,8 +188,8 @@ def merge_parts(out: str | Path) -> GridRun:
             seeds=seeds, success=np.concatenate([x[1] for x in pieces]),
             steps=np.concatenate([x[2] for x in pieces]).astype(np.int32),
             policy=np.concatenate([x[3] for x in pieces]).astype(np.int32),
-            compile_seconds=max(x[4]["compile_seconds"] for x in pieces),
-            run_seconds=max(x[4]["run_seconds"] for x in pieces),  # processes run side by side
+            compile_seconds=max(float(x[4].get("compile_seconds", 0.0)) for x in pieces),
+            run_seconds=max(float(x[4].get("run_seconds", 0.0)) for x in pieces),  # processes side by side
         )
     from jaxeac.envs.grid import parse_map
 

@@ -17,6 +17,7 @@ import io
 import itertools
 import json
 import math
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -28,7 +29,13 @@ from jaxeac.envs.grid import GridWorld
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import mean_ci95, welch_diff_ci95
 from jaxeac.experiments.grid import GridSettings
-from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, check_writable_dir
+from jaxeac.io import (
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_text,
+    check_writable_dir,
+    read_json_object,
+)
 from jaxeac.running.batch import run_entries
 
 TRACED = ("alpha", "beta", "gamma", "temperature")
@@ -117,7 +124,8 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
     manifest_path = out / "sweep.json"
     manifest = sweep.manifest()
     if manifest_path.exists():
-        if json.loads(manifest_path.read_text()) != json.loads(json.dumps(manifest)):
+        if read_json_object(manifest_path, "remove the folder or choose another --out") != json.loads(
+                json.dumps(manifest)):
             raise UsageError(f"{out} holds a different sweep (see {manifest_path}); "
                              "rerun with the same settings or choose another --out")
     else:
@@ -173,7 +181,15 @@ def _entry_hyper(settings: list[GridSettings], per_point: int) -> Hyper:
 
 def load_point(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarray, np.ndarray]:
     """(success bool [N, T], steps [N, T]) of one algorithm at sweep point `point_id`."""
-    parts = [np.load(_unit_files(out, point_id, algo, c)) for c in range(n_chunks)]
+    parts = []
+    for c in range(n_chunks):
+        path = _unit_files(out, point_id, algo, c)
+        try:
+            with np.load(path) as unit:
+                parts.append({"success": unit["success"], "steps": unit["steps"]})
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            raise UsageError(f"{path} is damaged ({type(exc).__name__}); delete it and rerun the same sweep "
+                             "command to redo that part") from None
     return (np.concatenate([p["success"] for p in parts]), np.concatenate([p["steps"] for p in parts]))
 
 

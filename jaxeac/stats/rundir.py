@@ -11,7 +11,6 @@ success curve.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.io import json_field, read_json_object
 
 LATE_FRACTION = 0.2
 _BLOCK = 16_384  # seeds per block of the area sums
@@ -79,20 +79,20 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
             raise UsageError(
                 f"{path} has no {name}; pass a run directory written by 'jaxeac grid' or 'jaxeac bowling'"
             )
-    try:
-        summary = json.loads((path / "summary.json").read_text())
-    except json.JSONDecodeError as exc:
-        raise UsageError(
-            f"{path / 'summary.json'} is not valid JSON ({exc.msg}); re-run the experiment"
-        ) from None
+    summary = read_json_object(path / "summary.json", "re-run the experiment")
     experiment = summary.get("experiment")
     if experiment not in ("grid", "bowling"):
         raise UsageError(f"summary.json experiment is {experiment!r}, expected 'grid' or 'bowling'")
     primary = summary.get("primary_measure", "successes" if experiment == "grid" else "return")
     if primary not in ("successes", "return"):
         raise UsageError(f"summary.json primary_measure is {primary!r}, expected 'successes' or 'return'")
-    trials = int(summary.get("trials", 0))
-    algos = tuple(summary.get("algos", ()))
+    where = path / "summary.json"
+    trials = json_field(summary, "trials", int, where, "re-run the experiment")
+    algos = json_field(summary, "algos", list, where, "re-run the experiment")
+    if trials < 1 or not all(isinstance(a, str) for a in algos):
+        raise UsageError(f"{where}: trials must be a positive integer and algos a list of names "
+                         f"(got {trials!r}, {algos!r}); re-run the experiment")
+    algos = tuple(algos)
     for algo, flag in ((baseline, "--baseline"), (treatment, "--treatment")):
         if algo not in algos:
             raise UsageError(f"{flag} {algo!r} is not in this run (algos: {', '.join(algos) or 'none'})")

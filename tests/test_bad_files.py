@@ -1,0 +1,134 @@
+"""Damaged files a command reads: one `error:` line naming the file, exit 2, nothing written or changed.
+
+`compare` on a run folder, `merge` on a multi-process run and a resumed `sweep` each get
+the same damages: truncated, binary garbage, valid JSON of the wrong shape or type,
+missing files.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from jaxeac.cli import main
+
+SMALL = ["--seeds", "4", "--trials", "5", "--chances", "10", "--quiet"]
+
+
+def snapshot(folder):
+    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def assert_refused(argv, folder, capsys, names):
+    before = snapshot(folder)
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+    assert any(n in err for n in names), err
+    assert snapshot(folder) == before  # nothing written, nothing changed
+
+
+@pytest.fixture(scope="module")
+def grid_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "grid"
+    assert main(["grid", *SMALL, "--no-compare", "--out", str(out)]) == 0
+    return out
+
+
+def summary_of(run):
+    return json.loads((run / "summary.json").read_text())
+
+
+DAMAGES = {
+    "summary is a list": ("summary.json", lambda p, s: p.write_text("[]")),
+    "summary is binary": ("summary.json", lambda p, s: p.write_bytes(bytes(range(256)))),
+    "summary truncated": ("summary.json", lambda p, s: p.write_text(p.read_text()[:40])),
+    "trials is text": ("summary.json", lambda p, s: p.write_text(json.dumps({**s, "trials": "many"}))),
+    "algos missing": ("summary.json", lambda p, s: p.write_text(json.dumps({k: v for k, v in s.items()
+                                                                            if k != "algos"}))),
+    "summary missing": ("summary.json", lambda p, s: p.unlink()),
+    "results truncated": ("results.parquet", lambda p, s: p.write_bytes(p.read_bytes()[:100])),
+    "results garbage": ("results.parquet", lambda p, s: p.write_bytes(b"PAR1" + bytes(1000) + b"PAR1")),
+    "results missing": ("results.parquet", lambda p, s: p.unlink()),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGES))
+def test_compare_refuses_damaged_run_folders(grid_run, tmp_path, capsys, damage):
+    run = tmp_path / "run"
+    shutil.copytree(grid_run, run)
+    name, spoil = DAMAGES[damage]
+    spoil(run / name, summary_of(grid_run))
+    assert_refused(["compare", str(run), "--resamples", "200"], run, capsys, (name, "curves.npz"))
+
+
+def test_compare_refuses_a_non_numeric_per_seed_csv(tmp_path, capsys):
+    """A legacy folder whose per_seed.csv has a non-numeric value is refused, not silently used."""
+    import numpy as np
+
+    run = tmp_path / "legacy"
+    run.mkdir()
+    rng = np.random.default_rng(0)
+    curves = {a: rng.random((4, 5)) < 0.5 for a in ("ac", "eac")}
+    np.savez(run / "curves.npz", **curves)
+    rows = [f"{a},{i},{int(c[i].sum()) if (a, i) != ('eac', 2) else 'x'},9,-1"
+            for a, c in curves.items() for i in range(4)]
+    (run / "per_seed.csv").write_text("algo,seed,successes,steps,first_success\n" + "\n".join(rows) + "\n")
+    (run / "summary.json").write_text(json.dumps({"experiment": "grid", "trials": 5, "algos": ["ac", "eac"]}))
+    assert_refused(["compare", str(run), "--resamples", "200"], run, capsys, ("per_seed.csv",))
+
+
+@pytest.fixture(scope="module")
+def parts_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("multi") / "run"
+    for i in range(2):
+        assert main(["grid", *SMALL, "--num-processes", "2", "--process-id", str(i), "--out", str(out)]) == 0
+    return out
+
+
+def spoil_config(path, summary):
+    path.write_text(json.dumps({**summary, "config": {**summary["config"], "trials": "many"}}))
+
+
+@pytest.mark.parametrize("damage", ["summary is a list", "summary missing", "config trials is text",
+                                    "results truncated", "results missing"])
+def test_merge_refuses_damaged_parts(parts_run, tmp_path, capsys, damage):
+    run = tmp_path / "run"
+    shutil.copytree(parts_run, run)
+    name, spoil = DAMAGES.get(damage, ("summary.json", spoil_config))
+    parts = ["part-0000-of-0002", "part-0001-of-0002"] if damage == "config trials is text" else [
+        "part-0001-of-0002"]  # both parts agree on the bad config, so it reaches the settings check
+    for part in parts:
+        spoil(run / part / name, summary_of(run / part))
+    assert_refused(["merge", str(run), "--no-compare"], run, capsys, (name, "config", "trials"))
+
+
+def test_merge_refuses_parts_of_mixed_counts(parts_run, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(parts_run, run)
+    (run / "part-0001-of-0003").mkdir()
+    assert_refused(["merge", str(run), "--no-compare"], run, capsys, ("counts",))
+
+
+@pytest.fixture(scope="module")
+def sweep_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "s"
+    assert main(["sweep", *SMALL, "--set", "alpha=0.1,0.2", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("damage", ["manifest garbage", "manifest list", "part truncated", "part garbage"])
+def test_resumed_sweep_refuses_damaged_files(sweep_run, tmp_path, capsys, damage):
+    out = tmp_path / "s"
+    shutil.copytree(sweep_run, out)
+    (out / "results.csv").unlink()  # as if killed before the end: the rerun reads every part
+    part = sorted((out / "parts").glob("*.npz"))[0]
+    target = {"manifest garbage": (out / "sweep.json", b"\xff\xfe{"),
+              "manifest list": (out / "sweep.json", b"[1]"),
+              "part truncated": (part, part.read_bytes()[:30]), "part garbage": (part, bytes(200))}[damage]
+    target[0].write_bytes(target[1])
+    assert_refused(["sweep", *SMALL, "--set", "alpha=0.1,0.2", "--out", str(out)], out, capsys,
+                   (target[0].name,))
