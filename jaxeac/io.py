@@ -123,6 +123,8 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
     """
     with folder_lock(out):
         out = check_writable_dir(out)
+        for stale in out.glob(".staging-*"):  # left by a run killed before it finished (we hold the lock)
+            shutil.rmtree(stale, ignore_errors=True)
         stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
         try:
             yield stage

@@ -132,3 +132,13 @@ def test_resumed_sweep_refuses_damaged_files(sweep_run, tmp_path, capsys, damage
     target[0].write_bytes(target[1])
     assert_refused(["sweep", *SMALL, "--set", "alpha=0.1,0.2", "--out", str(out)], out, capsys,
                    (target[0].name,))
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
+    out = tmp_path / "run"
+    stale = out / ".staging-abc123"
+    stale.mkdir(parents=True)
+    (stale / "results.parquet").write_bytes(b"half")  # what a SIGKILL mid-write leaves
+    assert main(["grid", *SMALL, "--no-compare", "--out", str(out)]) == 0
+    assert not stale.exists() and not list(out.glob(".staging-*"))
+    assert (out / "results.parquet").is_file()
