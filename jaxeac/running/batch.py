@@ -63,6 +63,8 @@ def chunks(n_seeds: int, chunk_size: int) -> Iterator[np.ndarray]:
 def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     """The chunk size actually run: N split evenly into ceil(N / chunk_size) chunks (no chunk is
     mostly padding), rounded up to a multiple of the device count."""
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
+        raise UsageError(f"chunk size must be a positive integer (got {chunk_size!r})")
     n_chunks = -(-n // chunk_size)
     even = -(-n // n_chunks)
     return -(-even // n_devices) * n_devices
@@ -112,8 +114,6 @@ def run_entries(
     devices = list(devices) if devices is not None else jax.local_devices()
     if chunk_size is None:
         chunk_size = auto_chunk_size(env, cfg, n, devices)
-    if chunk_size < 1:
-        raise UsageError(f"chunk size must be a positive integer (got {chunk_size})")
     chunk_size = even_chunk(n, chunk_size, len(devices))
     root = jax.random.key(root_key)
     hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
