@@ -110,9 +110,18 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
     atomic_write_text(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=False) + "\n")
 
 
+#: The files a run folder's writer owns: a new run into a folder replaces all of them, so a
+#: folder never mixes one run's results with another run's report or figures.
+RUN_FOLDER_FILES = ("summary.json", "results.parquet", "per_seed.csv", "curves.npz", "policies.npz",
+                    "bowling.npz", "table1.md", "fig*.png", "stats.json", "report.md", "compare_*.png")
+
+
 @contextlib.contextmanager
-def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
+def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterator[Path]:
     """Yield a staging folder; on success move its files into `out`, else delete it.
+
+    Files of `out` matching a pattern of `replaces` that the stage did not write are
+    removed once the new files are in place (a new run replaces the old one as a whole).
 
     Usage::
 
@@ -128,8 +137,13 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
         stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
         try:
             yield stage
+            written = {item.name for item in stage.iterdir()}
             for item in sorted(stage.iterdir()):
                 os.replace(item, out / item.name)
+            for pattern in replaces:
+                for old in out.glob(pattern):
+                    if old.is_file() and old.name not in written:
+                        old.unlink()
         except Exception as exc:  # an OSError, or a library's error raised from one
             if is_disk_full(exc):
                 raise disk_full_error(exc, out) from exc

@@ -142,3 +142,18 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
     assert main(["grid", *SMALL, "--no-compare", "--out", str(out)]) == 0
     assert not stale.exists() and not list(out.glob(".staging-*"))
     assert (out / "results.parquet").is_file()
+
+
+def test_a_new_run_replaces_the_old_folder_as_a_whole(tmp_path):
+    """A run into a folder of another run (its report, its figures, bowling's files) leaves no
+    file of the old run beside the new results."""
+    out = tmp_path / "run"
+    assert main(["grid", *SMALL, "--out", str(out)]) == 0  # results, report, compare figures
+    (out / "table1.md").write_text("a bowling run's table")
+    (out / "notes.txt").write_text("the user's own file")
+    assert main(["grid", "--seeds", "3", "--trials", "4", "--chances", "10", "--quiet", "--no-compare",
+                 "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert "stats.json" not in names and "report.md" not in names and "table1.md" not in names
+    assert not [n for n in names if n.startswith("compare_")]
+    assert "notes.txt" in names and json.loads((out / "summary.json").read_text())["trials"] == 4

@@ -375,10 +375,10 @@ def per_seed_csv(run: BowlingRun) -> str:
 
 def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True) -> dict:
     """per_seed.csv, curves.npz, bowling.npz, table1.md, summary.json and figures, all or nothing."""
-    from jaxeac.io import atomic_write_json, staged_dir
+    from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, staged_dir
 
     summary = summarize_bowling(run)
-    with staged_dir(out) as stage:
+    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         (stage / "per_seed.csv").write_text(per_seed_csv(run))
         np.savez_compressed(stage / "curves.npz",
                             **{a: r.success for a, r in run.results.items()},

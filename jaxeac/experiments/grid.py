@@ -30,7 +30,7 @@ from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported fr
 )
 from jaxeac.experiments.presets import make as make_preset
 from jaxeac.experiments.results import RESULTS_FILE, OutputOptions, load_grid_results, write_grid_results
-from jaxeac.io import atomic_write_json, json_field, read_json_object, staged_dir
+from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, json_field, read_json_object, staged_dir
 from jaxeac.running.batch import run_seeds
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import SeedsResult
@@ -251,7 +251,7 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
     summary = summarize(run)
     options = options or OutputOptions.auto(run.settings.seeds)
     summary["outputs"] = dataclasses.asdict(options)
-    with staged_dir(out) as stage:
+    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         write_grid_results(stage / RESULTS_FILE, run.results, run.settings.trials, run.grid_map.n_cells,
                            options)
         if options.per_seed_csv:
