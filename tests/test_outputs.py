@@ -132,3 +132,24 @@ def test_figure_band_from_counts_matches_numpy(rng):
         assert counts.shape == (17, 18) and (counts.sum(1) == n).all()
         for q in (5, 50, 95):
             np.testing.assert_allclose(count_percentile(counts, q), np.percentile(cum, q, axis=0), atol=1e-12)
+
+
+def test_numerical_blow_ups_are_reported_per_seed(tmp_path, capsys):
+    """A step size far too large fills p and V with inf/NaN: each such seed is flagged in the
+    results, counted in summary.json and named in the printed table."""
+    from jaxeac.algorithm import algorithm
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.experiments.grid import GridRun, GridSettings, summary_table, write_grid_outputs
+    from jaxeac.running import RunConfig, run_seeds
+
+    env = GridWorld(get_map("paper"), 40)
+    wild = run_seeds(env, RunConfig(trials=40, agent=algorithm("ac"), alpha=50.0, beta=50.0), root_key=0,
+                     n_seeds=3)
+    tame = run_seeds(env, RunConfig(trials=40, agent=algorithm("ac")), root_key=0, n_seeds=3)
+    assert not wild.finite.any() and tame.finite.all()
+    np.testing.assert_array_equal(wild.non_finite_seeds, [0, 1, 2])
+    settings = GridSettings(seeds=3, trials=40, algos=("ac",)).resolved()
+    summary = write_grid_outputs(GridRun(settings, env.map, {"ac": wild}), tmp_path / "run", figures=False)
+    assert summary["per_algo"]["ac"]["non_finite_seeds"] == {"count": 3, "first": [0, 1, 2]}
+    assert "warning: ac: 3 seed(s) ended with NaN or infinite p or V" in summary_table(summary)
+    assert pq.read_table(tmp_path / "run" / RESULTS_FILE).column("finite").to_pylist() == [False] * 3

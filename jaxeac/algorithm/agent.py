@@ -253,3 +253,8 @@ def greedy_policy(cfg: AgentConfig, agent: AgentState) -> jax.Array:
         return greedy
     remembered = agent.memory.policy_actions(agent.preferences.shape[0], agent.trial, agent.outcomes)
     return jnp.where(remembered >= 0, remembered, greedy)
+
+
+def tables_finite(agent: AgentState) -> jax.Array:
+    """bool []: every p(s, a) and V(s) is finite (a step size too large makes them blow up)."""
+    return jnp.isfinite(agent.preferences).all() & jnp.isfinite(agent.values).all()

@@ -183,6 +183,8 @@ def merge_parts(out: str | Path) -> GridRun:
         seeds = np.concatenate([x.seeds for x, _ in pieces])
         if not np.array_equal(seeds, np.arange(settings.seeds)):
             raise UsageError(f"{out}: the parts' seeds do not cover 0..{settings.seeds - 1} exactly once")
+        finite = (None if any(x.finite is None for x, _ in pieces)
+                  else np.concatenate([x.finite for x, _ in pieces]))
         pieces = [(x.seeds, x.success, x.trial_steps, x.policy, s) for x, s in pieces]
         results[algo] = SeedsResult(
             seeds=seeds, success=np.concatenate([x[1] for x in pieces]),
@@ -190,6 +192,7 @@ def merge_parts(out: str | Path) -> GridRun:
             policy=np.concatenate([x[3] for x in pieces]).astype(np.int32),
             compile_seconds=max(float(x[4].get("compile_seconds", 0.0)) for x in pieces),
             run_seconds=max(float(x[4].get("run_seconds", 0.0)) for x in pieces),  # processes side by side
+            finite=finite,
         )
     from jaxeac.envs.grid import parse_map
 
@@ -207,6 +210,9 @@ def summarize(run: GridRun) -> dict:
             "mean_steps": steps / len(r.seeds), "agent_steps": steps,
             "agent_steps_per_second": steps / r.run_seconds if r.run_seconds > 0 else None,
         }
+        if r.finite is not None:  # numerical blow-ups, per seed (a step size too large for the task)
+            bad = r.non_finite_seeds
+            out["per_algo"][algo]["non_finite_seeds"] = {"count": int(bad.size), "first": bad[:10].tolist()}
         if r.settings is not None:  # how it ran: every `auto` resolved (RunConfig.resolve), chunk size
             out["per_algo"][algo]["run"] = r.settings
     total_steps = sum(out["per_algo"][a]["agent_steps"] for a in run.results)
@@ -227,6 +233,12 @@ def summary_table(summary: dict) -> str:
         d = summary["eac_minus_ac"]
         lines.append(f"EAC - AC: {d['diff']:+.2f} successes of {summary['trials']} "
                      f"(95% CI [{d['ci95'][0]:+.2f}, {d['ci95'][1]:+.2f}], Welch)")
+    for algo, st in summary["per_algo"].items():
+        bad = st.get("non_finite_seeds", {})
+        if bad.get("count"):
+            lines.append(f"warning: {algo}: {bad['count']} seed(s) ended with NaN or infinite p or V (seeds "
+                         f"{', '.join(map(str, bad['first']))}{' …' if bad['count'] > 10 else ''}); "
+                         "smaller step sizes avoid the blow-up")
     rate = summary.get("agent_steps_per_second")
     lines.append(f"compile {summary['compile_seconds']:.1f} s, run {summary['run_seconds']:.1f} s"
                  + (f", {rate:.3g} agent-steps/s" if rate else ""))

@@ -9,6 +9,7 @@
 | ``successes`` | int32 | successful trials of T (the primary measure) |
 | ``steps`` | int64 | agent-steps over all T trials |
 | ``first_success`` | int32 | 1-based trial of the first success, −1 if none |
+| ``finite`` | bool | the seed's p and V stayed finite (False: a numerical blow-up) |
 | ``success_bits`` | fixed_size_binary[⌈T/8⌉] | success per trial; bit t (low bit first) is trial t |
 | ``trial_steps`` | fixed_size_list<int16>[T] | chances used per trial (optional) |
 | ``policy`` | fixed_size_list<int8>[S] | final greedy action per cell (optional) |
@@ -99,7 +100,7 @@ def schema(trials: int, n_states: int, options: OutputOptions):
     fields = [
         pa.field("algo", pa.dictionary(pa.int8(), pa.string())), pa.field("seed", pa.int64()),
         pa.field("successes", pa.int32()), pa.field("steps", pa.int64()),
-        pa.field("first_success", pa.int32()),
+        pa.field("first_success", pa.int32()), pa.field("finite", pa.bool_()),
         pa.field("success_bits", pa.binary(-(-trials // 8))),
     ]
     if options.trial_steps:
@@ -109,7 +110,7 @@ def schema(trials: int, n_states: int, options: OutputOptions):
     return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1"})
 
 
-def _batch(pa, sch, algo: str, seeds, success, steps, policy, options: OutputOptions):
+def _batch(pa, sch, algo: str, seeds, success, steps, policy, finite, options: OutputOptions):
     n, trials = success.shape
     any_success = success.any(axis=1)
     columns = {
@@ -118,6 +119,7 @@ def _batch(pa, sch, algo: str, seeds, success, steps, policy, options: OutputOpt
         "successes": pa.array(success.sum(axis=1, dtype=np.int32)),
         "steps": pa.array(steps.sum(axis=1, dtype=np.int64)),
         "first_success": pa.array(np.where(any_success, success.argmax(axis=1) + 1, -1).astype(np.int32)),
+        "finite": pa.array(np.ones(n, bool) if finite is None else np.asarray(finite, bool)),
         "success_bits": _bits(pa, success),
     }
     if options.trial_steps:
@@ -137,8 +139,9 @@ def write_grid_results(path: str | Path, results: dict, trials: int, n_states: i
         for algo, r in results.items():
             for start in range(0, len(r.seeds), ROW_GROUP):
                 rows = slice(start, start + ROW_GROUP)
+                finite = None if getattr(r, "finite", None) is None else r.finite[rows]
                 writer.write_batch(_batch(pa, sch, algo, r.seeds[rows], r.success[rows], r.steps[rows],
-                                          r.policy[rows], options), row_group_size=ROW_GROUP)
+                                          r.policy[rows], finite, options), row_group_size=ROW_GROUP)
 
 
 @dataclasses.dataclass
@@ -152,6 +155,7 @@ class AlgoResults:
     steps_total: np.ndarray  # int [N]
     trial_steps: np.ndarray | None  # int [N, T], if the folder holds them
     policy: np.ndarray | None  # int [N, S], if the folder holds them
+    finite: np.ndarray | None = None  # bool [N]: p and V stayed finite (None in older folders)
 
 
 def _unpack_list(column, width: int, dtype) -> np.ndarray:
@@ -195,6 +199,8 @@ def _load_parquet(path: Path, algos, trials: int) -> dict[str, AlgoResults]:
                 trial_steps=(_unpack_list(rows.column("trial_steps"), trials, np.int32)
                              if "trial_steps" in rows.column_names else None),
                 policy=_unpack_list(rows.column("policy"), n_states, np.int32) if n_states else None,
+                finite=rows.column("finite").to_numpy(zero_copy_only=False) if "finite" in rows.column_names
+                else None,
             )
     except (pa.ArrowException, ValueError) as exc:
         raise UsageError(f"{path} has malformed columns ({exc}); re-run the experiment") from None

@@ -196,4 +196,5 @@ def run_seeds(
         run_seconds=run_seconds,
         settings={**resolved.describe(), "chunk_size": int(chunk_size), "devices": len(devices),
                   "backend": devices[0].platform},
+        finite=out.finite,
     )

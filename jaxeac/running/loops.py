@@ -31,6 +31,7 @@ from jaxeac.algorithm.agent import (
     learn_step,
     record_step,
     select_action,
+    tables_finite,
 )
 from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.pytree import pytree_dataclass
@@ -145,7 +146,8 @@ def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResul
 
     def run(key: jax.Array, hyper: Hyper) -> SeedResult:
         agent, records = trace_run(env, cfg, key, hyper)
-        return SeedResult(records.success, records.length, greedy_policy(cfg.agent, agent))
+        return SeedResult(records.success, records.length, greedy_policy(cfg.agent, agent),
+                          tables_finite(agent))
 
     return run
 
@@ -216,6 +218,7 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
         def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, XLA ops
             return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, w, h), run)
     policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
+    finite = jax.vmap(tables_finite)
 
     def start(entry) -> _Lane:  # a lane for `entry`; entries ≥ M give an idle lane
         i = jnp.minimum(entry, m - 1)
@@ -234,10 +237,11 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
 
         first = jax.vmap(lambda w: flat_init(env, cfg, w))(lane_words)
         agent = jax.lax.while_loop(unfinished, chances, first).agent
-        return pack_output(env, agent.log[:m], policies(agent)[:m])
+        return pack_output(env, agent.log[:m], policies(agent)[:m], finite(agent)[:m])
 
     lanes = jax.vmap(start)(jnp.arange(n_lanes))
-    out = pack_output(env, jnp.zeros((m, cfg.trials), jnp.int32), jnp.zeros((m, env.n_states), jnp.int32))
+    out = pack_output(env, jnp.zeros((m, cfg.trials), jnp.int32), jnp.zeros((m, env.n_states), jnp.int32),
+                      jnp.ones((m,), bool))
 
     # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
     # greedy policies, fresh lanes) stays small next to the block's C chances.
@@ -252,7 +256,8 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
         lane = jnp.minimum(idx, n_lanes - 1)
         finished = jax.tree.map(lambda x: x[lane], run)
         row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
-        done_out = pack_output(env, finished.agent.log, policies(finished.agent))
+        done_out = pack_output(env, finished.agent.log, policies(finished.agent),
+                               finite(finished.agent))
         out = jax.tree.map(lambda a, new: a.at[row].set(new, mode="drop"), out, done_out)
         nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
         take = got & (nxt < m)
@@ -269,7 +274,7 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
 
 def trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
     r = jax.vmap(make_run(env, cfg))(keys, hyper)
-    return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy)
+    return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy, r.finite)
 
 
 def state_bytes_per_seed(env: Env, cfg: RunConfig) -> int:

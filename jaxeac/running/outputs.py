@@ -22,6 +22,7 @@ class SeedResult:
     success: jax.Array  # bool [T]
     steps: jax.Array  # int32 [T]
     policy: jax.Array  # int32 [S]
+    finite: jax.Array | None = None  # bool []: every p(s, a) and V(s) finite at the end (no blow-up)
 
 
 @pytree_dataclass
@@ -36,6 +37,7 @@ class BatchOutput:
 
     log: jax.Array  # int8/16/32 [M, T]
     policy: jax.Array  # int8/16/32 [M, S]
+    finite: jax.Array | None = None  # bool [M]: the seed's tables stayed finite
 
 
 def narrow_int(largest: int) -> np.dtype:
@@ -46,15 +48,16 @@ def narrow_int(largest: int) -> np.dtype:
     return np.dtype(np.int32)
 
 
-def pack_output(env, log: jax.Array, policy: jax.Array) -> BatchOutput:
+def pack_output(env, log: jax.Array, policy: jax.Array, finite: jax.Array | None = None) -> BatchOutput:
     """A chunk's logs and policies in `narrow_int` types (exact: |log| ≤ C, policy < A)."""
-    return BatchOutput(log.astype(narrow_int(env.n_chances)), policy.astype(narrow_int(env.n_actions)))
+    return BatchOutput(log.astype(narrow_int(env.n_chances)), policy.astype(narrow_int(env.n_actions)),
+                       finite)
 
 
 def empty_results(n: int, n_trials: int, n_states: int) -> SeedResult:
     """Host arrays for `n` seeds' results, filled chunk by chunk by `unpack_output`."""
     return SeedResult(success=np.empty((n, n_trials), bool), steps=np.empty((n, n_trials), np.int32),
-                      policy=np.empty((n, n_states), np.int32))
+                      policy=np.empty((n, n_states), np.int32), finite=np.ones(n, bool))
 
 
 def unpack_output(out: BatchOutput, into: SeedResult | None = None, start: int = 0) -> SeedResult:
@@ -72,6 +75,8 @@ def unpack_output(out: BatchOutput, into: SeedResult | None = None, start: int =
     np.greater(log, 0, out=into.success[rows])
     np.abs(log, out=into.steps[rows])
     into.policy[rows] = policy
+    if out.finite is not None:
+        into.finite[rows] = np.asarray(out.finite)
     return into
 
 
@@ -86,6 +91,12 @@ class SeedsResult:
     compile_seconds: float
     run_seconds: float
     settings: dict | None = None  # how it ran: the resolved `RunConfig`, chunk size, devices
+    finite: np.ndarray | None = None  # bool [N]: False where a seed's p or V blew up to NaN/inf
+
+    @property
+    def non_finite_seeds(self) -> np.ndarray:
+        """Seeds whose tables ended with a NaN or infinite value (numerical blow-up)."""
+        return self.seeds[~self.finite] if self.finite is not None else self.seeds[:0]
 
     @property
     def successes(self) -> np.ndarray:
