@@ -529,8 +529,16 @@ def calibrate(
         sq = None if binary else slice(2 * M + T, 2 * M + 2 * T)
         max_ref = np.abs(tstats(ref_sums, cols, sq)).max(1)
         max_split = np.abs(tstats(split_sums, cols, sq)).max(1)
-        p_curve = (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
-        rates["curve_maxT"] = {"any_trial": _rate(p_curve, alpha)}
+        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
+    return _calibration_record(splits, resamples, h, alpha, rates)
+
+
+def _max_t_p(max_ref, max_split):
+    """Per split, the max-T p-value of its largest |t| against the reference maxima."""
+    return (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
+
+
+def _calibration_record(splits, resamples, h, alpha, rates, **extra) -> dict:
     return {
         "description": "baseline against itself: random disjoint halves; the rate is the share of splits "
         "a test calls significant (expected: alpha)",
@@ -539,6 +547,7 @@ def calibrate(
         "group_size": h,
         "alpha": alpha,
         "false_positive_rate": rates,
+        **extra,
     }
 
 
@@ -621,21 +630,14 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
                 mom = large.curve_moments(c)()
         rng = large.host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
         max_ref = large.gaussian_max_abs(rng, large.covariance(mom), resamples)
-        p_curve = (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
-        rates["curve_maxT"] = {"any_trial": _rate(p_curve, alpha)}
+        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
         methods["curve_maxT"] = large.REFERENCES["max_t_gaussian"]
-    return {
-        "description": "baseline against itself: random disjoint halves; the rate is the share of splits "
-        "a test calls significant (expected: alpha)",
-        "splits": splits,
-        "resamples": resamples,
-        "group_size": h,
-        "alpha": alpha,
-        "false_positive_rate": rates,
-        "large_n": {
+    return _calibration_record(
+        splits, resamples, h, alpha, rates,
+        large_n={
             "threshold": large.LARGE_N,
             "halves": "measures: multivariate hypergeometric counts per distinct value; curves: exact "
             "random halves of the seeds (selection sampling on the device)",
             "methods": methods,
         },
-    }
+    )
