@@ -95,6 +95,19 @@ def permutation_test(
     return cf.TestResult(float(t_obs), float(_perm_p(t_obs, t_star[:, None])[0]))
 
 
+def _rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, higher_is_better: bool, power: dict) -> dict:
+    """The Brunner–Munzel, A12, probability-of-improvement and power fields of a measure's record."""
+    return {
+        "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
+        "a12": a,
+        "a12_ci95": [a_lo, a_hi],
+        "prob_improvement": a if higher_is_better else 1 - a,
+        "prob_improvement_ci95": [a_lo, a_hi] if higher_is_better else [1 - a_hi, 1 - a_lo],
+        "seeds_for_80pct_power": power["seeds_for_80pct_power"],
+        "power": power,
+    }
+
+
 def _power(g: float, alpha: float) -> dict:
     return {
         "observed_d": abs(g),
@@ -173,15 +186,9 @@ def _analyse(
             "df_welch": float(df),
             "p_welch": float(p),
             "p_permutation": None,
-            "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
             "hedges_g": g,
             "hedges_g_ci95": None,
-            "a12": a,
-            "a12_ci95": [a_lo, a_hi],
-            "prob_improvement": a if hib else 1 - a,
-            "prob_improvement_ci95": [a_lo, a_hi] if hib else [1 - a_hi, 1 - a_lo],
-            "seeds_for_80pct_power": pw["seeds_for_80pct_power"],
-            "power": pw,
+            **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, pw),
         }
     t_closed = time.perf_counter()
     (boot_b, iqm_b), (boot_t, iqm_t), perm = wait_b(), wait_t(), wait_p()
@@ -362,15 +369,9 @@ def _analyse_large(
             "df_welch": float(df),
             "p_welch": float(p),
             "p_permutation": res["p_permutation"],
-            "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
             "hedges_g": g,
             "hedges_g_ci95": [hg.low, hg.high],
-            "a12": a,
-            "a12_ci95": [a_lo, a_hi],
-            "prob_improvement": a if hib else 1 - a,
-            "prob_improvement_ci95": [a_lo, a_hi] if hib else [1 - a_hi, 1 - a_lo],
-            "seeds_for_80pct_power": pw["seeds_for_80pct_power"],
-            "power": pw,
+            **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, pw),
         }
         if j == 0:
             for side in ("baseline", "treatment"):
