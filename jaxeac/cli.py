@@ -3,7 +3,7 @@
 Bad input prints one line ``error: ...`` on stderr and exits with code 2, before
 any compute and without writing result files. Argument types, flag groups and the
 checks run before compute are in `jaxeac.cli_args`; this module holds the parser, one
-function per subcommand and the top-level fault handling (a little over 400 lines,
+function per subcommand and the top-level fault handling (under 500 lines,
 kept together so every command's path from flags to files reads in one place).
 """
 
@@ -112,10 +112,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder")
-    c.add_argument("dir", type=folder_name, metavar="DIR",
+    c = sub.add_parser("compare", help="statistics report comparing two algorithms of a run folder, "
+                       "or any algorithms of a table (--table)")
+    c.add_argument("dir", type=folder_name, metavar="DIR", nargs="?",
                    help="a run folder written by `jaxeac grid` or `jaxeac bowling`")
+    c.add_argument("--table", type=folder_name, metavar="PATH",
+                   help="instead of DIR: a tidy table (CSV or Parquet: algo, seed[, trial], value), an "
+                        "rliable .npz ([runs, tasks] per algorithm) or a folder of SB3 monitor files")
+    c.add_argument("--aggregate", choices=("sum", "mean", "last"), default="sum",
+                   help="with --table and a trial column: per-seed value = sum (default), mean or last "
+                        "over trials")
+    c.add_argument("--out", type=folder_name, metavar="DIR",
+                   help="with --table: output folder (default: <table stem>_compare beside the table)")
     add_compare_flags(c)
+    c.set_defaults(baseline=None, treatment=None)  # run folders: ac and eac; tables: all pairs
     return parser
 
 
@@ -250,10 +260,38 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
 def cmd_compare(args: argparse.Namespace) -> int:
     if not (0 < args.test_alpha < 1):
         raise UsageError(f"--alpha must lie in (0, 1) (got {args.test_alpha})")
+    if args.table is not None:
+        return compare_table_command(args)
+    if args.dir is None:
+        raise UsageError("compare needs a run folder DIR or --table PATH")
+    if args.out is not None:
+        raise UsageError("--out goes with --table; a run folder's report is written into the folder")
     check_compare_size(args.dir, args.resamples)
     _claim_existing(args, args.dir)
-    return run_compare(args.dir, baseline=args.baseline, treatment=args.treatment,
+    return run_compare(args.dir, baseline=args.baseline or "ac", treatment=args.treatment or "eac",
                        resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key)
+
+
+def compare_table_command(args: argparse.Namespace) -> int:
+    """`jaxeac compare --table PATH`: every pair (or each against --baseline) of a table's algorithms."""
+    from jaxeac.fmt import p_value
+    from jaxeac.stats.tidy import compare_table
+
+    if args.dir is not None:
+        raise UsageError(f"pass either a run folder ({args.dir}) or --table, not both")
+    result, out = compare_table(args.table, args.out, aggregate=args.aggregate, baseline=args.baseline,
+                                treatment=args.treatment, resamples=args.resamples, alpha=args.test_alpha,
+                                key=args.stats_key)
+    print(f"{result['per_seed_value']}; family: {result['family']}, Holm over "
+          f"{result['comparisons_in_family']} comparison(s)")
+    for r in result["comparisons"]:
+        lo, hi = r["diff_ci95"]
+        plo, phi = r["p_improvement_ci95"]
+        print(f"{r['x']} - {r['y']}: {r['diff']:+.4g} (95% CI [{lo:+.4g}, {hi:+.4g}]), "
+              f"Holm p = {p_value(r['p_holm'], 3, sci_below=None, general=True)}, "
+              f"P({r['x']} > {r['y']}) = {r['p_improvement']:.3f} [{plo:.3f}, {phi:.3f}]")
+    print(f"report in {out}/report_table.md")
+    return 0
 
 
 def cmd_bowling(args: argparse.Namespace) -> int:
