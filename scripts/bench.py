@@ -57,28 +57,19 @@ def command_line() -> str:
     return " ".join(["python", *sys.argv])
 
 
-def state_bytes_per_seed(env, cfg) -> int:
-    """Bytes of the per-seed loop state (agent, memories, env state, per-trial records)."""
-    import jax
-
-    from jaxeac.running.loops import flat_init
-
-    cfg = cfg.resolve(env)  # the tables layout (`auto`) decides the shapes
-    shapes = jax.eval_shape(lambda w: flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
-    return int(sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
-
-
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
                lanes: int | None = None, kernel: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
-    from jaxeac.algorithm.config import algorithm, resolve_tables
+    from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.running.batch import run_seeds
-    from jaxeac.running.config import RunConfig, resolved_kernel
+    from jaxeac.running.config import RunConfig
+    from jaxeac.running.loops import state_bytes_per_seed
 
     env = GridWorld(get_map("paper"), 40)
     cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
                     lanes=lanes, kernel=kernel)
+    resolved = cfg.resolve(env)  # what the row ran: every `auto` decided
     best, compile_s, steps, mean = float("inf"), None, 0, 0.0
     for _ in range(repeats):
         r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk)
@@ -87,8 +78,8 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
         steps, mean = r.agent_steps, float(r.successes.mean())
     return {
         "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds),
-        "loop": cfg.resolved_loop, "tables": resolve_tables(tables), "lanes": lanes or "auto",
-        "kernel": resolved_kernel(env, cfg),
+        "loop": resolved.loop, "tables": resolved.agent.tables, "lanes": lanes or "auto",
+        "kernel": resolved.kernel,
         "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
         "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
     }

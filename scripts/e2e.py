@@ -42,10 +42,16 @@ def folder_bytes(folder: Path) -> int:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
-def grid_record(out: Path, seeds: int) -> dict:
-    """The plain command end to end, then the same run split into run+write and compare."""
+def grid_record(out: Path, seeds: int, plain_only: bool = False) -> dict:
+    """The plain command end to end, then (unless `plain_only`) the same run split into
+    run+write and compare."""
     base = ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
     whole = jaxeac([*base, "--out", str(out / f"grid{seeds}")])
+    if plain_only:
+        summary = json.loads((out / f"grid{seeds}" / "summary.json").read_text())
+        return {**whole, "seeds": seeds, "devices": summary["devices"],
+                "compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"],
+                "output_bytes": folder_bytes(out / f"grid{seeds}")}
     split = out / f"grid{seeds}_split"
     run = jaxeac([*base, "--no-compare", "--out", str(split)])
     summary = json.loads((split / "summary.json").read_text())
@@ -68,6 +74,8 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=Path("runs/e2e"))
     p.add_argument("--only", nargs="+", choices=["grid", "sweep", "bowling"])
     p.add_argument("--grid-seeds", type=int, nargs="+", default=[10_000])
+    p.add_argument("--plain-only", action="store_true",
+                   help="grid: only the plain command (no split run, no separate compare)")
     p.add_argument("--record", type=Path, help="write the JSON record here (default OUT/timings.json)")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -77,7 +85,7 @@ def main() -> None:
     wanted = set(args.only or ["grid", "sweep", "bowling"])
     if "grid" in wanted:
         for seeds in args.grid_seeds:
-            record["grid"].append(grid_record(args.out, seeds))
+            record["grid"].append(grid_record(args.out, seeds, args.plain_only))
             print(json.dumps(record["grid"][-1]), flush=True)
     if "sweep" in wanted:
         record["sweep"] = jaxeac(["sweep", "--seeds", "1000", "--quiet", "--out", str(args.out / "sweep"),
