@@ -174,7 +174,7 @@ def _init_distributed(args: argparse.Namespace) -> None:
 def cmd_grid(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxeac.experiments.grid import part_folder, run_grid
+    from jaxeac.experiments.grid import part_folder, run_grid_to_folder, summary_table
 
     settings = _grid_settings(args).resolved()
     grid_map = settings.grid_map()  # a bad map fails here, before any compute
@@ -192,10 +192,12 @@ def cmd_grid(args: argparse.Namespace) -> int:
     if args.num_processes > 1:
         return _grid_part(args, settings, out)
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
-              desc="grid", file=sys.stderr) as bar:
-        run = run_grid(settings, progress=bar.update)
-    return _finish_grid(run, out, compare=not args.no_compare, quiet=args.quiet,
-                        options=_output_options(args, settings.seeds))
+              desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
+        run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
+                                          progress=bar.update)
+    print(summary_table(summary))
+    print(f"results in {out}/")
+    return _compare_grid(run, out, compare=not args.no_compare, quiet=args.quiet)
 
 
 def _output_options(args: argparse.Namespace, n_seeds: int):
@@ -211,9 +213,20 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool, options=None) -> int:
     summary = write_grid_outputs(run, out, options=options)
     print(summary_table(summary))
     print(f"results in {out}/")
-    if compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2:
-        return run_compare(out, quiet=quiet)
-    return 0
+    return _compare_grid(run, out, compare=compare, quiet=quiet)
+
+
+def _compare_grid(run, out, *, compare: bool, quiet: bool) -> int:
+    """The statistics report of a grid run just written, from its results in memory."""
+    if not (compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2):
+        return 0
+    from pathlib import Path
+
+    from jaxeac.stats.rundir import RunData
+
+    data = RunData(Path(out), "grid", "successes", tuple(run.settings.algos), run.settings.trials,
+                   {a: r.success for a, r in run.results.items()}, {}, {})
+    return run_compare(out, quiet=quiet, data=data)
 
 
 def _grid_part(args: argparse.Namespace, settings, out) -> int:
@@ -241,12 +254,12 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
-                quiet=False) -> int:
+                quiet=False, data=None) -> int:
     from jaxeac.fmt import p_value
     from jaxeac.stats import compare_run_dir
 
     result = compare_run_dir(run_dir, baseline=baseline, treatment=treatment, resamples=resamples,
-                             alpha=alpha, key=key, progress=not quiet)
+                             alpha=alpha, key=key, progress=not quiet, data=data)
     p = result["primary"]
     lo, hi = p["diff_ci95"]
     print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "

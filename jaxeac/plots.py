@@ -23,16 +23,20 @@ COLORS = {"ac": "tab:blue", "eac": "tab:red"}
 LABELS = {"ac": "AC", "eac": "EAC"}
 
 
-def cumulative_counts(success: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
+def cumulative_counts(success, chunk: int = 1 << 15) -> np.ndarray:
     """int64 [T, T + 1]: per trial t, how many seeds have v successes in trials 1..t (exact, in
-    blocks of `chunk` seeds on host threads: O(N·T) once, bounded memory at any N)."""
+    blocks of `chunk` seeds on host threads: O(N·T) once, bounded memory at any N).
+    `success`: bool [N, T] or `SuccessBits`."""
     from concurrent.futures import ThreadPoolExecutor
+
+    from jaxeac.running.outputs import SuccessBits
 
     n, t = success.shape
     offsets = np.arange(t, dtype=np.int32) * (t + 1)
+    rows = success.rows if isinstance(success, SuccessBits) else lambda a, b: success[a:b]
 
     def block(start: int) -> np.ndarray:  # numpy frees the GIL in cumsum and bincount
-        cum = np.cumsum(success[start:start + chunk], axis=1, dtype=np.int32)
+        cum = np.cumsum(rows(start, start + chunk), axis=1, dtype=np.int32)
         cum += offsets
         return np.bincount(cum.ravel(), minlength=t * (t + 1))
 
@@ -146,7 +150,7 @@ def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
     paper = make(run.settings.preset).paper_successes if run.settings.map_file is None else None
     cumulative_success_figure({a: r.success for a, r in run.results.items()},
                               folder / "fig3_cumulative_successes.png", paper=paper)
-    policy_figure(run.grid_map, {a: r.policy[seed] for a, r in run.results.items()},
+    policy_figure(run.grid_map, {a: r.policy_of(seed) for a, r in run.results.items()},
                   folder / "fig2_policies.png", seed=seed, max_steps=run.settings.chances)
     return ["fig3_cumulative_successes.png", "fig2_policies.png"]
 

@@ -79,14 +79,42 @@ def test_unpack_output_by_hand():
 
 def test_chunks_unpacked_in_row_blocks_equal_whole_chunks(monkeypatch):
     """Host threads unpack a chunk in row blocks (`UNPACK_ROWS`); blocks that split chunks unevenly."""
-    import jaxeac.running.batch as runner
+    import jaxeac.running.outputs as outputs
 
     cfg = RunConfig(trials=10, agent=algorithm("eac"))
     whole = run_seeds(ENV, cfg, root_key=4, n_seeds=11, chunk_size=8)
-    monkeypatch.setattr(runner, "UNPACK_ROWS", 3)
+    monkeypatch.setattr(outputs, "UNPACK_ROWS", 3)
     blocks = run_seeds(ENV, cfg, root_key=4, n_seeds=11, chunk_size=8)
     for field in ("success", "steps", "policy"):
         np.testing.assert_array_equal(getattr(whole, field), getattr(blocks, field))
+
+
+def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monkeypatch):
+    """`CompactCollector` (streamed runs): success bits, per-seed measures and the first
+    policies equal the full host arrays', and every chunk reaches `on_chunk` once, in order."""
+    import jaxeac.running.outputs as outputs
+
+    cfg = RunConfig(trials=13, agent=algorithm("eac"))
+    full = run_seeds(ENV, cfg, root_key=4, n_seeds=21, chunk_size=8)
+    monkeypatch.setattr(outputs, "UNPACK_ROWS", 3)
+    monkeypatch.setattr(outputs, "KEEP_POLICIES", 10)
+    seen = []
+    seeds = np.arange(21)
+    collector = outputs.CompactCollector(seeds, 13, ENV.n_states,
+                                         on_chunk=lambda start, chunk, m: seen.append((start, m["successes"].copy())))
+    compact = run_seeds(ENV, cfg, root_key=4, n_seeds=21, chunk_size=8, collector=collector)
+    assert isinstance(compact, outputs.CompactSeeds) and compact.settings["chunk_size"] == 7  # 21 = 3 × 7
+    np.testing.assert_array_equal(compact.success.unpack(), full.success)
+    np.testing.assert_array_equal(compact.success.bits,
+                                  np.packbits(full.success, axis=1, bitorder="little"))
+    np.testing.assert_array_equal(compact.successes, full.successes)
+    np.testing.assert_array_equal(compact.first_success, full.first_success)
+    np.testing.assert_array_equal(compact.steps_total, full.steps.sum(1))
+    np.testing.assert_array_equal(compact.finite, full.finite)
+    assert compact.agent_steps == full.agent_steps
+    np.testing.assert_array_equal(compact.first_policies, full.policy[:10])
+    assert [s for s, _ in seen] == [0, 7, 14]
+    np.testing.assert_array_equal(np.concatenate([m for _, m in seen]), full.successes)
 
 
 @pytest.mark.parametrize("chances", [127, 128])  # the chunk's log travels as int8, then as int16

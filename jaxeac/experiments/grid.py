@@ -3,6 +3,9 @@
 `GridSettings` is what the CLI and notebooks fill in (validated up front, so bad
 input fails before any compute); `run_grid` runs every algorithm over seeds
 0..N−1 (SPEC R1) and `write_grid_outputs` writes the run folder atomically.
+`run_grid_to_folder` does both at once, writing results.parquet a chunk at a time and
+keeping only the per-seed measures and success bits (`CompactSeeds`) in memory: the
+form that stays within a few GiB at 10^7 seeds.
 """
 
 from __future__ import annotations
@@ -29,11 +32,17 @@ from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported fr
     welch_diff_ci95,
 )
 from jaxeac.experiments.presets import make as make_preset
-from jaxeac.experiments.results import RESULTS_FILE, OutputOptions, load_grid_results, write_grid_results
+from jaxeac.experiments.results import (
+    RESULTS_FILE,
+    OutputOptions,
+    ResultsWriter,
+    load_grid_results,
+    write_grid_results,
+)
 from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, json_field, read_json_object, staged_dir
 from jaxeac.running.batch import run_seeds
 from jaxeac.running.config import RunConfig
-from jaxeac.running.outputs import SeedsResult
+from jaxeac.running.outputs import CompactCollector, CompactSeeds, SeedsResult, as_bool
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,7 +109,7 @@ class GridRun:
 
     settings: GridSettings
     grid_map: GridMap
-    results: dict[str, SeedsResult]
+    results: dict[str, SeedsResult | CompactSeeds]
 
 
 def process_share(n_seeds: int, index: int, count: int) -> tuple[int, int]:
@@ -187,7 +196,7 @@ def merge_parts(out: str | Path) -> GridRun:
                   else np.concatenate([x.finite for x, _ in pieces]))
         pieces = [(x.seeds, x.success, x.trial_steps, x.policy, s) for x, s in pieces]
         results[algo] = SeedsResult(
-            seeds=seeds, success=np.concatenate([x[1] for x in pieces]),
+            seeds=seeds, success=np.concatenate([as_bool(x[1]) for x in pieces]),
             steps=np.concatenate([x[2] for x in pieces]).astype(np.int32),
             policy=np.concatenate([x[3] for x in pieces]).astype(np.int32),
             compile_seconds=max(float(x[4].get("compile_seconds", 0.0)) for x in pieces),
@@ -250,10 +259,22 @@ def per_seed_csv(run: GridRun) -> str:
     buf = io.StringIO()
     buf.write("algo,seed,successes,steps,first_success\n")
     for algo, r in run.results.items():
-        total_steps = r.steps.sum(axis=1)
-        for i, succ, steps, first in zip(r.seeds, r.successes, total_steps, r.first_success, strict=True):
+        for i, succ, steps, first in zip(r.seeds, r.successes, r.steps_total, r.first_success, strict=True):
             buf.write(f"{algo},{i},{succ},{steps},{first}\n")
     return buf.getvalue()
+
+
+def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool) -> dict:
+    """Everything of a run folder but results.parquet, into the staging folder."""
+    summary["outputs"] = dataclasses.asdict(options)
+    if options.per_seed_csv:
+        (stage / "per_seed.csv").write_text(per_seed_csv(run))
+    if figures:
+        from jaxeac import plots
+
+        summary["figures"] = plots.grid_figures(run, stage)
+    atomic_write_json(stage / "summary.json", summary)
+    return summary
 
 
 def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
@@ -262,15 +283,32 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
     or nothing. `options`: what the folder holds (default `OutputOptions.auto` for the seed count)."""
     summary = summarize(run)
     options = options or OutputOptions.auto(run.settings.seeds)
-    summary["outputs"] = dataclasses.asdict(options)
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         write_grid_results(stage / RESULTS_FILE, run.results, run.settings.trials, run.grid_map.n_cells,
                            options)
-        if options.per_seed_csv:
-            (stage / "per_seed.csv").write_text(per_seed_csv(run))
-        if figures:
-            from jaxeac import plots
+        return _finish_folder(run, stage, summary, options, figures)
 
-            summary["figures"] = plots.grid_figures(run, stage)
-        atomic_write_json(stage / "summary.json", summary)
-    return summary
+
+def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
+                       figures: bool = True, progress: Callable[[int], None] | None = None
+                       ) -> tuple[GridRun, dict]:
+    """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
+    run goes: each chunk's rows go to results.parquet while the next chunk computes, and only
+    `CompactSeeds` stay in memory. The folder appears all at once when everything is written
+    (a run killed midway leaves it as it was). Returns the run and its summary.json content.
+    """
+    options = options or OutputOptions.auto(settings.seeds)
+    grid_map = settings.grid_map()
+    env = GridWorld(grid_map, settings.chances)
+    seeds = np.arange(settings.seeds, dtype=np.int64)
+    results = {}
+    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
+        with ResultsWriter(stage / RESULTS_FILE, settings.trials, grid_map.n_cells, options) as writer:
+            for algo in settings.algos:
+                collector = CompactCollector(seeds, settings.trials, grid_map.n_cells,
+                                             on_chunk=writer.chunk_writer(algo, seeds))
+                results[algo] = run_seeds(env, settings.run_config(algo), root_key=settings.key,
+                                          n_seeds=settings.seeds, chunk_size=settings.chunk_size,
+                                          progress=progress, collector=collector)
+        run = GridRun(settings, grid_map, results)
+        return run, _finish_folder(run, stage, summarize(run), options, figures)

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.running.outputs import SuccessBits
 
 RESULTS_FILE = "results.parquet"
 ROW_GROUP = 1 << 16  # seeds per row group: bounded temporaries when writing and reading
@@ -73,25 +74,9 @@ def _fixed_list(pa, values: np.ndarray, width: int):
     return pa.FixedSizeListArray.from_arrays(pa.array(flat), width)
 
 
-def _bits(pa, success: np.ndarray):
-    """bool [N, T] as a fixed_size_binary[⌈T/8⌉] column, bit t of a row = trial t (little bit order)."""
-    packed = np.ascontiguousarray(np.packbits(success, axis=1, bitorder="little"))
-    return pa.FixedSizeBinaryArray.from_buffers(pa.binary(packed.shape[1]), packed.shape[0],
-                                                [None, pa.py_buffer(packed)])
-
-
 def unpack_success(column, trials: int) -> np.ndarray:
     """bool [N, T] from a ``success_bits`` column (an Arrow array or chunked array)."""
-    import pyarrow as pa
-
-    width = -(-trials // 8)
-    if isinstance(column, pa.ChunkedArray):
-        column = column.combine_chunks()
-    if column.type != pa.binary(width):
-        raise ValueError(f"success_bits is {column.type}, expected fixed_size_binary[{width}]")
-    raw = np.frombuffer(column.buffers()[1], np.uint8, count=len(column) * width,
-                        offset=column.offset * width)
-    return np.unpackbits(raw.reshape(-1, width), axis=1, count=trials, bitorder="little").astype(bool)
+    return success_bits(column, trials).unpack()
 
 
 def schema(trials: int, n_states: int, options: OutputOptions):
@@ -110,38 +95,86 @@ def schema(trials: int, n_states: int, options: OutputOptions):
     return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1"})
 
 
-def _batch(pa, sch, algo: str, seeds, success, steps, policy, finite, options: OutputOptions):
-    n, trials = success.shape
+def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
+    """The per-seed columns of rows with success bool [M, T] and steps [M, T]."""
     any_success = success.any(axis=1)
-    columns = {
-        "algo": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([algo])),
-        "seed": pa.array(np.asarray(seeds, np.int64)),
-        "successes": pa.array(success.sum(axis=1, dtype=np.int32)),
-        "steps": pa.array(steps.sum(axis=1, dtype=np.int64)),
-        "first_success": pa.array(np.where(any_success, success.argmax(axis=1) + 1, -1).astype(np.int32)),
-        "finite": pa.array(np.ones(n, bool) if finite is None else np.asarray(finite, bool)),
-        "success_bits": _bits(pa, success),
-    }
-    if options.trial_steps:
-        columns["trial_steps"] = _fixed_list(pa, np.asarray(steps, np.int16), trials)
-    if options.policies:
-        columns["policy"] = _fixed_list(pa, np.asarray(policy, np.int8), policy.shape[1])
-    return pa.record_batch([columns[f.name] for f in sch], schema=sch)
+    return {"bits": np.packbits(success, axis=1, bitorder="little"),
+            "successes": np.count_nonzero(success, axis=1),
+            "first_success": np.where(any_success, success.argmax(axis=1) + 1, -1),
+            "steps_total": np.asarray(steps).sum(axis=1, dtype=np.int64),
+            "finite": np.ones(success.shape[0], bool) if finite is None else np.asarray(finite, bool)}
+
+
+class ResultsWriter:
+    """``results.parquet`` written as the run goes: algorithm by algorithm, a chunk of seeds at
+    a time, in row groups of at most `ROW_GROUP` seeds (bounded memory whatever N).
+
+    The caller writes into a staging folder (`jaxeac.io.staged_dir`), so a killed run
+    leaves no half-written file in the run folder.
+    """
+
+    def __init__(self, path: str | Path, trials: int, n_states: int, options: OutputOptions):
+        self.pa, pq = _arrow()
+        self.options = options
+        self.schema = schema(trials, n_states, options)
+        self._writer = pq.ParquetWriter(str(path), self.schema, compression="zstd")
+
+    def write(self, algo: str, seeds: np.ndarray, measures: dict, trial_steps=None, policy=None) -> None:
+        """Rows of `algo`: seeds [M], `measures_of`-style columns, per-trial steps [M, T] and
+        policies [M, S] (needed when the options keep them)."""
+        pa, opts = self.pa, self.options
+        for start in range(0, len(seeds), ROW_GROUP):
+            rows = slice(start, start + ROW_GROUP)
+            bits = np.ascontiguousarray(measures["bits"][rows])
+            n = bits.shape[0]
+            columns = {
+                "algo": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([algo])),
+                "seed": pa.array(np.asarray(seeds[rows], np.int64)),
+                "successes": pa.array(np.asarray(measures["successes"][rows], np.int32)),
+                "steps": pa.array(np.asarray(measures["steps_total"][rows], np.int64)),
+                "first_success": pa.array(np.asarray(measures["first_success"][rows], np.int32)),
+                "finite": pa.array(np.asarray(measures["finite"][rows], bool)),
+                "success_bits": pa.FixedSizeBinaryArray.from_buffers(
+                    pa.binary(bits.shape[1]), n, [None, pa.py_buffer(bits)]),
+            }
+            if opts.trial_steps:
+                columns["trial_steps"] = _fixed_list(pa, np.asarray(trial_steps[rows], np.int16),
+                                                     trial_steps.shape[1])
+            if opts.policies:
+                columns["policy"] = _fixed_list(pa, np.asarray(policy[rows], np.int8), policy.shape[1])
+            batch = pa.record_batch([columns[f.name] for f in self.schema], schema=self.schema)
+            self._writer.write_batch(batch, row_group_size=ROW_GROUP)
+
+    def chunk_writer(self, algo: str, seeds: np.ndarray):
+        """A `CompactCollector` ``on_chunk`` that writes each chunk of `algo`'s run (seeds [N])."""
+        def on_chunk(start: int, chunk, measures: dict) -> None:
+            rows = slice(start, start + measures["bits"].shape[0])
+            self.write(algo, seeds[rows], measures,
+                       trial_steps=np.abs(chunk.log) if self.options.trial_steps else None,
+                       policy=chunk.policy)
+        return on_chunk
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> ResultsWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def write_grid_results(path: str | Path, results: dict, trials: int, n_states: int,
                        options: OutputOptions) -> None:
-    """Write every algorithm's `SeedsResult` (seeds, success, steps, policy) to `path`, row group
-    by row group. The caller writes into a staging folder (`jaxeac.io.staged_dir`)."""
-    pa, pq = _arrow()
-    sch = schema(trials, n_states, options)
-    with pq.ParquetWriter(str(path), sch, compression="zstd") as writer:
+    """Write every algorithm's in-memory `SeedsResult` (seeds, success, steps, policy) to `path`,
+    row group by row group (see `ResultsWriter`)."""
+    with ResultsWriter(path, trials, n_states, options) as writer:
         for algo, r in results.items():
             for start in range(0, len(r.seeds), ROW_GROUP):
                 rows = slice(start, start + ROW_GROUP)
                 finite = None if getattr(r, "finite", None) is None else r.finite[rows]
-                writer.write_batch(_batch(pa, sch, algo, r.seeds[rows], r.success[rows], r.steps[rows],
-                                          r.policy[rows], finite, options), row_group_size=ROW_GROUP)
+                writer.write(algo, r.seeds[rows], measures_of(r.success[rows], r.steps[rows], finite),
+                             trial_steps=r.steps[rows], policy=r.policy[rows])
 
 
 @dataclasses.dataclass
@@ -149,7 +182,7 @@ class AlgoResults:
     """One algorithm's per-seed results read back from a run folder (numpy arrays)."""
 
     seeds: np.ndarray  # int64 [N]
-    success: np.ndarray  # bool [N, T]
+    success: np.ndarray | SuccessBits  # bool [N, T] (SuccessBits when loaded `compact`)
     successes: np.ndarray  # int [N]
     first_success: np.ndarray  # int [N]
     steps_total: np.ndarray  # int [N]
@@ -169,12 +202,39 @@ def _unpack_list(column, width: int, dtype) -> np.ndarray:
     return flat.astype(dtype, copy=False).reshape(-1, width)
 
 
-def _load_parquet(path: Path, algos, trials: int) -> dict[str, AlgoResults]:
+def success_bits(column, trials: int) -> SuccessBits:
+    """`SuccessBits` [N, T] from a ``success_bits`` column (an Arrow array or chunked array)."""
+    import pyarrow as pa
+
+    width = -(-trials // 8)
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    if column.type != pa.binary(width):
+        raise ValueError(f"success_bits is {column.type}, expected fixed_size_binary[{width}]")
+    raw = np.frombuffer(column.buffers()[1], np.uint8, count=len(column) * width,
+                        offset=column.offset * width)
+    return SuccessBits(raw.reshape(-1, width), trials)
+
+
+def _rows_of(table, algo_codes: np.ndarray, code: int, pc, algo_column, algo: str):
+    """The rows of one algorithm: a zero-copy slice when they are contiguous (as written)."""
+    where = np.flatnonzero(algo_codes == code)
+    if where.size and where[-1] - where[0] + 1 == where.size:
+        return table.slice(int(where[0]), int(where.size))
+    return table.filter(pc.equal(algo_column, algo))
+
+
+#: The columns `compact` loading reads (no per-trial steps or policies).
+COMPACT_COLUMNS = ("algo", "seed", "successes", "steps", "first_success", "finite", "success_bits")
+
+
+def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict[str, AlgoResults]:
     pa, pq = _arrow()
     import pyarrow.compute as pc
 
     try:
-        table = pq.read_table(path)
+        names = pq.read_schema(path).names
+        table = pq.read_table(path, columns=[c for c in COMPACT_COLUMNS if c in names] if compact else None)
     except (pa.ArrowException, OSError) as exc:
         raise UsageError(f"{path} is not a readable results file ({str(exc).splitlines()[0]}); "
                          "re-run the experiment to rewrite it") from None
@@ -183,16 +243,19 @@ def _load_parquet(path: Path, algos, trials: int) -> dict[str, AlgoResults]:
     if missing:
         raise UsageError(f"{path} lacks the column(s) {', '.join(sorted(missing))}; re-run the experiment")
     out = {}
-    algo_column = table.column("algo").cast(pa.string())
     try:
+        algo_column = table.column("algo").cast(pa.string())
+        dictionary = pc.unique(algo_column).to_pylist()
+        codes = pc.index_in(algo_column, value_set=pa.array(dictionary, pa.string())).to_numpy(
+            zero_copy_only=False)
         for algo in algos:
-            rows = table.filter(pc.equal(algo_column, algo))
-            if rows.num_rows == 0:
+            if algo not in dictionary:
                 raise UsageError(f"{path} has no rows for {algo!r}; the run folder is incomplete")
-            success = unpack_success(rows.column("success_bits"), trials)
+            rows = _rows_of(table, codes, dictionary.index(algo), pc, algo_column, algo)
+            bits = success_bits(rows.column("success_bits"), trials)
             n_states = rows.schema.field("policy").type.list_size if "policy" in rows.column_names else 0
             out[algo] = AlgoResults(
-                seeds=rows.column("seed").to_numpy(), success=success,
+                seeds=rows.column("seed").to_numpy(), success=bits if compact else bits.unpack(),
                 successes=rows.column("successes").to_numpy(),
                 first_success=rows.column("first_success").to_numpy(),
                 steps_total=rows.column("steps").to_numpy(),
@@ -202,12 +265,12 @@ def _load_parquet(path: Path, algos, trials: int) -> dict[str, AlgoResults]:
                 finite=rows.column("finite").to_numpy(zero_copy_only=False) if "finite" in rows.column_names
                 else None,
             )
+            counted = np.bitwise_count(bits.bits).sum(axis=1, dtype=np.int64)  # padding bits are zero
+            if bits.shape[0] != out[algo].seeds.shape[0] or not np.array_equal(out[algo].successes, counted):
+                raise UsageError(f"{path}: successes for {algo} do not match its success curves; "
+                                 "re-run the experiment")
     except (pa.ArrowException, ValueError) as exc:
         raise UsageError(f"{path} has malformed columns ({exc}); re-run the experiment") from None
-    for algo, r in out.items():
-        if r.success.shape[0] != r.seeds.shape[0] or not np.array_equal(r.successes, r.success.sum(1)):
-            raise UsageError(f"{path}: successes for {algo} do not match its success curves; "
-                             "re-run the experiment")
     return out
 
 
@@ -244,11 +307,15 @@ def _load_legacy(folder: Path, algos, trials: int) -> dict[str, AlgoResults]:
     return out
 
 
-def load_grid_results(folder: str | Path, algos, trials: int) -> dict[str, AlgoResults]:
-    """Per-seed results of `algos` from a grid run folder, new format or old."""
+def load_grid_results(folder: str | Path, algos, trials: int, *, compact: bool = False
+                      ) -> dict[str, AlgoResults]:
+    """Per-seed results of `algos` from a grid run folder, new format or old.
+
+    `compact`: success curves as `SuccessBits` and no per-trial steps or policies (what
+    `compare` needs: 1/8 of the memory, and the file's bytes taken as they are)."""
     folder = Path(folder)
     if (folder / RESULTS_FILE).is_file():
-        return _load_parquet(folder / RESULTS_FILE, algos, trials)
+        return _load_parquet(folder / RESULTS_FILE, algos, trials, compact)
     if (folder / "curves.npz").is_file():
         return _load_legacy(folder, algos, trials)
     raise UsageError(f"{folder} has neither {RESULTS_FILE} nor curves.npz; "

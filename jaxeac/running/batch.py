@@ -23,7 +23,7 @@ from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
 from jaxeac.running.config import RunConfig, auto_chunk_size
 from jaxeac.running.loops import Env, flat_batch, trials_batch
-from jaxeac.running.outputs import BatchOutput, SeedResult, SeedsResult, empty_results, unpack_output
+from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
 
 SEEDS_AXIS = "seeds"
 
@@ -85,9 +85,6 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
     return _COMPILED[key]
 
 
-UNPACK_ROWS = 1 << 15  # rows per host thread when unpacking a chunk's results
-
-
 def run_entries(
     env: Env,
     cfg: RunConfig,
@@ -98,6 +95,7 @@ def run_entries(
     chunk_size: int | None = None,
     devices: Sequence[jax.Device] | None = None,
     progress: Callable[[int], None] | None = None,
+    collector: Collector | None = None,
 ) -> tuple[SeedResult, float, float]:
     """Run entries (seed i, hyper i) in fixed-size chunks: one compile, bounded memory.
 
@@ -105,8 +103,9 @@ def run_entries(
     compiled program. `chunk_size` None: `auto_chunk_size` for the devices.
     Chunks are split over `devices` (all local devices by default);
     the chunk size is rounded up to a multiple of their number, and the last chunk is
-    padded with copies of its final entry whose results are dropped. Returns
-    (results as numpy, compile seconds, run seconds).
+    padded with copies of its final entry whose results are dropped. Each chunk's results
+    go, in seed order, to `collector` (default `HostArrays`: every record in host arrays).
+    Returns (the collector's result, compile seconds, run seconds).
     """
     n = int(seeds.size)
     if n < 1:
@@ -128,7 +127,7 @@ def run_entries(
     compiled = _compiled(env, cfg, tuple(devices), root, seeds0, hyper0)
     compile_seconds = time.perf_counter() - t0
 
-    whole = empty_results(n, cfg.trials, env.n_states)
+    collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
 
     def dispatch(start: int) -> tuple[int, int, BatchOutput]:
         size, chunk_seeds, chunk_hyper = chunk_inputs(start)
@@ -138,13 +137,8 @@ def run_entries(
         return start, size, out
 
     def collect(start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor) -> None:
-        host = jax.device_get(out)
-
-        def unpack_rows(r: int) -> None:  # on a host thread (numpy frees the GIL)
-            stop = min(r + UNPACK_ROWS, size)  # padding rows past `size` are dropped
-            unpack_output(jax.tree.map(lambda x: x[r:stop], host), whole, start + r)
-
-        list(pool.map(unpack_rows, range(0, size, UNPACK_ROWS)))
+        host = jax.tree.map(lambda x: np.asarray(x)[:size], jax.device_get(out))  # padding dropped
+        collector.add(start, host, pool)
         if progress is not None:
             progress(size)
 
@@ -158,7 +152,7 @@ def run_entries(
             pending = running
         collect(*pending, pool)
     run_seconds = time.perf_counter() - t0
-    return whole, compile_seconds, run_seconds
+    return collector.result(), compile_seconds, run_seconds
 
 
 def run_seeds(
@@ -172,9 +166,13 @@ def run_seeds(
     hyper: Hyper | None = None,
     devices: Sequence[jax.Device] | None = None,
     progress: Callable[[int], None] | None = None,
-) -> SeedsResult:
+    collector: Collector | None = None,
+) -> SeedsResult | CompactSeeds:
     """Run seeds first_seed … first_seed+N−1 of one algorithm (see `run_entries`); the result
-    records the chunk size and the resolved config (`RunConfig.resolve`) the run used."""
+    records the chunk size and the resolved config (`RunConfig.resolve`) the run used.
+
+    With a `collector` that keeps `CompactSeeds` (`CompactCollector`), the result is those,
+    with the timings and settings filled in."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
@@ -185,8 +183,13 @@ def run_seeds(
     resolved = cfg.resolve(env, chunk_size // len(devices), devices[0].platform)
     out, compile_seconds, run_seconds = run_entries(
         env, cfg, root_key=root_key, seeds=seeds, hyper=cfg.hyper() if hyper is None else hyper,
-        chunk_size=chunk_size, devices=devices, progress=progress,
+        chunk_size=chunk_size, devices=devices, progress=progress, collector=collector,
     )
+    settings = {**resolved.describe(), "chunk_size": int(chunk_size), "devices": len(devices),
+                "backend": devices[0].platform}
+    if isinstance(out, CompactSeeds):
+        out.compile_seconds, out.run_seconds, out.settings = compile_seconds, run_seconds, settings
+        return out
     return SeedsResult(
         seeds=seeds,
         success=out.success,
@@ -194,7 +197,6 @@ def run_seeds(
         policy=out.policy,
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
-        settings={**resolved.describe(), "chunk_size": int(chunk_size), "devices": len(devices),
-                  "backend": devices[0].platform},
+        settings=settings,
         finite=out.finite,
     )

@@ -1,13 +1,19 @@
 """What a run returns: per-seed records (G7) in narrow integer types on the device, numpy on the host.
 
 A compiled chunk returns `BatchOutput` (the signed trial log and the policy in the
-narrowest integer types that hold them); host threads unpack it straight into the
-run's preallocated `SeedResult` arrays (`unpack_output`).
+narrowest integer types that hold them). What becomes of it on the host is a
+`Collector`'s choice: `HostArrays` unpacks every chunk into preallocated `SeedResult`
+arrays (`unpack_output`, the default), `CompactCollector` keeps only the per-seed
+measures and the success curves as bits (`SuccessBits`, 1/8 of a bool matrix) and
+hands each chunk on (to a file writer, say), so host memory stays bounded at 10^7 seeds.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Iterator
+from concurrent.futures import Executor
+from typing import Protocol
 
 import jax
 import numpy as np
@@ -109,5 +115,187 @@ class SeedsResult:
         return np.where(any_success, self.success.argmax(axis=1) + 1, -1)
 
     @property
+    def steps_total(self) -> np.ndarray:
+        """Agent-steps of each seed over all trials."""
+        return self.steps.sum(axis=1, dtype=np.int64)
+
+    @property
     def agent_steps(self) -> int:
         return int(self.steps.sum())
+
+    def policy_of(self, i: int) -> np.ndarray:
+        """The final greedy policy of the run's i-th seed."""
+        return self.policy[i]
+
+
+UNPACK_ROWS = 1 << 15  # rows per host thread when unpacking a chunk's results
+
+
+def _row_blocks(size: int) -> list[slice]:
+    return [slice(r, min(r + UNPACK_ROWS, size)) for r in range(0, size, UNPACK_ROWS)]
+
+
+class Collector(Protocol):
+    """Where a run's chunks go on the host, in seed order (`jaxeac.running.run_entries`).
+
+    `add` gets rows ``start …`` of the run as numpy `BatchOutput` (padding dropped) and
+    a thread pool for work that frees the GIL; `result` is what the run returns.
+    """
+
+    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None: ...
+
+    def result(self): ...
+
+
+class HostArrays:
+    """The default collector: every seed's G7 record in host arrays (`SeedResult`)."""
+
+    def __init__(self, n: int, n_trials: int, n_states: int):
+        self.whole = empty_results(n, n_trials, n_states)
+
+    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+        def unpack_rows(rows: slice) -> None:  # numpy frees the GIL: rows in parallel
+            unpack_output(jax.tree.map(lambda x: x[rows], chunk), self.whole, start + rows.start)
+
+        list(pool.map(unpack_rows, _row_blocks(chunk.log.shape[0])))
+
+    def result(self) -> SeedResult:
+        return self.whole
+
+
+@dataclasses.dataclass(frozen=True)
+class SuccessBits:
+    """Success per trial of N seeds, eight trials a byte: bit t of row i (low bit first,
+    ``np.packbits(..., bitorder="little")``) is trial t of seed i.
+
+    1/8 of the bool matrix [N, T] and the layout of ``success_bits`` in results.parquet,
+    so a run folder loads without a copy. Code that needs bools unpacks `blocks` of
+    rows, so temporaries stay bounded whatever N.
+    """
+
+    bits: np.ndarray  # uint8 [N, ceil(T / 8)]
+    trials: int
+
+    BLOCK = 1 << 16  # rows per unpacked block
+
+    @classmethod
+    def pack(cls, success: np.ndarray) -> SuccessBits:
+        success = np.asarray(success, bool)
+        return cls(np.packbits(success, axis=1, bitorder="little"), success.shape[1])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.bits.shape[0], self.trials)
+
+    def __len__(self) -> int:
+        return self.bits.shape[0]
+
+    def rows(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """bool [stop − start, T]: the rows start … stop − 1 unpacked."""
+        return np.unpackbits(self.bits[start:stop], axis=1, count=self.trials, bitorder="little").view(bool)
+
+    def blocks(self, size: int = BLOCK) -> Iterator[tuple[int, np.ndarray]]:
+        """(first row, bool rows) for blocks of `size` rows."""
+        for start in range(0, len(self), size):
+            yield start, self.rows(start, start + size)
+
+    def column(self, t: int) -> np.ndarray:
+        """bool [N]: trial t of every seed."""
+        return (self.bits[:, t // 8] >> (t % 8)) & 1 == 1
+
+    def unpack(self) -> np.ndarray:
+        return self.rows()
+
+    def column_sums(self) -> np.ndarray:
+        """float64 [T]: successes per trial over the seeds (exact)."""
+        total = np.zeros(self.trials, np.int64)
+        for _, rows in self.blocks():
+            total += np.count_nonzero(rows, axis=0)
+        return total.astype(np.float64)
+
+
+def as_bool(success) -> np.ndarray:
+    """bool [N, T] from a bool matrix or `SuccessBits`."""
+    return success.unpack() if isinstance(success, SuccessBits) else np.asarray(success, bool)
+
+
+@dataclasses.dataclass
+class CompactSeeds:
+    """One algorithm's per-seed measures and success curves (bits), without the per-trial
+    steps and policies that take most of the bytes: what a streamed run keeps on the host.
+
+    The properties match `SeedsResult`'s, so summaries, figures and statistics take either.
+    """
+
+    seeds: np.ndarray  # int64 [N]
+    success: SuccessBits
+    successes: np.ndarray  # int32 [N]
+    first_success: np.ndarray  # int32 [N], 1-based, −1 if none
+    steps_total: np.ndarray  # int64 [N]: agent-steps over all trials
+    finite: np.ndarray  # bool [N]
+    first_policies: np.ndarray  # int32 [k, S]: the policies of the first k seeds (for figures)
+    compile_seconds: float = 0.0
+    run_seconds: float = 0.0
+    settings: dict | None = None
+
+    @property
+    def non_finite_seeds(self) -> np.ndarray:
+        return self.seeds[~self.finite]
+
+    @property
+    def agent_steps(self) -> int:
+        return int(self.steps_total.sum())
+
+    def policy_of(self, i: int) -> np.ndarray:
+        """The final greedy policy of the run's i-th seed (one of the first k)."""
+        return self.first_policies[i]
+
+
+KEEP_POLICIES = 16  # policies of the first seeds a compact run keeps, for figures
+
+
+class CompactCollector:
+    """Keeps `CompactSeeds` of `n` seeds and passes every chunk, with its per-seed measures,
+    to `on_chunk(start, chunk, measures)` (a file writer, say) before dropping it.
+
+    ``measures`` holds numpy arrays of the chunk's rows: ``bits`` (uint8 [M, ⌈T/8⌉]),
+    ``successes``, ``first_success``, ``steps_total``, ``finite``.
+    """
+
+    def __init__(self, seeds: np.ndarray, n_trials: int, n_states: int,
+                 on_chunk: Callable[[int, BatchOutput, dict], None] | None = None):
+        n = seeds.shape[0]
+        self.out = CompactSeeds(
+            seeds=seeds, success=SuccessBits(np.empty((n, -(-n_trials // 8)), np.uint8), n_trials),
+            successes=np.empty(n, np.int32), first_success=np.empty(n, np.int32),
+            steps_total=np.empty(n, np.int64), finite=np.ones(n, bool),
+            first_policies=np.zeros((min(n, KEEP_POLICIES), n_states), np.int32),
+        )
+        self.on_chunk = on_chunk
+
+    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+        o = self.out
+
+        def measures(rows: slice) -> None:
+            log = chunk.log[rows]
+            at = slice(start + rows.start, start + rows.stop)
+            success = log > 0
+            o.success.bits[at] = np.packbits(success, axis=1, bitorder="little")
+            o.successes[at] = np.count_nonzero(success, axis=1)
+            o.first_success[at] = np.where(success.any(axis=1), success.argmax(axis=1) + 1, -1)
+            o.steps_total[at] = np.abs(log).sum(axis=1, dtype=np.int64)
+
+        m = chunk.log.shape[0]
+        list(pool.map(measures, _row_blocks(m)))
+        if chunk.finite is not None:
+            o.finite[start:start + m] = chunk.finite
+        keep = max(0, min(m, o.first_policies.shape[0] - start))
+        o.first_policies[start:start + keep] = chunk.policy[:keep]
+        if self.on_chunk is not None:
+            at = slice(start, start + m)
+            self.on_chunk(start, chunk, {"bits": o.success.bits[at], "successes": o.successes[at],
+                                         "first_success": o.first_success[at],
+                                         "steps_total": o.steps_total[at], "finite": o.finite[at]})
+
+    def result(self) -> CompactSeeds:
+        return self.out

@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
@@ -572,7 +573,8 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
     x = x - x.mean(0)
     wait_curve = None
     if curves is not None:
-        c = np.asarray(curves)[:N]
+        packed = isinstance(curves, SuccessBits)
+        c = SuccessBits(curves.bits[:N], curves.trials) if packed else np.asarray(curves)[:N]
         binary = is_binary(c)
         cols = c if binary else np.concatenate([c, c * c], 1)
         wait_curve = large.dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
@@ -613,7 +615,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
     if curves is not None:
         T = c.shape[1]
         treat = wait_curve()
-        tot = cols.sum(0, dtype=np.float64)
+        tot = cols.column_sums() if packed else cols.sum(0, dtype=np.float64)
         sq = None if binary else slice(T, 2 * T)
 
         def part(a, s):
@@ -625,7 +627,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         mom = moments
         if mom is None or mom["n"] != N:
             if mom is not None and mom["n"] == N + 1:  # drop the odd seed out
-                last = np.asarray(curves)[N].astype(np.float64)
+                last = (curves.rows(N, N + 1)[0] if packed else np.asarray(curves)[N]).astype(np.float64)
                 mom = {"n": N, "s": mom["s"] - last, "G": mom["G"] - np.outer(last, last)}
             else:
                 mom = large.curve_moments(c)()

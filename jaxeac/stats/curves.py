@@ -15,6 +15,7 @@ import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.resample import bootstrap_sums, permutation_sums
 
@@ -66,8 +67,9 @@ def check_curves(curves_baseline, curves_treatment, trials: int | None = None):
 
 
 def is_binary(*arrays) -> bool:
-    """Whether every entry is 0 or 1 (O(N), no sort)."""
-    return all(a.dtype == np.bool_ or bool(((a == 0) | (a == 1)).all()) for a in map(np.asarray, arrays))
+    """Whether every entry is 0 or 1 (O(N), no sort); `SuccessBits` are."""
+    return all(isinstance(a, SuccessBits) or np.asarray(a).dtype == np.bool_
+               or bool(((np.asarray(a) == 0) | (np.asarray(a) == 1)).all()) for a in arrays)
 
 
 def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:

@@ -74,6 +74,7 @@ import numpy as np
 from jax import lax
 from scipy import special
 
+from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import mulhi32, random_words
 
@@ -313,13 +314,37 @@ def _small_integers(c: np.ndarray, block: int = BLOCK, power: int = 2) -> bool:
     return m <= 127**power and m * block < 2**24 and m * c.shape[0] < 2**31
 
 
+@partial(jax.jit, static_argnames=("trials",))
+def _unpack_bits(bits, trials: int):
+    """bool [n, T] on the device from `SuccessBits.bits` [n, ⌈T/8⌉] (bit t of a row = trial t)."""
+    shifts = jnp.arange(8, dtype=jnp.uint8)
+    unpacked = (bits[:, :, None] >> shifts) & jnp.uint8(1)
+    return unpacked.reshape(bits.shape[0], -1)[:, :trials].astype(jnp.bool_)
+
+
+def on_device(c):
+    """Curves on the device: `SuccessBits` travel packed (1/8 of the bytes) and unpack there."""
+    if isinstance(c, SuccessBits):
+        return _unpack_bits(jnp.asarray(c.bits), c.trials)
+    return jnp.asarray(c)
+
+
 def curve_moments(c) -> dict:
     """Seeds n, per-trial sums s [T] and cross-products G = cᵀc [T, T] of curves [n, T].
 
     Integer curves (success, pins) are summed on the device in blocks of `BLOCK` seeds
     (float32 products, exact below 2^24, totals in int32), others in float64 on the host.
-    Returns a function that waits for the device and gives the dict.
+    `SuccessBits` are unpacked on the device. Returns a function that waits for the device
+    and gives the dict.
     """
+    if isinstance(c, SuccessBits):
+        dev = _gram(on_device(c), BLOCK)
+
+        def wait_bits():
+            g, s = (np.asarray(v, np.float64) for v in dev)
+            return {"n": c.shape[0], "s": s, "G": g}
+
+        return wait_bits
     c = np.asarray(c)
     if _small_integers(c):
         dev = _gram(jnp.asarray(c.astype(np.int8) if c.dtype != np.bool_ else c), BLOCK)
@@ -408,21 +433,21 @@ def dispatch_subset_sums(key, c: np.ndarray, k: int, reps: int, block: int = 409
     seeds, exactly: the subset's counts per block of `block` seeds are multivariate
     hypergeometric (drawn on the host under `key`), then each block's members come from
     selection sampling on the device (under fold_in(key, 1)). Sums are exact for small
-    integers (success, pins and their squares), float32 otherwise."""
-    c = np.asarray(c)
+    integers (success, pins and their squares), float32 otherwise. `SuccessBits` are
+    unpacked on the device."""
+    bits = isinstance(c, SuccessBits)
+    c = c if bits else np.asarray(c)
     n = c.shape[0]
     nblocks = -(-n // block)
     sizes = np.minimum(n - np.arange(nblocks) * block, block)
     need = hypergeometric_counts(host_rng(key), sizes, k, reps).astype(np.int32)
     steps = 32 if block % 32 == 0 else 1  # positions per matmul
-    exact = _small_integers(c, block=steps * nblocks, power=1)
-    if exact:
-        c = c if c.dtype == np.bool_ else c.astype(np.int8)
+    if bits:
+        exact, dev = True, on_device(c)
     else:
-        c = c.astype(np.float32)
-    acc, left = _subset_sums(
-        jax.random.fold_in(key, 1), jnp.asarray(c), jnp.asarray(need), block, exact, steps
-    )
+        exact = _small_integers(c, block=steps * nblocks, power=1)
+        dev = jnp.asarray(c if c.dtype == np.bool_ else c.astype(np.int8) if exact else c.astype(np.float32))
+    acc, left = _subset_sums(jax.random.fold_in(key, 1), dev, jnp.asarray(need), block, exact, steps)
 
     def wait():
         if np.asarray(left).any():  # Algorithm S takes exactly the count asked of each block

@@ -16,12 +16,13 @@ import numpy as np
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.running.outputs import SuccessBits, as_bool
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
 from jaxeac.stats.report import FIGURES, render_markdown, write_figures
-from jaxeac.stats.rundir import MEASURES, describe, load_run_dir, per_seed_measures
+from jaxeac.stats.rundir import MEASURES, RunData, describe, load_run_dir, per_seed_measures
 
 SCHEMA = "jaxeac.stats/1"
 DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
@@ -73,6 +74,13 @@ def _scale_record(res: dict, nb: int, nt: int, calibration_splits: int) -> dict:
     return out
 
 
+def _last_trial(success) -> np.ndarray:
+    """bool [N]: success in the final trial."""
+    if isinstance(success, SuccessBits):
+        return success.column(success.trials - 1)
+    return np.asarray(success)[:, -1].astype(bool)
+
+
 def compare_experiment(
     success_baseline,
     success_treatment,
@@ -93,11 +101,13 @@ def compare_experiment(
     """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures)."""
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
-    sb, st = np.asarray(success_baseline), np.asarray(success_treatment)
-    if sb.ndim != 2 or st.ndim != 2 or sb.shape[1] != st.shape[1]:
+    sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a) for a in (success_baseline, success_treatment))
+    if len(sb.shape) != 2 or len(st.shape) != 2 or sb.shape[1] != st.shape[1]:
         raise UsageError(
             f"success arrays must be [seeds, trials] with the same trials, got {sb.shape} and {st.shape}"
         )
+    if not large.is_large(sb.shape[0], st.shape[0]):  # seed resampling works on bools
+        sb, st = as_bool(sb), as_bool(st)
     T = sb.shape[1]
     bowling = returns_baseline is not None
     t_measures = time.perf_counter()
@@ -145,7 +155,7 @@ def compare_experiment(
     proportions = {}
     for name, ob, ot in (
         ("any_success", mb["_event"], mt["_event"]),
-        ("final_trial_success", sb[:, -1].astype(bool), st[:, -1].astype(bool)),
+        ("final_trial_success", _last_trial(sb), _last_trial(st)),
     ):
         cb_, ct_ = int(ob.sum()), int(ot.sum())
         rd = cf.newcombe_diff(cb_, ob.size, ct_, ot.size, alpha)
@@ -167,7 +177,7 @@ def compare_experiment(
     if calibration_splits > 0:
         cal = calibrate(
             vb,
-            curves[0],
+            curves[0] if bowling or large.is_large(sb.shape[0]) else as_bool(curves[0]),
             k_cal,
             splits=calibration_splits,
             resamples=calibration_resamples,
@@ -250,15 +260,18 @@ def compare_run_dir(
     calibration_resamples: int = 200,
     chunk: int = 1000,
     progress: bool = True,
+    data: RunData | None = None,
 ) -> dict:
     """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
 
-    Returns the content of stats.json. Bad input raises `jaxeac.errors.UsageError`.
+    `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
+    the run it just wrote), instead of reading them back. Returns the content of stats.json.
+    Bad input raises `jaxeac.errors.UsageError`.
     """
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
     t_load = time.perf_counter()
-    data = load_run_dir(run_dir, baseline, treatment)
+    data = load_run_dir(run_dir, baseline, treatment) if data is None else data
     t_load = time.perf_counter() - t_load
     bowling = data.experiment == "bowling"
     expected = "return" if bowling else "successes"

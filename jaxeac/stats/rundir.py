@@ -19,6 +19,7 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 from jaxeac.io import json_field, read_json_object
+from jaxeac.running.outputs import SuccessBits
 
 LATE_FRACTION = 0.2
 _BLOCK = 16_384  # seeds per block of the area sums
@@ -42,7 +43,7 @@ class RunData:
     primary_measure: str
     algos: tuple[str, ...]
     trials: int
-    success: dict  # algo -> bool [N, T]
+    success: dict  # algo -> bool [N, T] or `SuccessBits`
     returns: dict  # algo -> int [N, T] (bowling) or empty
     per_seed: dict  # algo -> {column: np.ndarray}
 
@@ -160,7 +161,7 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
 def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunData:
     from jaxeac.experiments.results import load_grid_results
 
-    loaded = load_grid_results(path, pair, trials)
+    loaded = load_grid_results(path, pair, trials, compact=True)
     success, per_seed = {}, {}
     for algo, r in loaded.items():
         if r.success.shape[0] < 2:
@@ -178,40 +179,45 @@ def late_window(trials: int) -> int:
     return max(1, math.ceil(LATE_FRACTION * trials))
 
 
-def per_seed_measures(success: np.ndarray, returns: np.ndarray | None = None) -> dict:
-    """Per-seed measures from success [N, T] (and pins [N, T] for bowling); primary first.
+def per_seed_measures(success, returns: np.ndarray | None = None) -> dict:
+    """Per-seed measures from success [N, T] (bool, or `SuccessBits`) and pins [N, T] for
+    bowling; primary first.
 
     Returns {name: float array [N]} plus the log-rank inputs under
-    "_time" (first success, T + 1 if none) and "_event" (bool).
+    "_time" (first success, T + 1 if none) and "_event" (bool). Computed in blocks of
+    `_BLOCK` seeds, so temporaries stay bounded whatever N.
     """
-    s = np.asarray(success, bool)
-    if s.ndim != 2:
+    packed = isinstance(success, SuccessBits)
+    s = success if packed else np.asarray(success, bool)
+    if len(s.shape) != 2:
         raise UsageError(f"success must be [seeds, trials], got shape {s.shape}")
     n, T = s.shape
-    event = s.any(1)
-    first = np.where(event, np.argmax(s, 1) + 1, T + 1)
+    late = late_window(T)
+    weights = np.arange(T, 0, -1)
+    exact32 = T * (T + 1) // 2 < 2**24
+    count = np.empty(n, np.int64)
+    late_count = np.empty(n, np.int64)
+    first = np.empty(n, np.int64)
+    area = np.empty(n, np.int64)
+    for i in range(0, n, _BLOCK):
+        blk = s.rows(i, i + _BLOCK) if packed else s[i : i + _BLOCK]
+        at = slice(i, i + blk.shape[0])
+        count[at] = np.count_nonzero(blk, axis=1)  # integer counts: no int64 temporaries
+        late_count[at] = np.count_nonzero(blk[:, T - late :], axis=1)
+        first[at] = np.where(blk.any(1), np.argmax(blk, 1) + 1, T + 1)
+        # sum_t cumsum_t = sum_s success_s (T - s + 1), normalised by its maximum T(T+1)/2
+        # (float32 products and sums of integers below 2^24: exact)
+        area[at] = blk.astype(np.float32) @ weights.astype(np.float32) if exact32 else (blk * weights).sum(1)
     out = {}
-    # integer counts (count_nonzero: no int64 temporaries at 10^6 seeds), the same floats as sums
     if returns is None:
-        out["successes"] = np.count_nonzero(s, axis=1).astype(np.float64)
+        out["successes"] = count.astype(np.float64)
     else:
         out["return"] = np.asarray(returns).sum(1).astype(np.float64)
-    late = late_window(T)
-    out["late_success_rate"] = np.count_nonzero(s[:, T - late :], axis=1) / late
+    out["late_success_rate"] = late_count / late
     out["first_success"] = first.astype(np.float64)
-    # sum_t cumsum_t = sum_s success_s (T - s + 1), normalised by its maximum T(T+1)/2; the
-    # integer sums in blocks of seeds (float32 products and sums of integers below 2^24: exact)
-    weights = np.arange(T, 0, -1)
-    area = np.empty(n, np.int64)
-    exact32 = T * (T + 1) // 2 < 2**24
-    for i in range(0, n, _BLOCK):
-        blk = s[i : i + _BLOCK]
-        area[i : i + _BLOCK] = (
-            blk.astype(np.float32) @ weights.astype(np.float32) if exact32 else (blk * weights).sum(1)
-        )
     out["auc_cumulative"] = area / (T * (T + 1) / 2)
     out["_time"] = first
-    out["_event"] = event
+    out["_event"] = first <= T
     return out
 
 
