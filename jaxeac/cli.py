@@ -455,6 +455,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         use_all_cpu_cores()
         with contextlib.ExitStack() as cleanup:
+            from jaxeac.running.cache import use_compilation_cache
+
+            use_compilation_cache()  # a rerun loads its programs instead of compiling them
             args = build_parser().parse_args(argv)
             args._cleanup = cleanup
             return COMMANDS[args.command](args)

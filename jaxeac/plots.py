@@ -14,7 +14,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy import stats as sps  # noqa: E402
+from scipy import special  # noqa: E402
 
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
@@ -74,7 +74,7 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
         ax.plot(trials, mean, color=color, label=f"{LABELS.get(algo, algo)} (mean of {n} seeds)")
         if n > 1:
             sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
-            half = sps.t.ppf(0.975, n - 1) * sd / np.sqrt(n)
+            half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
             ax.fill_between(trials, mean - half, mean + half, color=color, alpha=0.25, lw=0)
             lo, hi = count_percentile(counts, 5), count_percentile(counts, 95)
             ax.plot(trials, lo, color=color, lw=0.6, ls=":")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -10,6 +11,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))  # tests/reference.py
 sys.path.insert(0, str(Path(__file__).parent.parent / "scripts"))  # scripts/peers (same-run peers)
+# commands run by the tests compile afresh and leave nothing in the user's cache
+# (tests/test_cli.py checks the cache itself in a folder of its own)
+os.environ["JAXEAC_COMPILATION_CACHE"] = "off"
 
 
 def random_map_text(rng: np.random.Generator) -> str:

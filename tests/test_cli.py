@@ -141,3 +141,24 @@ def test_command_uses_every_cpu_core(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     devices = json.loads((out / "summary.json").read_text())["devices"]
     assert len(devices) == len(os.sched_getaffinity(0))
+
+
+def test_compilation_cache_is_kept_and_changes_no_result(tmp_path):
+    """`jaxeac` keeps compiled programs in JAXEAC_COMPILATION_CACHE (XDG_CACHE_HOME/jaxeac/xla by
+    default); a rerun that loads them writes the same results, and ``off`` writes no cache."""
+    base = {k: v for k, v in os.environ.items() if k not in ("JAXEAC_COMPILATION_CACHE",
+                                                             "JAX_COMPILATION_CACHE_DIR")}
+    cache = tmp_path / "cache"
+    runs = {}
+    for name, env in (("first", {"JAXEAC_COMPILATION_CACHE": str(cache)}),
+                      ("cached", {"JAXEAC_COMPILATION_CACHE": str(cache)}),
+                      ("off", {"JAXEAC_COMPILATION_CACHE": "off", "XDG_CACHE_HOME": str(tmp_path / "xdg")})):
+        out = tmp_path / name
+        proc = subprocess.run([sys.executable, "-m", "jaxeac", "grid", *SMALL, "--out", str(out)],
+                              capture_output=True, text=True, env=base | env, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs[name] = pq.read_table(out / "results.parquet")
+        if name == "first":
+            assert any(p.is_file() for p in cache.rglob("*")), "no compiled program was cached"
+    assert runs["first"].equals(runs["cached"]) and runs["first"].equals(runs["off"])
+    assert not (tmp_path / "xdg" / "jaxeac").exists()

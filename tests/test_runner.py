@@ -100,8 +100,8 @@ def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monk
     monkeypatch.setattr(outputs, "KEEP_POLICIES", 10)
     seen = []
     seeds = np.arange(21)
-    collector = outputs.CompactCollector(seeds, 13, ENV.n_states,
-                                         on_chunk=lambda start, chunk, m: seen.append((start, m["successes"].copy())))
+    collector = outputs.CompactCollector(
+        seeds, 13, ENV.n_states, on_chunk=lambda start, chunk, m: seen.append((start, m["successes"].copy())))
     compact = run_seeds(ENV, cfg, root_key=4, n_seeds=21, chunk_size=8, collector=collector)
     assert isinstance(compact, outputs.CompactSeeds) and compact.settings["chunk_size"] == 7  # 21 = 3 × 7
     np.testing.assert_array_equal(compact.success.unpack(), full.success)

@@ -16,7 +16,7 @@ from importlib import metadata
 
 import jax
 import numpy as np
-from scipy import stats as sps
+from scipy import special
 
 from jaxeac import __version__
 from jaxeac.algorithm.config import ALGORITHMS, algorithm
@@ -335,12 +335,12 @@ def versions(packages: tuple[str, ...] = RUN_PACKAGES,
     Each of `packages` is stated ("unknown" where not installed); each of `optional` only
     where installed. "python" and "platform" are the interpreter and the machine.
     """
-    special = {"jaxeac": lambda: __version__, "python": platform.python_version,
+    builtin = {"jaxeac": lambda: __version__, "python": platform.python_version,
                "platform": platform.platform}
     out = {}
     for name in (*packages, *optional):
         try:
-            out[name.replace("-", "_")] = special[name]() if name in special else metadata.version(name)
+            out[name.replace("-", "_")] = builtin[name]() if name in builtin else metadata.version(name)
         except metadata.PackageNotFoundError:
             if name in packages:
                 out[name.replace("-", "_")] = "unknown"
@@ -357,7 +357,7 @@ def mean_ci95(x: np.ndarray) -> tuple[float, float, float, float]:
     if n < 2:
         return mean, float("nan"), float("nan"), float("nan")
     sd = float(x.std(ddof=1))
-    half = float(sps.t.ppf(0.975, n - 1)) * sd / math.sqrt(n)
+    half = float(special.stdtrit(n - 1, 0.975)) * sd / math.sqrt(n)
     return mean, sd, mean - half, mean + half
 
 
@@ -370,7 +370,7 @@ def welch_diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
     if se == 0:
         return diff, diff, diff
     df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
-    half = float(sps.t.ppf(0.975, df)) * se
+    half = float(special.stdtrit(df, 0.975)) * se
     return diff, diff - half, diff + half
 
 

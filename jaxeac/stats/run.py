@@ -101,7 +101,8 @@ def compare_experiment(
     """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures)."""
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
-    sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a) for a in (success_baseline, success_treatment))
+    sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a)
+              for a in (success_baseline, success_treatment))
     if len(sb.shape) != 2 or len(st.shape) != 2 or sb.shape[1] != st.shape[1]:
         raise UsageError(
             f"success arrays must be [seeds, trials] with the same trials, got {sb.shape} and {st.shape}"
