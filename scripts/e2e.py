@@ -3,12 +3,15 @@
     python scripts/e2e.py --out runs/e2e                     # grid 10k, sweep, bowling
     python scripts/e2e.py --out runs/e2e --only grid --grid-seeds 1000000 10000000
 
-Each command runs in its own process. For a grid run the record splits the wall
-time of the plain command (both methods, statistics report and figures included)
-into compile, run, write and statistics: ``jaxeac grid --no-compare`` (compile and
-run seconds from its summary.json, the rest of its wall time is start-up, transfer
-and writing), then ``jaxeac compare`` on the same folder. Peak resident memory of
-each process and the bytes of the run folder are recorded too.
+Each command runs in its own process. A grid run is timed twice: with an empty
+compilation cache (what a first run pays, compile included) and again with the
+programs that run cached (``cached``). The record splits the plain command's wall
+time (both methods, statistics report and figures included) into compile, run and
+compare from its own summary.json and stats.json; the rest is start-up, copies
+back, writing and the run's figures. Unless ``--plain-only``, the run is repeated as
+``jaxeac grid --no-compare`` then ``jaxeac compare`` (each command's own wall time
+and memory). Peak resident memory of each process and the bytes of the run folder
+are recorded too.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -26,10 +30,11 @@ ALPHAS = "0.02,0.05,0.1,0.15,0.2,0.3,0.4,0.5,0.7,0.9"
 BETAS = "0.05,0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9"
 
 
-def jaxeac(argv: list[str]) -> dict:
+def jaxeac(argv: list[str], env: dict | None = None) -> dict:
     """Run ``jaxeac ARGV`` in a fresh process: wall seconds and peak RSS (GiB)."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "jaxeac", *argv], stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen([sys.executable, "-m", "jaxeac", *argv], stdout=subprocess.DEVNULL,
+                            env=None if env is None else os.environ | env)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     if os.waitstatus_to_exitcode(status) != 0:
@@ -38,34 +43,52 @@ def jaxeac(argv: list[str]) -> dict:
     return {"command": " ".join(["jaxeac", *argv]), "wall_s": wall, "peak_rss_gib": rss}
 
 
+def breakdown(folder: Path, wall: float) -> dict:
+    """Where the plain command's wall time went, from its own summary.json and stats.json."""
+    summary = json.loads((folder / "summary.json").read_text())
+    out = {"compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"]}
+    if (folder / "stats.json").is_file():
+        timing = json.loads((folder / "stats.json").read_text())["timing"]
+        out["compare_s"] = timing["total_seconds"]
+        out["compare_statistics_s"] = timing["statistics_seconds"]
+        out["compare_figures_s"] = timing.get("figures_seconds")
+        out["compare_pieces_s"] = timing.get("pieces")
+    # the rest: interpreter and JAX start-up, device set-up, copies back, writing, the run's figures
+    out["start_write_figures_s"] = wall - sum(out[k] for k in ("compile_s", "run_s", "compare_s") if k in out)
+    return out
+
+
 def folder_bytes(folder: Path) -> int:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
 def grid_record(out: Path, seeds: int, plain_only: bool = False) -> dict:
-    """The plain command end to end, then (unless `plain_only`) the same run split into
-    run+write and compare."""
+    """The plain command end to end, twice: with an empty compilation cache (a first run), then
+    again with the programs it cached (a rerun). Unless `plain_only`, the same run is then
+    split into run+write and compare (with the cache warm)."""
     base = ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
-    whole = jaxeac([*base, "--out", str(out / f"grid{seeds}")])
+    cache = out / f"xla_cache_{seeds}"
+    if cache.exists():
+        shutil.rmtree(cache)
+    env = {"JAXEAC_COMPILATION_CACHE": str(cache)}
+    folder = out / f"grid{seeds}"
+    whole = jaxeac([*base, "--out", str(folder)], env)
+    record = {**whole, "seeds": seeds, **breakdown(folder, whole["wall_s"])}
+    rerun = jaxeac([*base, "--out", str(folder)], env)
+    record["cached"] = {**rerun, **breakdown(folder, rerun["wall_s"])}
+    summary = json.loads((folder / "summary.json").read_text())
+    record |= {"devices": summary["devices"], "output_bytes": folder_bytes(folder),
+               "agent_steps_per_s": summary.get("agent_steps_per_second"),
+               "chunk_size": summary["per_algo"]["ac"].get("run", {}).get("chunk_size")}
     if plain_only:
-        summary = json.loads((out / f"grid{seeds}" / "summary.json").read_text())
-        return {**whole, "seeds": seeds, "devices": summary["devices"],
-                "compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"],
-                "output_bytes": folder_bytes(out / f"grid{seeds}")}
+        return record
     split = out / f"grid{seeds}_split"
-    run = jaxeac([*base, "--no-compare", "--out", str(split)])
+    run = jaxeac([*base, "--no-compare", "--out", str(split)], env)
     summary = json.loads((split / "summary.json").read_text())
-    stats = jaxeac(["compare", str(split)])
-    compile_s, run_s = summary["compile_seconds"], summary["run_seconds"]
-    return {
-        **whole, "seeds": seeds, "devices": summary["devices"],
-        "compile_s": compile_s, "run_s": run_s,
-        "start_write_s": run["wall_s"] - compile_s - run_s,  # start-up, copies back, unpacking, writing
+    stats = jaxeac(["compare", str(split)], env)
+    return record | {
         "grid_no_compare_wall_s": run["wall_s"], "grid_no_compare_peak_rss_gib": run["peak_rss_gib"],
         "compare_wall_s": stats["wall_s"], "compare_peak_rss_gib": stats["peak_rss_gib"],
-        "output_bytes": folder_bytes(out / f"grid{seeds}"),
-        "agent_steps_per_s": summary.get("agent_steps_per_second"),
-        "chunk_size": summary["per_algo"]["ac"].get("run", {}).get("chunk_size"),
     }
 
 
