@@ -19,7 +19,7 @@ from jaxeac.experiments.results import (
     write_grid_results,
 )
 from jaxeac.plots import count_percentile, cumulative_counts
-from jaxeac.running.outputs import SeedsResult
+from jaxeac.running.outputs import CompactSeeds, SeedsResult, SuccessBits, as_bool
 
 
 def fake_results(rng, n, trials=13, states=7, algos=("ac", "eac")):
@@ -51,6 +51,63 @@ def test_round_trip_is_exact(tmp_path, rng, trials, monkeypatch):
         first = np.where(r.success.any(1), r.success.argmax(1) + 1, -1)
         np.testing.assert_array_equal(b.first_success, first)
     assert pq.ParquetFile(tmp_path / RESULTS_FILE).metadata.num_row_groups == 10  # 5 + short, per algo
+    compact = load_grid_results(tmp_path, ("ac", "eac"), trials, compact=True)  # what compare reads
+    for algo, r in res.items():
+        bits = compact[algo].success
+        assert isinstance(bits, SuccessBits) and compact[algo].trial_steps is None
+        np.testing.assert_array_equal(bits.unpack(), r.success)
+        np.testing.assert_array_equal(compact[algo].successes, back[algo].successes)
+
+
+@pytest.mark.parametrize("trials", [1, 7, 8, 9, 200])
+def test_success_bits_match_the_bool_matrix(rng, trials, monkeypatch):
+    """`SuccessBits`: rows, blocks, columns, column sums and the per-seed measures as from bools."""
+    import jaxeac.stats.rundir as rundir
+
+    success = rng.random((37, trials)) < rng.random((37, 1))
+    bits = SuccessBits.pack(success)
+    assert bits.shape == success.shape and bits.bits.shape == (37, -(-trials // 8))
+    np.testing.assert_array_equal(bits.unpack(), success)
+    np.testing.assert_array_equal(bits.rows(5, 11), success[5:11])
+    monkeypatch.setattr(SuccessBits, "BLOCK", 10)
+    assert [start for start, _ in bits.blocks()] == [0, 10, 20, 30]
+    np.testing.assert_array_equal(np.concatenate([b for _, b in bits.blocks()]), success)
+    for t in {0, trials // 2, trials - 1}:
+        np.testing.assert_array_equal(bits.column(t), success[:, t])
+    np.testing.assert_array_equal(bits.column_sums(), success.sum(0))
+    np.testing.assert_array_equal(as_bool(bits), success)
+    monkeypatch.setattr(rundir, "_BLOCK", 6)  # several blocks on threads, one short
+    from_bits = rundir.per_seed_measures(bits)
+    from_bools = rundir.per_seed_measures(success)
+    assert from_bits.keys() == from_bools.keys()
+    for name in from_bits:
+        np.testing.assert_array_equal(from_bits[name], from_bools[name])
+    np.testing.assert_array_equal(from_bits["successes"], success.sum(1))
+    np.testing.assert_array_equal(cumulative_counts(bits, chunk=8), cumulative_counts(success))
+
+
+def test_streamed_run_folder_equals_the_in_memory_one(tmp_path, monkeypatch):
+    """`run_grid_to_folder` (results written a chunk at a time, `CompactSeeds` kept) writes the
+    same results.parquet, per_seed.csv and summary figures as `run_grid` + `write_grid_outputs`."""
+    import jaxeac.experiments.results as results
+    from jaxeac.experiments.grid import GridSettings, run_grid, run_grid_to_folder, write_grid_outputs
+
+    monkeypatch.setattr(results, "ROW_GROUP", 4)
+    settings = GridSettings(seeds=11, trials=9, chances=12, chunk_size=4).resolved()
+    whole = run_grid(settings)
+    write_grid_outputs(whole, tmp_path / "memory", figures=False)
+    streamed, summary = run_grid_to_folder(settings, tmp_path / "streamed", figures=False)
+    assert pq.read_table(tmp_path / "memory" / RESULTS_FILE).equals(
+        pq.read_table(tmp_path / "streamed" / RESULTS_FILE))
+    csv = [(tmp_path / name / "per_seed.csv").read_text() for name in ("memory", "streamed")]
+    assert csv[0] == csv[1]
+    memory = json.loads((tmp_path / "memory" / "summary.json").read_text())
+    for algo in ("ac", "eac"):
+        assert isinstance(streamed.results[algo], CompactSeeds)
+        for field in ("mean_successes", "sd_successes", "ci95_successes", "agent_steps", "mean_steps"):
+            assert summary["per_algo"][algo][field] == memory["per_algo"][algo][field]
+        np.testing.assert_array_equal(streamed.results[algo].policy_of(3), whole.results[algo].policy[3])
+    assert summary["eac_minus_ac"] == memory["eac_minus_ac"]
 
 
 def test_success_bits_by_hand(tmp_path):

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from jaxeac.io import to_jsonable
+from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import bca_ci, compare_experiment, curve_bands, iqm_ci, permutation_test
 
 #: Output keys that did not exist when the pins were taken (dotted paths).
@@ -408,6 +409,12 @@ def test_curve_moments_and_subset_sums_are_exact():
     x = c.astype(float)
     np.testing.assert_array_equal(m["G"], x.T @ x)
     np.testing.assert_array_equal(m["s"], x.sum(0))
+    packed = large.curve_moments(SuccessBits.pack(c))()  # unpacked on the device: the same sums
+    np.testing.assert_array_equal(packed["G"], m["G"])
+    np.testing.assert_array_equal(packed["s"], m["s"])
+    key = jax.random.key(5)
+    np.testing.assert_array_equal(large.dispatch_subset_sums(key, SuccessBits.pack(c[:3000]), 1000, 50)(),
+                                  large.dispatch_subset_sums(key, c[:3000], 1000, 50)())
     pins = rng.integers(0, 11, (5000, 4))
     mp = large.curve_moments(pins)()
     np.testing.assert_array_equal(mp["G"], pins.T.astype(float) @ pins)

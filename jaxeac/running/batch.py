@@ -10,9 +10,10 @@ the device count or the seeds beside it, and reruns are bit-identical (R2).
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import jax
 import numpy as np
@@ -70,19 +71,53 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     return -(-even // n_devices) * n_devices
 
 
-_COMPILED: dict = {}
+_COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
+_COMPILED_LOCK = threading.Lock()
 
 
 def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
-    """The compiled chunk program for this env object, config, devices and chunk shape (cached)."""
+    """(compiled chunk program, compile seconds) for this env object, config, devices and chunk
+    shape, compiled once: a second caller, on any thread, waits for the first (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
     key = (env, cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
-    if key not in _COMPILED:
-        if len(_COMPILED) >= 64:
-            _COMPILED.clear()
-        mesh = seed_mesh(devices) if len(devices) > 1 else None
-        _COMPILED[key] = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
-    return _COMPILED[key]
+    with _COMPILED_LOCK:
+        future, mine = _COMPILED.get(key), False
+        if future is None:
+            if len(_COMPILED) >= 64:
+                _COMPILED.clear()
+            future, mine = _COMPILED.setdefault(key, Future()), True
+    if mine:
+        try:
+            t0 = time.perf_counter()
+            mesh = seed_mesh(devices) if len(devices) > 1 else None
+            program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
+            future.set_result((program, time.perf_counter() - t0))
+        except BaseException as exc:
+            with _COMPILED_LOCK:
+                _COMPILED.pop(key, None)  # a later call tries again
+            future.set_exception(exc)
+            raise
+    return future.result()
+
+
+def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> tuple[list, int]:
+    """(devices, chunk size actually run) for n entries: `auto_chunk_size` when None, then
+    `even_chunk` over the devices (all local devices by default)."""
+    devices = list(devices) if devices is not None else jax.local_devices()
+    if chunk_size is None:
+        chunk_size = auto_chunk_size(env, cfg, n, devices)
+    return devices, even_chunk(n, chunk_size, len(devices))
+
+
+def compile_ahead(env: Env, cfg: RunConfig, *, n_seeds: int, chunk_size: int | None = None,
+                  hyper: Hyper | None = None, devices: Sequence[jax.Device] | None = None) -> None:
+    """Compile the program `run_seeds` with these arguments will run (XLA compiles with the GIL
+    released, so several algorithms' programs compile side by side on threads, and while
+    another one runs); `run_seeds` then finds it compiled."""
+    devices, chunk_size = _plan(env, cfg, int(n_seeds), chunk_size, devices)
+    hyper = cfg.hyper() if hyper is None else hyper
+    hyper0 = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (chunk_size,)), hyper)
+    _compiled(env, cfg, tuple(devices), jax.random.key(0), np.zeros(chunk_size, np.int32), hyper0)
 
 
 def run_entries(
@@ -110,10 +145,7 @@ def run_entries(
     n = int(seeds.size)
     if n < 1:
         raise UsageError(f"seeds must be a positive integer (got {n})")
-    devices = list(devices) if devices is not None else jax.local_devices()
-    if chunk_size is None:
-        chunk_size = auto_chunk_size(env, cfg, n, devices)
-    chunk_size = even_chunk(n, chunk_size, len(devices))
+    devices, chunk_size = _plan(env, cfg, n, chunk_size, devices)
     root = jax.random.key(root_key)
     hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
 
@@ -122,10 +154,8 @@ def run_entries(
         take = np.pad(np.arange(start, stop), (0, chunk_size - (stop - start)), mode="edge")
         return stop - start, seeds[take].astype(np.int32), jax.tree.map(lambda x: x[take], hyper)
 
-    t0 = time.perf_counter()
     _, seeds0, hyper0 = chunk_inputs(0)
-    compiled = _compiled(env, cfg, tuple(devices), root, seeds0, hyper0)
-    compile_seconds = time.perf_counter() - t0
+    compiled, compile_seconds = _compiled(env, cfg, tuple(devices), root, seeds0, hyper0)
 
     collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
 
@@ -176,10 +206,7 @@ def run_seeds(
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
-    devices = list(devices) if devices is not None else jax.local_devices()
-    if chunk_size is None:
-        chunk_size = auto_chunk_size(env, cfg, int(n_seeds), devices)
-    chunk_size = even_chunk(int(n_seeds), chunk_size, len(devices))
+    devices, chunk_size = _plan(env, cfg, int(n_seeds), chunk_size, devices)
     resolved = cfg.resolve(env, chunk_size // len(devices), devices[0].platform)
     out, compile_seconds, run_seconds = run_entries(
         env, cfg, root_key=root_key, seeds=seeds, hyper=cfg.hyper() if hyper is None else hyper,

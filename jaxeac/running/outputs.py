@@ -194,8 +194,9 @@ class SuccessBits:
         """bool [stop − start, T]: the rows start … stop − 1 unpacked."""
         return np.unpackbits(self.bits[start:stop], axis=1, count=self.trials, bitorder="little").view(bool)
 
-    def blocks(self, size: int = BLOCK) -> Iterator[tuple[int, np.ndarray]]:
-        """(first row, bool rows) for blocks of `size` rows."""
+    def blocks(self, size: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """(first row, bool rows) for blocks of `size` rows (default `BLOCK`)."""
+        size = size or self.BLOCK
         for start in range(0, len(self), size):
             yield start, self.rows(start, start + size)
 
