@@ -222,8 +222,10 @@ def _compare_grid(run, out, *, compare: bool, quiet: bool) -> int:
         return 0
     from pathlib import Path
 
+    from jaxeac.running.batch import trim_host_memory
     from jaxeac.stats.rundir import RunData
 
+    trim_host_memory()  # what the run and its figures freed, before the statistics start
     data = RunData(Path(out), "grid", "successes", tuple(run.settings.algos), run.settings.trials,
                    {a: r.success for a, r in run.results.items()}, {}, {})
     return run_compare(out, quiet=quiet, data=data)

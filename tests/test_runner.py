@@ -222,3 +222,17 @@ def test_default_lanes_per_backend_and_algorithm():
     assert default_lanes(eac, 1000, "gpu") == 1000  # fewer seeds than that: a lane each, no queue
     assert default_lanes(eac, 4_000_000, "gpu", kernel="pallas") == 1 << 15
     assert default_lanes(ac, 4_000_000, "gpu", kernel="pallas") == 4_000_000
+
+
+def test_algorithms_in_one_pipeline_equal_separate_runs():
+    """`run_algorithms`: programs compiled side by side, the next algorithm's chunks dispatched
+    while the last one's come back; every seed's results are those of its own run (R1)."""
+    from jaxeac.running.batch import run_algorithms
+
+    cfgs = [RunConfig(trials=7, agent=algorithm(a)) for a in ("ac", "eac", "eac_within_trial")]
+    together = run_algorithms(ENV, cfgs, root_key=9, n_seeds=10, chunk_size=4)
+    for cfg, got in zip(cfgs, together, strict=True):
+        alone = run_seeds(ENV, cfg, root_key=9, n_seeds=10, chunk_size=5)
+        for field in ("success", "steps", "policy", "finite"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(alone, field))
+        assert got.settings["chunk_size"] == 4 and got.compile_seconds > 0

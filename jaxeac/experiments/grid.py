@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import io
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,7 @@ from jaxeac.experiments.results import (
     write_grid_results,
 )
 from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, json_field, read_json_object, staged_dir
-from jaxeac.running.batch import compile_ahead, run_seeds
+from jaxeac.running.batch import run_algorithms, run_seeds
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import CompactCollector, CompactSeeds, SeedsResult, as_bool
 
@@ -294,27 +293,23 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
                        figures: bool = True, progress: Callable[[int], None] | None = None
                        ) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
-    run goes: every algorithm's program compiles at once on threads, each chunk's rows go to
-    results.parquet while the next chunk computes, and only `CompactSeeds` stay in memory. The
-    folder appears all at once when everything is written (a run killed midway leaves it as it
-    was). Returns the run and its summary.json content.
+    run goes (`run_algorithms`: the programs compile side by side, one pipeline of chunks): each
+    chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
+    stay in memory. The folder appears all at once when everything is written (a run killed
+    midway leaves it as it was). Returns the run and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map = settings.grid_map()
     env = GridWorld(grid_map, settings.chances)
     seeds = np.arange(settings.seeds, dtype=np.int64)
-    results = {}
-    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage, ThreadPoolExecutor(len(settings.algos)) as pool:
-        ahead = [pool.submit(compile_ahead, env, settings.run_config(algo), n_seeds=settings.seeds,
-                             chunk_size=settings.chunk_size) for algo in settings.algos]  # side by side
+    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, grid_map.n_cells, options) as writer:
-            for algo in settings.algos:
-                collector = CompactCollector(seeds, settings.trials, grid_map.n_cells,
-                                             on_chunk=writer.chunk_writer(algo, seeds))
-                results[algo] = run_seeds(env, settings.run_config(algo), root_key=settings.key,
-                                          n_seeds=settings.seeds, chunk_size=settings.chunk_size,
-                                          progress=progress, collector=collector)
-        for job in ahead:
-            job.result()  # done (run_seeds waited for each program); raises nothing new
+            algos = settings.algos
+            collectors = [CompactCollector(seeds, settings.trials, grid_map.n_cells,
+                                           on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
+            runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
+                                  n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
+                                  collectors=collectors)
+        results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
         return run, _finish_folder(run, stage, summarize(run), options, figures)

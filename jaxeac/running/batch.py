@@ -9,6 +9,8 @@ the device count or the seeds beside it, and reruns are bit-identical (R2).
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 import threading
 import time
@@ -71,6 +73,17 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     return -(-even // n_devices) * n_devices
 
 
+def trim_host_memory() -> None:
+    """Hand memory the process has freed back to the system (glibc's ``malloc_trim``; elsewhere
+    nothing). XLA's compiler frees gigabytes after a GPU compile that malloc would otherwise
+    keep, so the run's peak resident memory is the data's, not the compiler's."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
 
@@ -91,7 +104,9 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
             t0 = time.perf_counter()
             mesh = seed_mesh(devices) if len(devices) > 1 else None
             program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
-            future.set_result((program, time.perf_counter() - t0))
+            seconds = time.perf_counter() - t0
+            trim_host_memory()
+            future.set_result((program, seconds))
         except BaseException as exc:
             with _COMPILED_LOCK:
                 _COMPILED.pop(key, None)  # a later call tries again
@@ -109,15 +124,75 @@ def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> 
     return devices, even_chunk(n, chunk_size, len(devices))
 
 
-def compile_ahead(env: Env, cfg: RunConfig, *, n_seeds: int, chunk_size: int | None = None,
-                  hyper: Hyper | None = None, devices: Sequence[jax.Device] | None = None) -> None:
-    """Compile the program `run_seeds` with these arguments will run (XLA compiles with the GIL
-    released, so several algorithms' programs compile side by side on threads, and while
-    another one runs); `run_seeds` then finds it compiled."""
-    devices, chunk_size = _plan(env, cfg, int(n_seeds), chunk_size, devices)
-    hyper = cfg.hyper() if hyper is None else hyper
-    hyper0 = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (chunk_size,)), hyper)
-    _compiled(env, cfg, tuple(devices), jax.random.key(0), np.zeros(chunk_size, np.int32), hyper0)
+class _Entries:
+    """One program's entries (seed i, hyper i), compiled and cut into chunks (`run_entries`)."""
+
+    def __init__(self, env: Env, cfg: RunConfig, *, root_key: int, seeds: np.ndarray, hyper: Hyper,
+                 chunk_size: int | None, devices, collector: Collector | None):
+        n = int(seeds.size)
+        if n < 1:
+            raise UsageError(f"seeds must be a positive integer (got {n})")
+        self.devices, self.chunk_size = _plan(env, cfg, n, chunk_size, devices)
+        self.n, self.seeds, self.root = n, seeds, jax.random.key(root_key)
+        self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
+        _, seeds0, hyper0 = self.chunk_inputs(0)
+        self.compiled, self.compile_seconds = _compiled(env, cfg, tuple(self.devices), self.root, seeds0,
+                                                        hyper0)
+        self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
+        self.first_dispatch = self.last_collect = 0.0
+
+    def chunk_inputs(self, start: int):
+        stop = min(start + self.chunk_size, self.n)
+        take = np.pad(np.arange(start, stop), (0, self.chunk_size - (stop - start)), mode="edge")
+        return stop - start, self.seeds[take].astype(np.int32), jax.tree.map(lambda x: x[take], self.hyper)
+
+    def starts(self) -> range:
+        return range(0, self.n, self.chunk_size)
+
+    def dispatch(self, start: int):
+        if start == 0:
+            self.first_dispatch = time.perf_counter()
+        size, chunk_seeds, chunk_hyper = self.chunk_inputs(start)
+        out = self.compiled(self.root, chunk_seeds, chunk_hyper)
+        for leaf in jax.tree.leaves(out):
+            leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
+        return start, size, out
+
+    def collect(self, start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor, progress) -> None:
+        host = jax.tree.map(lambda x: np.asarray(x)[:size], jax.device_get(out))  # padding dropped
+        self.collector.add(start, host, pool)
+        self.last_collect = time.perf_counter()
+        if progress is not None:
+            progress(size)
+
+    @property
+    def run_seconds(self) -> float:
+        return self.last_collect - self.first_dispatch
+
+
+def _run_chunks(jobs: Sequence[_Entries], progress) -> None:
+    """Every chunk of every job, in order, one in flight while the one before comes back:
+    dispatch is asynchronous, so the device computes the next chunk (of the same job or the
+    next one) while the host collects this one."""
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        pending = None
+        for job in jobs:
+            for start in job.starts():
+                running = job, job.dispatch(start)
+                if pending is not None:
+                    pending[0].collect(*pending[1], pool, progress)
+                pending = running
+        pending[0].collect(*pending[1], pool, progress)
+    trim_host_memory()
+
+
+def _prepare_all(make: Callable[[int], _Entries], count: int) -> list[_Entries]:
+    """`make(i)` for every job, the programs compiling side by side on threads (XLA compiles
+    with the GIL released)."""
+    if count == 1:
+        return [make(0)]
+    with ThreadPoolExecutor(max_workers=count) as pool:
+        return list(pool.map(make, range(count)))
 
 
 def run_entries(
@@ -140,49 +215,61 @@ def run_entries(
     the chunk size is rounded up to a multiple of their number, and the last chunk is
     padded with copies of its final entry whose results are dropped. Each chunk's results
     go, in seed order, to `collector` (default `HostArrays`: every record in host arrays).
-    Returns (the collector's result, compile seconds, run seconds).
+    Returns (the collector's result, seconds the program's compile took, run seconds).
     """
-    n = int(seeds.size)
-    if n < 1:
-        raise UsageError(f"seeds must be a positive integer (got {n})")
-    devices, chunk_size = _plan(env, cfg, n, chunk_size, devices)
-    root = jax.random.key(root_key)
-    hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
+    job = _Entries(env, cfg, root_key=root_key, seeds=seeds, hyper=hyper, chunk_size=chunk_size,
+                   devices=devices, collector=collector)
+    _run_chunks([job], progress)
+    return job.collector.result(), job.compile_seconds, job.run_seconds
 
-    def chunk_inputs(start: int):
-        stop = min(start + chunk_size, n)
-        take = np.pad(np.arange(start, stop), (0, chunk_size - (stop - start)), mode="edge")
-        return stop - start, seeds[take].astype(np.int32), jax.tree.map(lambda x: x[take], hyper)
 
-    _, seeds0, hyper0 = chunk_inputs(0)
-    compiled, compile_seconds = _compiled(env, cfg, tuple(devices), root, seeds0, hyper0)
+def run_algorithms(
+    env: Env,
+    cfgs: Sequence[RunConfig],
+    *,
+    root_key: int,
+    n_seeds: int,
+    first_seed: int = 0,
+    chunk_size: int | None = None,
+    devices: Sequence[jax.Device] | None = None,
+    progress: Callable[[int], None] | None = None,
+    collectors: Sequence[Collector | None] | None = None,
+    hypers: Sequence[Hyper | None] | None = None,
+) -> list[SeedsResult | CompactSeeds]:
+    """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
+    pipeline: the programs compile side by side, and the next algorithm's first chunk computes
+    while the last one's results come back. Results as `run_seeds` gives them, one per config
+    (`collectors[i]` takes config i's chunks, None: host arrays; `hypers[i]` its rates, None:
+    the config's own)."""
+    if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
+        raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
+    seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
+    collectors = list(collectors) if collectors is not None else [None] * len(cfgs)
+    hypers = list(hypers) if hypers is not None else [None] * len(cfgs)
+    devices = list(devices) if devices is not None else jax.local_devices()
 
-    collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
+    def make(i: int) -> _Entries:
+        hyper = cfgs[i].hyper() if hypers[i] is None else hypers[i]
+        return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
+                        chunk_size=chunk_size, devices=devices, collector=collectors[i])
 
-    def dispatch(start: int) -> tuple[int, int, BatchOutput]:
-        size, chunk_seeds, chunk_hyper = chunk_inputs(start)
-        out = compiled(root, chunk_seeds, chunk_hyper)
-        for leaf in jax.tree.leaves(out):
-            leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
-        return start, size, out
-
-    def collect(start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor) -> None:
-        host = jax.tree.map(lambda x: np.asarray(x)[:size], jax.device_get(out))  # padding dropped
-        collector.add(start, host, pool)
-        if progress is not None:
-            progress(size)
-
-    t0 = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        pending = None  # the chunk in flight: dispatch is asynchronous, so the next chunk
-        for start in range(0, n, chunk_size):  # computes while this one's results come back
-            running = dispatch(start)
-            if pending is not None:
-                collect(*pending, pool)
-            pending = running
-        collect(*pending, pool)
-    run_seconds = time.perf_counter() - t0
-    return collector.result(), compile_seconds, run_seconds
+    jobs = _prepare_all(make, len(cfgs))
+    _run_chunks(jobs, progress)
+    results = []
+    for cfg, job in zip(cfgs, jobs, strict=True):
+        resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)
+        settings = {**resolved.describe(), "chunk_size": int(job.chunk_size), "devices": len(job.devices),
+                    "backend": job.devices[0].platform}
+        out = job.collector.result()
+        if isinstance(out, CompactSeeds):
+            out.compile_seconds, out.run_seconds = job.compile_seconds, job.run_seconds
+            out.settings = settings
+            results.append(out)
+            continue
+        results.append(SeedsResult(seeds=seeds, success=out.success, steps=out.steps, policy=out.policy,
+                                   compile_seconds=job.compile_seconds, run_seconds=job.run_seconds,
+                                   settings=settings, finite=out.finite))
+    return results
 
 
 def run_seeds(
@@ -203,27 +290,6 @@ def run_seeds(
 
     With a `collector` that keeps `CompactSeeds` (`CompactCollector`), the result is those,
     with the timings and settings filled in."""
-    if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
-        raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
-    seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
-    devices, chunk_size = _plan(env, cfg, int(n_seeds), chunk_size, devices)
-    resolved = cfg.resolve(env, chunk_size // len(devices), devices[0].platform)
-    out, compile_seconds, run_seconds = run_entries(
-        env, cfg, root_key=root_key, seeds=seeds, hyper=cfg.hyper() if hyper is None else hyper,
-        chunk_size=chunk_size, devices=devices, progress=progress, collector=collector,
-    )
-    settings = {**resolved.describe(), "chunk_size": int(chunk_size), "devices": len(devices),
-                "backend": devices[0].platform}
-    if isinstance(out, CompactSeeds):
-        out.compile_seconds, out.run_seconds, out.settings = compile_seconds, run_seconds, settings
-        return out
-    return SeedsResult(
-        seeds=seeds,
-        success=out.success,
-        steps=out.steps,
-        policy=out.policy,
-        compile_seconds=compile_seconds,
-        run_seconds=run_seconds,
-        settings=settings,
-        finite=out.finite,
-    )
+    return run_algorithms(env, [cfg], root_key=root_key, n_seeds=n_seeds, first_seed=first_seed,
+                          chunk_size=chunk_size, devices=devices, progress=progress,
+                          collectors=[collector], hypers=[hyper])[0]
