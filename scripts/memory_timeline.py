@@ -1,0 +1,98 @@
+"""Where a `jaxeac` command's time and host memory go, phase by phase, in one process.
+
+    python scripts/memory_timeline.py grid --preset paper --seeds 10000000 --quiet --out runs/t
+
+Runs the command in this process (the same code as ``jaxeac ...``) and prints a line at
+each phase: JAX and its devices ready, imports done, each program compiled, each chunk
+back and collected, the statistics' pieces, the figures, the end. Each line holds the
+seconds since start and the process's resident memory from /proc/self/status (Linux):
+VmRSS, its peak VmHWM, and its parts RssAnon (heap), RssFile (mapped files, e.g. the CUDA
+libraries) and RssShmem. Lines ('rss', seconds, GiB) mark every 0.5 GiB of growth.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+T0 = time.perf_counter()
+FIELDS = ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem")
+
+
+def memory() -> dict:
+    out = {}
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            key = line.split(":")[0]
+            if key in FIELDS:
+                out[key] = round(int(line.split()[1]) / 2**20, 2)
+    return out
+
+
+def mark(name: str) -> None:
+    print((round(time.perf_counter() - T0, 2), name, memory()), flush=True)
+
+
+def wrap(owner, name: str, label: str | None = None) -> None:
+    """Mark the start and end of every call of owner.name."""
+    f = getattr(owner, name)
+
+    def marked(*args, **kwargs):
+        mark(f"{label or name} start")
+        out = f(*args, **kwargs)
+        mark(f"{label or name} end")
+        return out
+
+    setattr(owner, name, marked)
+
+
+def main() -> int:
+    import jaxeac.cli as cli
+
+    cli.use_all_cpu_cores()
+    import jax
+
+    jax.devices()
+    mark("jax and devices")
+    import jaxeac.running.batch as batch
+    import jaxeac.running.outputs as outputs
+    import jaxeac.stats.run as stats_run
+
+    mark("imports")
+    compiled = batch._compiled
+
+    def compiled_marked(*args, **kwargs):
+        out = compiled(*args, **kwargs)
+        mark("program compiled")
+        return out
+
+    batch._compiled = compiled_marked
+    add = outputs.CompactCollector.add
+
+    def add_marked(self, start, chunk, pool):
+        mark(f"chunk {start} back")
+        add(self, start, chunk, pool)
+        mark(f"chunk {start} collected")
+
+    outputs.CompactCollector.add = add_marked
+    for name in ("per_seed_measures", "_analyse", "calibrate", "write_figures"):
+        wrap(stats_run, name)
+
+    def sample() -> None:
+        peak = 0.0
+        while True:
+            rss = memory()["VmRSS"]
+            if rss > peak + 0.5:
+                peak = rss
+                print(("rss", round(time.perf_counter() - T0, 2), rss), flush=True)
+            time.sleep(0.05)
+
+    threading.Thread(target=sample, daemon=True).start()
+    code = cli.main(sys.argv[1:])
+    mark("end")
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
