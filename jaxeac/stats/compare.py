@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import numpy as np
@@ -324,8 +325,7 @@ def _analyse_large(
         binary = is_binary(*curves)
         moments = [large.curve_moments(c) for c in curves]
     pieces["dispatch_curve_sums"] = time.perf_counter() - t0
-    out, scale = {}, {}
-    for j, name in enumerate(names):
+    def one(j: int, name: str):  # a measure's closed forms and resampling (on a host thread)
         t1 = time.perf_counter()
         xr, yr = mb[name], mt[name]
         c = np.concatenate([xr, yr]).mean()
@@ -351,11 +351,8 @@ def _analyse_large(
             table=table,
         )
         t3 = time.perf_counter()
-        pieces[f"closed_form_and_ranks[{name}]"] = t2 - t1
-        pieces[f"resampling[{name}]"] = t3 - t2
-        scale[name] = {"distinct_values": res["distinct_values"], **res["methods"]}
         diff, hg = res["diff"], res["hedges_g"]
-        out[name] = {
+        fields = {
             "measure": name,
             "higher_is_better": hib,
             "n_baseline": nb,
@@ -377,8 +374,19 @@ def _analyse_large(
         if j == 0:
             for side in ("baseline", "treatment"):
                 est, lo, hi = res[f"iqm_{side}"]
-                out[name][f"iqm_{side}"] = est
-                out[name][f"iqm_{side}_ci95"] = [lo, hi]
+                fields[f"iqm_{side}"] = est
+                fields[f"iqm_{side}_ci95"] = [lo, hi]
+        return fields, {"distinct_values": res["distinct_values"], **res["methods"]}, t2 - t1, t3 - t2
+
+    # the measures side by side: NumPy's samplers and array work free the GIL, and each
+    # measure draws from its own keys, so the results do not depend on the threads
+    with ThreadPoolExecutor(max_workers=len(names)) as pool:
+        done = list(pool.map(one, range(len(names)), names))
+    out, scale = {}, {}
+    for name, (fields, methods, closed, resampled) in zip(names, done, strict=True):
+        out[name], scale[name] = fields, methods
+        pieces[f"closed_form_and_ranks[{name}]"] = closed
+        pieces[f"resampling[{name}]"] = resampled
     curve = None
     if curves is not None:
         t1 = time.perf_counter()
@@ -580,7 +588,8 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         wait_curve = large.dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
     rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
     methods: dict = {}
-    for j, name in enumerate(names):
+
+    def one(j: int):  # a measure's halves and tests (on a host thread; its own key)
         vals, inv = np.unique(x[:, j], return_inverse=True)
         K = np.bincount(inv.reshape(-1), minlength=vals.size)
         exact = vals.size <= large.MAX_DISTINCT
@@ -597,13 +606,18 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         else:
             p_perm = large.normal_permutation_p(t_split)
         p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
-        rates["welch"][name] = _rate(p_w, alpha)
-        rates["permutation"][name] = _rate(p_perm, alpha)
-        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
-        methods[name] = {
+        return p_w, p_perm, p_bm, {
             "distinct_values": int(vals.size),
             "permutation": large.REFERENCES["permutation_per_value" if exact else "normal_permutation"],
         }
+
+    with ThreadPoolExecutor(max_workers=M) as pool:
+        done = list(pool.map(one, range(M)))
+    for name, (p_w, p_perm, p_bm, method) in zip(names, done, strict=True):
+        rates["welch"][name] = _rate(p_w, alpha)
+        rates["permutation"][name] = _rate(p_perm, alpha)
+        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
+        methods[name] = method
     if time_event is not None:
         tm, ev = (np.asarray(a)[:N] for a in time_event)
         times, inv = np.unique(tm, return_inverse=True)
