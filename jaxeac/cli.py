@@ -22,6 +22,7 @@ from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from he
     add_compare_flags,
     add_grid_flags,
     add_output_flags,
+    add_sequential_flags,
     add_solver_flags,
     check_bowling_memory_layout,
     check_compare_size,
@@ -36,6 +37,7 @@ from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from he
     prng_key,
     render_path,
     render_targets,
+    sequential_design,
     show,
     solver_settings,
 )
@@ -53,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     add_output_flags(g)
+    add_sequential_flags(g)
     g.add_argument("--num-processes", type=positive_int, default=1, metavar="P",
                    help="split the seeds over P processes (hosts); each writes DIR/part-I-of-P/")
     g.add_argument("--process-id", type=nonneg_int, default=0, metavar="I", help="this process, 0..P-1")
@@ -187,10 +190,13 @@ def cmd_grid(args: argparse.Namespace) -> int:
                          "--process-id I, or drop --coordinator")
     _init_distributed(args)  # before the size check: JAX's backends must not have started yet
     settings = fit_grid(args, settings, grid_map)  # sizes that cannot fit or finish fail here
+    design = sequential_design(args, settings)  # a bad design fails here too
     part = part_folder(args.out, args.process_id, args.num_processes) if args.num_processes > 1 else None
     out = _claim_out(args, args.out, part)
     if args.num_processes > 1:
         return _grid_part(args, settings, out)
+    if design is not None:
+        return _grid_sequential(args, settings, design, out)
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
         run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
@@ -198,6 +204,25 @@ def cmd_grid(args: argparse.Namespace) -> int:
     print(summary_table(summary))
     print(f"results in {out}/")
     return _compare_grid(run, out, compare=not args.no_compare, quiet=args.quiet)
+
+
+def _grid_sequential(args: argparse.Namespace, settings, design, out) -> int:
+    """`jaxeac grid --sequential`: batches of seeds until a look decides (`run_grid_sequential`)."""
+    from jaxeac.experiments.grid import run_grid_sequential, summary_table
+    from jaxeac.fmt import sequential_look
+
+    def on_look(result: dict) -> None:
+        if not args.quiet:
+            print(sequential_look(result, design.effect), file=sys.stderr, flush=True)
+
+    run, summary = run_grid_sequential(settings, out, design, options=_output_options(args, design.sizes[-1]),
+                                       on_look=on_look)
+    print(summary_table(summary))
+    seq = summary["sequential"]
+    print(f"sequential decision: {seq['decision']} after {len(seq['looks_taken'])} of {design.looks} looks "
+          f"({seq['seeds_used']} seeds per method, {seq['seconds_to_decision']:.1f} s)")
+    print(f"results in {out}/")
+    return _compare_grid(run, out, compare=not args.no_compare, quiet=args.quiet, sequential=seq)
 
 
 def _output_options(args: argparse.Namespace, n_seeds: int):
@@ -216,7 +241,7 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool, options=None) -> int:
     return _compare_grid(run, out, compare=compare, quiet=quiet)
 
 
-def _compare_grid(run, out, *, compare: bool, quiet: bool) -> int:
+def _compare_grid(run, out, *, compare: bool, quiet: bool, sequential: dict | None = None) -> int:
     """The statistics report of a grid run just written, from its results in memory."""
     if not (compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2):
         return 0
@@ -227,7 +252,7 @@ def _compare_grid(run, out, *, compare: bool, quiet: bool) -> int:
 
     trim_host_memory()  # what the run and its figures freed, before the statistics start
     data = RunData(Path(out), "grid", "successes", tuple(run.settings.algos), run.settings.trials,
-                   {a: r.success for a, r in run.results.items()}, {}, {})
+                   {a: r.success for a, r in run.results.items()}, {}, {}, sequential)
     return run_compare(out, quiet=quiet, data=data)
 
 

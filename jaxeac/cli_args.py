@@ -126,6 +126,40 @@ def add_output_flags(p: argparse.ArgumentParser) -> None:
                    help="write per_seed.csv at any seed count (default: up to 100,000 seeds)")
 
 
+def add_sequential_flags(p: argparse.ArgumentParser) -> None:
+    """A sequential comparison (`jaxeac.stats.sequential`): --seeds is then the most it may use."""
+    p.add_argument("--sequential", action="store_true",
+                   help="run seeds in batches and stop at the first look that decides EAC vs AC "
+                        "(repeated confidence intervals; --seeds is the most per method)")
+    p.add_argument("--effect", type=finite_float, metavar="E",
+                   help="with --sequential: the smallest difference in mean successes that matters")
+    p.add_argument("--looks", type=positive_int, default=5, metavar="K",
+                   help="with --sequential: looks, after equal batches of seeds (default 5)")
+    p.add_argument("--spending", default="obrien_fleming", metavar="obrien_fleming|pocock",
+                   help="with --sequential: alpha-spending function (default obrien_fleming)")
+    p.add_argument("--error-rate", type=finite_float, default=0.05, metavar="A",
+                   help="with --sequential: chance of a wrong decision, each way (default 0.05)")
+
+
+def sequential_design(args: argparse.Namespace, settings):
+    """The `SequentialDesign` of `--sequential` (None without it); bad flags raise `UsageError`."""
+    if not getattr(args, "sequential", False):
+        if getattr(args, "effect", None) is not None:
+            raise UsageError("--effect only applies with --sequential; add --sequential or drop --effect")
+        return None
+    from jaxeac.stats.sequential import SequentialDesign
+
+    if args.effect is None:
+        raise UsageError("--sequential needs --effect E: the smallest difference in mean successes that "
+                         "matters (e.g. --effect 5)")
+    if getattr(args, "num_processes", 1) > 1:
+        raise UsageError("--sequential runs in one process; drop --num-processes")
+    if not {"ac", "eac"} <= set(settings.algos):
+        raise UsageError("--sequential compares eac with ac: --algos must include both")
+    return SequentialDesign(effect=float(args.effect), max_seeds=int(settings.seeds), looks=args.looks,
+                            alpha=float(args.error_rate), spend=args.spending)
+
+
 def add_solver_flags(p: argparse.ArgumentParser) -> None:
     """The bowling physics' constraint-solver settings (B7)."""
     p.add_argument("--solver", default="newton", metavar="newton|cg",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -313,3 +314,60 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
         return run, _finish_folder(run, stage, summarize(run), options, figures)
+
+
+#: Simulated sequential experiments in a sequential run's own calibration (summary.json).
+SEQUENTIAL_CALIBRATION = 1000
+
+
+def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
+                        options: OutputOptions | None = None, figures: bool = True,
+                        progress: Callable[[int], None] | None = None,
+                        on_look: Callable[[dict], None] | None = None) -> tuple[GridRun, dict]:
+    """A sequential comparison of EAC with AC (`jaxeac.stats.sequential`): seeds in batches of
+    ⌊N / K⌋ per method (one compiled program), a look after each, stop at the first decision.
+
+    The run folder holds the seeds run (0 … n − 1, the same results as those seeds of a fixed
+    run, R1) and summary.json's ``sequential``: the design (fixed before the first batch), every
+    look and the decision, and the design's decision rates simulated from the run's own seeds
+    (AC against AC: the false "difference" rate; AC against EAC: the rates at the observed effect).
+    """
+    from jaxeac.stats.sequential import run_sequential, simulate
+
+    if not {"ac", "eac"} <= set(settings.algos):
+        raise UsageError("--sequential compares eac with ac: --algos must include both")
+    options = options or OutputOptions.auto(design.sizes[-1])
+    grid_map = settings.grid_map()
+    env = GridWorld(grid_map, settings.chances)
+    algos = settings.algos
+    cfgs = [settings.run_config(a) for a in algos]
+    parts: dict[str, list[CompactSeeds]] = {a: [] for a in algos}
+    t0 = time.perf_counter()
+    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
+        with ResultsWriter(stage / RESULTS_FILE, settings.trials, grid_map.n_cells, options) as writer:
+            def measure(first: int, n: int):
+                seeds = np.arange(first, first + n, dtype=np.int64)
+                collectors = [CompactCollector(seeds, settings.trials, grid_map.n_cells,
+                                               on_chunk=writer.chunk_writer(a, seeds)) for a in algos]
+                runs = run_algorithms(env, cfgs, root_key=settings.key, n_seeds=n, first_seed=first,
+                                      chunk_size=settings.chunk_size, progress=progress,
+                                      collectors=collectors)
+                for a, r in zip(algos, runs, strict=True):
+                    parts[a].append(r)
+                return parts["ac"][-1].successes, parts["eac"][-1].successes
+
+            result = run_sequential(design, measure, on_look)
+        result["seconds_to_decision"] = time.perf_counter() - t0
+        results = {a: CompactSeeds.concatenate(p) for a, p in parts.items()}
+        rng = np.random.default_rng([settings.key, 0x5E0])  # the calibration's own stream
+        ac, eac = results["ac"].successes, results["eac"].successes
+        result["calibration"] = {
+            "source": "the run's own seeds, drawn for each simulated experiment "
+                      "(jaxeac.stats.sequential.simulate)",
+            "ac_vs_ac": simulate(design, ac, None, SEQUENTIAL_CALIBRATION, rng),
+            "ac_vs_eac": simulate(design, ac, eac, SEQUENTIAL_CALIBRATION, rng),
+        }
+        run = GridRun(dataclasses.replace(settings, seeds=result["seeds_used"]), grid_map, results)
+        summary = summarize(run)
+        summary["sequential"] = result
+        return run, _finish_folder(run, stage, summary, options, figures)

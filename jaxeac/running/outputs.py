@@ -251,6 +251,20 @@ class CompactSeeds:
         """The final greedy policy of the run's i-th seed (one of the first k)."""
         return self.first_policies[i]
 
+    @classmethod
+    def concatenate(cls, parts: list[CompactSeeds]) -> CompactSeeds:
+        """Consecutive batches of one algorithm's seeds as one run (a sequential run's batches:
+        one program, compiled once, so the compile seconds are the first batch's)."""
+        first = parts[0]
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        return cls(seeds=cat("seeds"),
+                   success=SuccessBits(np.concatenate([p.success.bits for p in parts]), first.success.trials),
+                   successes=cat("successes"), first_success=cat("first_success"),
+                   steps_total=cat("steps_total"), finite=cat("finite"),
+                   first_policies=np.concatenate([p.first_policies for p in parts])[:KEEP_POLICIES],
+                   compile_seconds=first.compile_seconds, run_seconds=sum(p.run_seconds for p in parts),
+                   settings=first.settings)
+
 
 KEEP_POLICIES = 16  # policies of the first seeds a compact run keeps, for figures
 

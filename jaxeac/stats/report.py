@@ -187,6 +187,46 @@ def scale_paragraph(stats: dict) -> list[str]:
     return ["", text]
 
 
+def sequential_section(seq: dict | None) -> list[str]:
+    """The report's account of a sequential run: design, looks, decision, simulated error rates."""
+    if not seq:
+        return []
+    rows = [f"| {k + 1} | {x['seeds']} | {x['diff']:+.3f} | [{x['rci'][0]:+.3f}, {x['rci'][1]:+.3f}] | "
+            f"{x['boundary_z']:.3f} | {x['decision']} |" for k, x in enumerate(seq["looks_taken"])]
+    out = [
+        "## Sequential decision",
+        "",
+        f"**{seq['decision']}** after {len(seq['looks_taken'])} of {seq['looks']} looks, at "
+        f"{seq['seeds_used']} seeds per method (of at most {seq['sizes'][-1]}). "
+        f"Design, fixed before the first batch: {seq['design']} ({seq['spending']} spending), "
+        f"error rate {seq['alpha']} each way, declared effect ±{seq['effect']:g}. "
+        "“difference”: the repeated CI excludes 0; “no difference”: it lies within ± the effect; "
+        "the K repeated CIs cover the true difference at once with probability ≥ 1 − α whenever "
+        "the run stops. The fixed-sample tests below are computed on the seeds run and do not "
+        "account for the stopping rule; the sequential decision is the one the design controls.",
+        "",
+        "| look | seeds per method | EAC − AC | repeated CI | z boundary | decision |",
+        "|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
+    cal = seq.get("calibration")
+    if cal:
+        def rates(r):
+            return ", ".join(f"{k} {v['rate']:.3f} ± {v['se']:.3f}" for k, v in r["decisions"].items())
+
+        null, alt = cal["ac_vs_ac"], cal["ac_vs_eac"]
+        out += [
+            f"Simulated from this run's seeds ({null['experiments']} sequential experiments each"
+            f"{', drawn with replacement' if null.get('with_replacement') else ''}): AC against AC "
+            f"(no true difference; “difference” is a false positive, nominal ≤ {seq['alpha']}): "
+            f"{rates(null)}; mean {null['mean_seeds_used']:.0f} seeds per method. AC against EAC "
+            f"(the observed effect): {rates(alt)}; mean {alt['mean_seeds_used']:.0f} seeds per method.",
+            "",
+        ]
+    return out
+
+
 def render_markdown(stats: dict) -> str:
     """The readable report."""
     b, t = stats["baseline"].upper(), stats["treatment"].upper()
@@ -204,6 +244,7 @@ def render_markdown(stats: dict) -> str:
         "",
         plain_words(stats),
         "",
+        *sequential_section(stats.get("sequential")),
         "## Estimates",
         "",
         f"Differences are {t} − {b}. CIs are 95 % BCa bootstrap ({st['resamples']} resamples per method) "

@@ -305,6 +305,8 @@ def compare_run_dir(
         bar.set_description(f"compare {treatment} vs {baseline}: report")
         bar.update()
     stats["run_dir"] = str(Path(run_dir))
+    if data.sequential is not None:  # the run's sequential decision comes first in the report
+        stats["sequential"] = data.sequential
     stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()

@@ -11,6 +11,7 @@ success curve.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -48,6 +49,7 @@ class RunData:
     success: dict  # algo -> bool [N, T] or `SuccessBits`
     returns: dict  # algo -> int [N, T] (bowling) or empty
     per_seed: dict  # algo -> {column: np.ndarray}
+    sequential: dict | None = None  # a sequential run's design, looks and decision (summary.json)
 
 
 def _read_per_seed(path: Path) -> dict:
@@ -102,7 +104,9 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
     if baseline == treatment:
         raise UsageError("--baseline and --treatment are the same method; choose two different ones")
     if columnar:
-        return _load_columnar(path, experiment, primary, algos, trials, (baseline, treatment))
+        data = _load_columnar(path, experiment, primary, algos, trials, (baseline, treatment))
+        seq = summary.get("sequential")
+        return dataclasses.replace(data, sequential=seq) if isinstance(seq, dict) else data
     with np.load(path / "curves.npz") as npz:
         arrays = {k: np.asarray(npz[k]) for k in npz.files}
     per_seed = _read_per_seed(path / "per_seed.csv")
