@@ -1,6 +1,6 @@
 """End-to-end cost of whole `jaxeac` commands, as quoted in BENCHMARKS.md (CPU or GPU alike).
 
-    python scripts/e2e.py --out runs/e2e                     # grid 10k, sweep, bowling
+    python scripts/e2e.py --out runs/e2e                     # grid 10k, sweep, bowling, sequential
     python scripts/e2e.py --out runs/e2e --only grid --grid-seeds 1000000 10000000
 
 Each command runs in its own process. A grid run is timed twice: with an empty
@@ -95,7 +95,7 @@ def grid_record(out: Path, seeds: int, plain_only: bool = False) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("runs/e2e"))
-    p.add_argument("--only", nargs="+", choices=["grid", "sweep", "bowling"])
+    p.add_argument("--only", nargs="+", choices=["grid", "sweep", "bowling", "sequential"])
     p.add_argument("--grid-seeds", type=int, nargs="+", default=[10_000])
     p.add_argument("--plain-only", action="store_true",
                    help="grid: only the plain command (no split run, no separate compare)")
@@ -105,7 +105,7 @@ def main() -> None:
     record = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "command": " ".join(["python", *sys.argv]), "grid": []}
-    wanted = set(args.only or ["grid", "sweep", "bowling"])
+    wanted = set(args.only or ["grid", "sweep", "bowling", "sequential"])
     if "grid" in wanted:
         for seeds in args.grid_seeds:
             record["grid"].append(grid_record(args.out, seeds, args.plain_only))
@@ -118,6 +118,19 @@ def main() -> None:
         record["bowling"] = jaxeac(["bowling", "--seeds", "1000", "--out", str(args.out / "bowling1000"),
                                     "--quiet"])
         print(json.dumps(record["bowling"]), flush=True)
+    if "sequential" in wanted:  # the paper preset decided sequentially, with and without the report,
+        # every program compiled (no compilation cache): what a first run pays
+        base = ["grid", "--preset", "paper", "--seeds", "1000", "--sequential", "--effect", "5",
+                "--looks", "10", "--quiet"]
+        record["sequential"] = []
+        for extra in (["--no-compare"], []):
+            folder = args.out / ("sequential" + "".join(extra).replace("-", "_"))
+            row = jaxeac([*base, *extra, "--out", str(folder)], {"JAXEAC_COMPILATION_CACHE": "off"})
+            seq = json.loads((folder / "summary.json").read_text())["sequential"]
+            row |= {"decision": seq["decision"], "seeds_used": seq["seeds_used"],
+                    "seconds_to_decision": seq["seconds_to_decision"]}
+            record["sequential"].append(row)
+            print(json.dumps(row), flush=True)
     path = args.record or args.out / "timings.json"
     path.write_text(json.dumps(record, indent=2) + "\n")
 
