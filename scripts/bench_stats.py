@@ -166,6 +166,47 @@ def bench_size(args, seeds: int, compare_run_dir) -> dict:
     return rec
 
 
+def bench_tidy(args) -> None:
+    """`jaxeac compare --table` on a tidy CSV of A algorithms × N seeds (per-seed values with
+    different means), compile included, in this process; prints and writes a JSON record."""
+    import numpy as np
+
+    t_start = time.perf_counter()
+    import jax
+
+    from jaxeac.stats.tidy import compare_table
+
+    import_seconds = time.perf_counter() - t_start
+    seeds = args.seeds[0]
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        table = Path(tmp) / "runs.csv"
+        lines = ["algo,seed,value"]
+        for a in range(args.tidy_algos):
+            values = rng.normal(100 + 2 * a, 15, seeds)
+            lines += [f"algo{a},{i},{v:.6f}" for i, v in enumerate(values)]
+        table.write_text("\n".join(lines) + "\n")
+        runs = []
+        for i in range(args.repeat):
+            t0 = time.perf_counter()
+            result, _ = compare_table(table, Path(tmp) / f"out{i}", resamples=args.resamples, key=i)
+            runs.append({"wall_seconds": time.perf_counter() - t0, "includes_compile": i == 0})
+    record = {
+        "command": "python scripts/bench_stats.py " + " ".join(sys.argv[1:]),
+        "algorithms": args.tidy_algos, "seeds_per_algorithm": seeds, "resamples": args.resamples,
+        "comparisons": result["comparisons_in_family"],
+        "import_seconds": import_seconds, "runs": runs,
+        "first_run_plus_import_seconds": runs[0]["wall_seconds"] + import_seconds,
+        "versions": {"python": sys.version.split()[0], "jax": jax.__version__, "numpy": np.__version__},
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                    "backend": jax.default_backend()},
+    }
+    text = json.dumps(record, indent=2)
+    print(text)
+    if args.out:
+        args.out.write_text(text + "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[10_000], help="seeds per method (one or more)")
@@ -180,7 +221,12 @@ def main() -> None:
     )
     ap.add_argument("--rliable", action="store_true", help="also time rliable's IQM interval if installed")
     ap.add_argument("--out", type=Path, help="also write the JSON record here")
+    ap.add_argument("--tidy-algos", type=int, default=0, metavar="A",
+                    help="instead: time `jaxeac compare --table` on a synthetic tidy table of A algorithms "
+                         "× --seeds seeds (all pairs, Holm, IQM and probability of improvement)")
     args = ap.parse_args()
+    if args.tidy_algos:
+        return bench_tidy(args)
 
     t_start = time.perf_counter()
     import jax
