@@ -242,8 +242,10 @@ def test_interrupt_and_out_of_memory_are_one_line(tmp_path, capsys, monkeypatch)
         def boom(*args, fault=fault, **kwargs):
             raise fault()
 
-        monkeypatch.setattr(grid, "run_grid", boom)
+        monkeypatch.setattr(grid, "run_algorithms", boom)  # mid-run, with results.parquet being written
         refused(capsys, ["grid", *TINY, "--out", str(out)], tmp_path, match, code)
+        refused(capsys, ["grid", *TINY, "--sequential", "--effect", "1", "--seeds", "20", "--looks", "2",
+                         "--out", str(out)], tmp_path, match, code)
 
 
 def test_closed_stdout_is_quiet(monkeypatch, capfd):
