@@ -281,12 +281,20 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
-                quiet=False, data=None) -> int:
+                quiet=False, data=None, unpaired=False) -> int:
     from jaxeac.fmt import p_value
     from jaxeac.stats import compare_run_dir
 
     result = compare_run_dir(run_dir, baseline=baseline, treatment=treatment, resamples=resamples,
-                             alpha=alpha, key=key, progress=not quiet, data=data)
+                             alpha=alpha, key=key, progress=not quiet, data=data, unpaired=unpaired)
+    if result.get("analysis") == "paired":
+        pr = result["paired"]["measures"][result["primary"]["measure"]]
+        lo, hi = pr["mean_diff_ci95"]
+        print(f"paired (seed i of both shares its key): {treatment} - {baseline} on "
+              f"{result['primary']['measure']}: {pr['mean_diff']:+.3f} "
+              f"(95% paired BCa CI [{lo:+.3f}, {hi:+.3f}]), "
+              f"paired t p = {p_value(pr['p_paired_t'], 3, sci_below=None, general=True)}, "
+              f"d_z = {pr['d_z']:.3f}, r = {pr['correlation']:.2f}")
     p = result["primary"]
     lo, hi = p["diff_ci95"]
     print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
@@ -309,7 +317,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     check_compare_size(args.dir, args.resamples)
     _claim_existing(args, args.dir)
     return run_compare(args.dir, baseline=args.baseline or "ac", treatment=args.treatment or "eac",
-                       resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key)
+                       resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key,
+                       unpaired=args.unpaired)
 
 
 def compare_table_command(args: argparse.Namespace) -> int:

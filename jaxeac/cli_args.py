@@ -200,6 +200,9 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
                    help="significance level (default 0.05)")
     p.add_argument("--key", dest="stats_key", type=prng_key, default=0, metavar="K",
                    help="PRNG key of the resampling, 0..2^32-1")
+    p.add_argument("--unpaired", action="store_true",
+                   help="run folders: compare the methods as independent samples only (default: also "
+                        "paired, since seed i of both methods shares its key)")
 
 
 def fit_grid(args: argparse.Namespace, settings, grid_map):

@@ -29,7 +29,7 @@ from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import bca_ci, compare_experiment, curve_bands, iqm_ci, permutation_test
 
 #: Output keys that did not exist when the pins were taken (dotted paths).
-ADDED_KEYS: tuple[str, ...] = ("settings.scale",)
+ADDED_KEYS: tuple[str, ...] = ("settings.scale", "analysis", "paired")
 #: Run-dependent keys, never pinned.
 UNPINNED = ("timing", "versions")
 

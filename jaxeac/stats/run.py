@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -21,10 +22,15 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
+from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
+from jaxeac.stats.paired import paired_analysis
 from jaxeac.stats.report import FIGURES, render_markdown, write_figures
 from jaxeac.stats.rundir import MEASURES, RunData, describe, load_run_dir, per_seed_measures
 
 SCHEMA = "jaxeac.stats/1"
+#: fold_in index of the paired analysis under the comparison's key (its own stream: the
+#: unpaired results stay as they were).
+PAIRED_STREAM = 2_000_000
 DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
 #: What stats.json states the versions of (`jaxeac.experiments.common.versions`).
 STATS_PACKAGES = ("jaxeac", "jax", "jaxlib", "numpy", "scipy")
@@ -97,8 +103,12 @@ def compare_experiment(
     calibration_resamples: int = 200,
     chunk: int = 1000,
     perm_chunk: int = 1000,
+    paired: bool = False,
 ) -> tuple[dict, dict]:
-    """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures)."""
+    """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures).
+
+    `paired`: row i of both arrays is the same seed (a jaxeac run: shared keys, R1); the
+    paired analysis of every measure (`jaxeac.stats.paired`) is then added and leads the report."""
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
     sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a)
@@ -244,9 +254,37 @@ def compare_experiment(
             },
         },
     }
+    if paired:
+        if sb.shape[0] != st.shape[0]:
+            raise UsageError(f"a paired comparison needs the same seeds of both methods, got {sb.shape[0]} "
+                             f"and {st.shape[0]}; compare them unpaired (--unpaired)")
+        t_pair = time.perf_counter()
+        k_pair = jax.random.fold_in(as_key(key), PAIRED_STREAM)
+
+        def one(j: int) -> dict:
+            name = names[j]
+            return paired_analysis(vb[name], vt[name], jax.random.fold_in(k_pair, j), resamples=resamples,
+                                   alpha=alpha)
+
+        with ThreadPoolExecutor(max_workers=len(names)) as pool:
+            done = list(pool.map(one, range(len(names))))
+        stats["analysis"] = "paired"
+        stats["paired"] = {"design": PAIRED_DESIGN, "measures": dict(zip(names, done, strict=True))}
+        stats["timing"]["pieces"]["paired"] = time.perf_counter() - t_pair
+    else:
+        stats["analysis"] = "unpaired"
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
     plot = {"measures": {k: {"baseline": vb[k], "treatment": vt[k]} for k in names}}
     return stats, plot
+
+
+def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
+    """Whether row i of both methods is the same seed i (then their results share its key)."""
+    nb, nt = len(data.success[baseline]), len(data.success[treatment])
+    seeds = [data.per_seed.get(a, {}).get("seed") for a in (baseline, treatment)]
+    if seeds[0] is not None and seeds[1] is not None:
+        return bool(np.array_equal(seeds[0], seeds[1]))
+    return nb == nt  # folders without seed ids (and runs in memory) hold seeds 0 … N − 1
 
 
 def compare_run_dir(
@@ -262,11 +300,14 @@ def compare_run_dir(
     chunk: int = 1000,
     progress: bool = True,
     data: RunData | None = None,
+    unpaired: bool = False,
 ) -> dict:
     """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
 
     `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
-    the run it just wrote), instead of reading them back. Returns the content of stats.json.
+    the run it just wrote), instead of reading them back. The comparison is paired when both
+    methods ran the same seeds (a jaxeac run: seed i of each shares its key, R1), unless
+    `unpaired`. Returns the content of stats.json.
     Bad input raises `jaxeac.errors.UsageError`.
     """
     t0 = time.perf_counter()
@@ -300,6 +341,7 @@ def compare_run_dir(
         calibration_splits=calibration_splits,
         calibration_resamples=calibration_resamples,
         chunk=chunk,
+        paired=not unpaired and _same_seeds(data, baseline, treatment),
     )
     if bar is not None:
         bar.set_description(f"compare {treatment} vs {baseline}: report")

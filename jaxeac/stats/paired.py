@@ -1,0 +1,134 @@
+"""Paired comparisons: seed i of both methods shares its key (R1), so compare differences.
+
+In a jaxeac run, seed i of AC and seed i of EAC start from the same key
+``fold_in(root, i)`` and draw the same random streams, so their results correlate and
+the per-seed differences d_i = x_EAC,i − x_AC,i carry less noise than two independent
+samples. The paired analysis of a measure (Student 1908; Efron & Tibshirani 1993) gives:
+
+* the mean difference with a **paired BCa bootstrap** interval: seeds (pairs) resampled
+  together (Efron 1987). A difference with at most `large.MAX_DISTINCT` distinct values
+  is resampled as multinomial counts per distinct value, the same law as drawing pairs
+  one by one (Efron 1979), so the interval is exact for any N; with more distinct values
+  pairs are drawn one by one up to `large.LARGE_N` seeds, and above that the bootstrap's
+  normal limit is used (`large.normal_bca`, jackknife SE and acceleration);
+* the **paired t test** (n − 1 degrees of freedom) and a **sign-flip permutation test**
+  (under no difference each d_i is as likely to be −d_i; Fisher 1935): the flips of the
+  seeds sharing a value |d| are a binomial count per value, exact for any N; with more
+  distinct values the flips are drawn per seed up to `large.LARGE_N` seeds, and above
+  that the permutation law's normal limit (its variance Σ d_i² is exact);
+* the paired effect size **d_z** = mean(d) / sd(d) (Cohen 1988) with a BCa interval from
+  the same resamples, and the correlation of the two methods' per-seed values.
+
+Resampling draws come from NumPy's exact samplers seeded from the JAX key
+(`large.host_rng`), so results do not depend on the device.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+from scipy import special
+
+from jaxeac.stats import large
+from jaxeac.stats._rng import as_key
+from jaxeac.stats.bootstrap import bca_interval
+
+#: Random draws per block when resampling pairs or flipping signs seed by seed.
+DRAWS = 1 << 22
+
+DESIGN = ("paired: seed i of both methods starts from the same key fold_in(root, i) and draws the "
+          "same random streams (SPEC R1), so the per-seed differences are compared")
+
+
+def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
+    """d_z = mean / sd from the mean and the mean square of the differences."""
+    var = np.maximum(square - mean * mean, 0.0) * n / (n - 1)
+    sd = np.sqrt(var)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(sd > 0, mean / sd, np.where(mean == 0, 0.0, np.copysign(np.inf, mean)))
+
+
+def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05) -> dict:
+    """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i."""
+    xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
+    if xb.shape != xt.shape or xb.ndim != 1 or xb.size < 2:
+        raise ValueError(f"a paired comparison needs two samples of the same seeds, got {xb.shape} and "
+                         f"{xt.shape}")
+    d = xt - xb
+    n = d.size
+    mean = float(d.mean())
+    sd = float(d.std(ddof=1))
+    se = sd / math.sqrt(n)
+    t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
+    p_t = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
+    dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
+    r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
+    k_boot, k_flip = jax.random.split(as_key(key))
+    values, counts = np.unique(d, return_counts=True)
+    out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
+           "p_paired_t": p_t, "d_z": dz, "correlation": r, "distinct_differences": int(values.size)}
+    rng = large.host_rng(k_boot)
+    if values.size <= large.MAX_DISTINCT:  # exact: counts per distinct difference
+        c = large.multinomial_counts(rng, counts, resamples)
+        s1, s2 = large.moment_sums(c, values)
+        boot_mean, boot_sq = s1 / n, s2 / n
+        drop = n * mean - values  # leave one pair of each value out
+        jk_mean = drop / (n - 1)
+        jk_sq = ((d * d).sum() - values**2) / (n - 1)
+        jk = [(jk_mean, counts)]
+        jk_dz = [(_dz(jk_mean, jk_sq, n - 1), counts)]
+        out["bootstrap"] = "exact: multinomial counts per distinct difference (Efron 1979)"
+    elif n <= large.LARGE_N:  # pairs one by one
+        boot_mean, boot_sq = np.empty(resamples), np.empty(resamples)
+        step = max(1, DRAWS // n)  # resamples per block
+        for i in range(0, resamples, step):
+            k = min(step, resamples - i)
+            idx = rng.integers(0, n, (k, n))
+            boot_mean[i:i + k] = d[idx].mean(1)
+            boot_sq[i:i + k] = (d[idx] ** 2).mean(1)
+        jk_mean = (n * mean - d) / (n - 1)
+        jk_sq = ((d * d).sum() - d * d) / (n - 1)
+        jk, jk_dz = [jk_mean], [_dz(jk_mean, jk_sq, n - 1)]
+        out["bootstrap"] = "pairs resampled one by one"
+    else:  # the bootstrap's normal limit
+        jk_mean = (n * mean - d) / (n - 1)
+        jk_sq = ((d * d).sum() - d * d) / (n - 1)
+        lo, hi = large.normal_bca(mean, jk_mean, alpha)
+        dlo, dhi = large.normal_bca(dz, _dz(jk_mean, jk_sq, n - 1), alpha)
+        out |= {"mean_diff_ci95": [lo, hi], "d_z_ci95": [dlo, dhi],
+                "bootstrap": large.REFERENCES["normal_bca"]}
+        boot_mean = None
+    if boot_mean is not None:
+        out["mean_diff_ci95"] = list(bca_interval(mean, boot_mean, jk, alpha))
+        out["d_z_ci95"] = list(bca_interval(dz, _dz(boot_mean, boot_sq, n), jk_dz, alpha))
+    out |= sign_flip_p(d, values, counts, k_flip, resamples)
+    return out
+
+
+def sign_flip_p(d: np.ndarray, values: np.ndarray, counts: np.ndarray, key, resamples: int) -> dict:
+    """Two-sided sign-flip permutation p of Σ d_i: (1 + #{|S*| ≥ |S|}) / (R + 1)."""
+    observed = abs(float(d.sum()))
+    rng = large.host_rng(key)
+    mags, inv = np.unique(np.abs(values), return_inverse=True)
+    per_mag = np.bincount(inv.reshape(-1), weights=counts, minlength=mags.size).astype(np.int64)
+    keep = mags > 0
+    mags, per_mag = mags[keep], per_mag[keep]
+    tol = 1e-9 * max(1.0, observed)
+    if mags.size <= large.MAX_DISTINCT:  # exact: the number of + signs per magnitude is binomial
+        plus = rng.binomial(per_mag[None, :], 0.5, size=(resamples, mags.size))
+        s = (2 * plus - per_mag[None, :]) @ mags
+        method = "exact: binomial sign counts per distinct |difference| (Fisher 1935)"
+    elif d.size <= large.LARGE_N:
+        s = np.empty(resamples)
+        step = max(1, DRAWS // d.size)
+        for i in range(0, resamples, step):
+            k = min(step, resamples - i)
+            s[i:i + k] = np.where(rng.random((k, d.size)) < 0.5, -1.0, 1.0) @ d
+        method = "signs flipped seed by seed"
+    else:
+        z = observed / math.sqrt(float((d * d).sum())) if (d * d).sum() > 0 else 0.0
+        return {"p_sign_flip": float(2 * special.ndtr(-z)), "sign_flip": "normal limit, variance Σ d²"}
+    p = (1 + int((np.abs(s) >= observed - tol).sum())) / (resamples + 1)
+    return {"p_sign_flip": p, "sign_flip": method}

@@ -1,0 +1,108 @@
+"""The paired analysis (`jaxeac.stats.paired`): against scipy and by hand, exact per-value
+resampling against pairs drawn one by one, the sign-flip test against full enumeration, and
+`jaxeac compare` choosing it for a shared-key run folder."""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from jaxeac.cli import main
+from jaxeac.stats import large
+from jaxeac.stats.paired import paired_analysis, sign_flip_p
+
+
+def correlated(n: int, rng, shift: float = 1.5, integer: bool = True):
+    ability = rng.normal(0, 8, n)
+    x = 50 + ability + rng.normal(0, 3, n)
+    y = 50 + shift + ability + rng.normal(0, 3, n)
+    return (np.round(x), np.round(y)) if integer else (x, y)
+
+
+def test_paired_t_dz_and_correlation_by_hand(rng):
+    x, y = correlated(400, rng)
+    r = paired_analysis(x, y, 0, resamples=500)
+    ref = sps.ttest_rel(y, x)
+    d = y - x
+    assert np.isclose(r["t_paired"], ref.statistic) and np.isclose(r["p_paired_t"], ref.pvalue, rtol=1e-10)
+    assert r["df"] == 399 and np.isclose(r["mean_diff"], d.mean()) and np.isclose(r["se_diff"], sps.sem(d))
+    assert np.isclose(r["d_z"], d.mean() / d.std(ddof=1))
+    assert np.isclose(r["correlation"], sps.pearsonr(x, y).statistic)
+    lo, hi = r["mean_diff_ci95"]
+    assert lo < d.mean() < hi
+    assert hi - lo < 0.7 * (2 * 1.96 * np.sqrt(x.var(ddof=1) / 400 + y.var(ddof=1) / 400))  # pairing helps
+
+
+def test_per_value_bootstrap_agrees_with_pairs_drawn_one_by_one(rng, monkeypatch):
+    """Integer differences: multinomial counts per value are the law of resampling pairs, so the
+    BCa endpoints agree with the one-by-one bootstrap within Monte Carlo error."""
+    x, y = correlated(3000, rng)
+    exact = paired_analysis(x, y, 1, resamples=20_000)
+    assert exact["bootstrap"].startswith("exact")
+    monkeypatch.setattr(large, "MAX_DISTINCT", 0)
+    drawn = paired_analysis(x, y, 2, resamples=20_000)
+    assert drawn["bootstrap"] == "pairs resampled one by one"
+    se = exact["se_diff"]
+    np.testing.assert_allclose(exact["mean_diff_ci95"], drawn["mean_diff_ci95"], atol=0.08 * se * 3.92)
+    np.testing.assert_allclose(exact["d_z_ci95"], drawn["d_z_ci95"], atol=0.02)
+
+
+def test_sign_flip_matches_full_enumeration(rng):
+    d = np.array([3.0, -1.0, 2.0, 2.0, 5.0, -2.0, 1.0, 4.0, 0.0, 3.0, 1.0, -1.0])
+    signs = np.array(list(itertools.product([-1, 1], repeat=d.size)))
+    exact = np.mean(np.abs(signs @ d) >= abs(d.sum()) - 1e-12)
+    values, counts = np.unique(d, return_counts=True)
+    import jax
+
+    p = sign_flip_p(d, values, counts, jax.random.key(3), 40_000)["p_sign_flip"]
+    assert abs(p - exact) < 4 * np.sqrt(exact * (1 - exact) / 40_000) + 1e-4
+
+
+def test_null_paired_tests_hold_their_level(rng):
+    """No true difference: paired t and sign-flip reject at about α over many data sets."""
+    import jax
+
+    rejections = np.zeros(2)
+    for i in range(300):
+        x, y = correlated(60, rng, shift=0.0)
+        r = paired_analysis(x, y, jax.random.key(i), resamples=400)
+        rejections += [r["p_paired_t"] <= 0.05, r["p_sign_flip"] <= 0.05]
+    rate = rejections / 300
+    assert np.all(rate < 0.05 + 3 * np.sqrt(0.05 * 0.95 / 300)), rate
+
+
+def test_continuous_large_n_uses_normal_limits(rng):
+    x, y = correlated(large.LARGE_N + 10, rng, integer=False)
+    r = paired_analysis(x, y, 0, resamples=200)
+    assert "normal" in r["bootstrap"] and "normal" in r["sign_flip"]
+    d = y - x
+    half = 1.96 * d.std(ddof=1) / np.sqrt(d.size)
+    np.testing.assert_allclose(r["mean_diff_ci95"], [d.mean() - half, d.mean() + half], atol=0.02 * half)
+
+
+def test_compare_pairs_a_shared_key_run_unless_told_not_to(tmp_path, capsys):
+    out = tmp_path / "run"
+    small = ["--seeds", "30", "--trials", "10", "--chances", "15", "--quiet"]
+    assert main(["grid", *small, "--out", str(out)]) == 0
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["analysis"] == "paired" and set(stats["paired"]["measures"]) >= {"successes"}
+    in_memory = stats["paired"]
+    assert "## Paired analysis" in (out / "report.md").read_text()
+    assert main(["compare", str(out)]) == 0
+    again = json.loads((out / "stats.json").read_text())
+    assert again["paired"] == in_memory  # read back from the folder: the same paired results
+    assert main(["compare", str(out), "--unpaired"]) == 0
+    unpaired = json.loads((out / "stats.json").read_text())
+    assert unpaired["analysis"] == "unpaired" and "paired" not in unpaired
+    assert "## Paired analysis" not in (out / "report.md").read_text()
+    assert unpaired["primary"] == again["primary"]  # the unpaired results do not move
+
+
+@pytest.mark.parametrize("bad", [([1.0, 2.0], [1.0]), ([1.0], [2.0])])
+def test_paired_needs_the_same_seeds(bad):
+    with pytest.raises(ValueError, match="same seeds"):
+        paired_analysis(np.array(bad[0]), np.array(bad[1]), 0)
