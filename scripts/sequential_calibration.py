@@ -7,8 +7,10 @@ comparisons (`jaxeac.stats.sequential.simulate`): each draws N seeds per method 
 replacement from the pools and looks at them in K batches. AC against AC and EAC against
 EAC have no true difference, so their "difference" rate is the false-positive rate, to
 sit at or below the nominal α; AC against EAC gives the decisions and seeds used at the
-observed effect. Prints and writes a JSON record (machine, versions, settings, rates
-with Monte Carlo standard errors, seconds).
+observed effect. The paired rows follow `jaxeac grid --sequential`, whose looks are paired
+(seed i of both methods shares its key): N per-seed differences EAC − AC per experiment,
+with random signs for the null. Prints and writes a JSON record (machine, versions,
+settings, rates with Monte Carlo standard errors, seconds).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def main() -> None:
     from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.experiments.grid import GridSettings
     from jaxeac.running.batch import run_algorithms
-    from jaxeac.stats.sequential import SequentialDesign, simulate
+    from jaxeac.stats.sequential import SequentialDesign, simulate, simulate_paired
 
     settings = GridSettings(seeds=args.pool).resolved()
     env = GridWorld(get_map("paper"), settings.chances)
@@ -56,6 +58,10 @@ def main() -> None:
         "ac_vs_ac": simulate(design, ac, None, args.experiments, rng),
         "eac_vs_eac": simulate(design, eac, None, args.experiments, rng),
         "ac_vs_eac": simulate(design, ac, eac, args.experiments, rng),
+        # paired, as `jaxeac grid --sequential` looks (seed i of both shares its key): the
+        # per-seed differences EAC − AC with random signs (null), and as they are
+        "paired_null": simulate_paired(design, eac - ac, args.experiments, rng, null=True),
+        "paired_observed": simulate_paired(design, eac - ac, args.experiments, rng, null=False),
     }
     record = {
         "command": "python scripts/sequential_calibration.py " + " ".join(sys.argv[1:]),
@@ -71,7 +77,7 @@ def main() -> None:
         "false_positive_within_nominal": {
             k: comparisons[k]["decisions"]["difference"]["rate"]
             <= args.alpha + 2 * comparisons[k]["decisions"]["difference"]["se"]
-            for k in ("ac_vs_ac", "eac_vs_eac")
+            for k in ("ac_vs_ac", "eac_vs_eac", "paired_null")
         },
     }
     text = json.dumps(record, indent=2)

@@ -118,7 +118,7 @@ def test_grid_sequential_end_to_end(tmp_path, capsys):
     assert seq["sizes"] == [20, 40, 60] and seq["decision"] in ("difference", "no difference", "undecided")
     n = seq["seeds_used"]
     assert n == seq["looks_taken"][-1]["seeds"] and summary["seeds"] == n
-    assert seq["calibration"]["ac_vs_ac"]["experiments"] == 1000
+    assert seq["paired"] and seq["calibration"]["null"]["experiments"] == 1000
     fixed = tmp_path / "fixed"
     assert main(["grid", *SMALL, "--seeds", str(n), "--no-compare", "--out", str(fixed)]) == 0
     def rows(folder):  # one algorithm's rows after the other's, as a fixed run writes them
@@ -147,3 +147,22 @@ def test_grid_sequential_bad_flags_exit_2_nothing_written(tmp_path, capsys, extr
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and len(err.splitlines()) == 1 and message in err
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_paired_looks_and_their_null_simulation(rng):
+    """Paired looks use the SE of the mean per-seed difference; random signs of the differences
+    give a null whose false "difference" rate stays ≤ α + 2 SE."""
+    from jaxeac.stats.sequential import simulate_paired
+
+    b = np.array([10.0, 12.0, 9.0, 15.0])
+    t = b + np.array([1.0, 2.0, 0.0, 1.0])
+    r = look(b, t, 2.0, effect=5.0, last=False, paired=True)
+    d = t - b
+    assert np.isclose(r["se"], d.std(ddof=1) / 2) and r["diff"] == 1.0
+    design = SequentialDesign(effect=0.2, max_seeds=300, looks=3)
+    pool = rng.normal(0.5, 1.0, 20_000)  # a true mean difference of 0.5
+    null = simulate_paired(design, pool, 2000, rng, null=True)
+    fp = null["decisions"]["difference"]
+    assert fp["rate"] <= 0.05 + 2 * fp["se"], null
+    observed = simulate_paired(design, pool, 500, rng, null=False)
+    assert observed["decisions"]["difference"]["rate"] > 0.95

@@ -329,10 +329,11 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
 
     The run folder holds the seeds run (0 … n − 1, the same results as those seeds of a fixed
     run, R1) and summary.json's ``sequential``: the design (fixed before the first batch), every
-    look and the decision, and the design's decision rates simulated from the run's own seeds
-    (AC against AC: the false "difference" rate; AC against EAC: the rates at the observed effect).
+    look and the decision, and the design's decision rates simulated from the run's own per-seed
+    differences (with random signs: the false "difference" rate under no difference; as they
+    are: the rates at the observed effect). Looks are paired: seed i of both shares its key.
     """
-    from jaxeac.stats.sequential import run_sequential, simulate
+    from jaxeac.stats.sequential import run_sequential, simulate_paired
 
     if not {"ac", "eac"} <= set(settings.algos):
         raise UsageError("--sequential compares eac with ac: --algos must include both")
@@ -356,16 +357,16 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
                     parts[a].append(r)
                 return parts["ac"][-1].successes, parts["eac"][-1].successes
 
-            result = run_sequential(design, measure, on_look)
+            result = run_sequential(design, measure, on_look, paired=True)  # seed i shares its key (R1)
         result["seconds_to_decision"] = time.perf_counter() - t0
         results = {a: CompactSeeds.concatenate(p) for a, p in parts.items()}
         rng = np.random.default_rng([settings.key, 0x5E0])  # the calibration's own stream
-        ac, eac = results["ac"].successes, results["eac"].successes
+        d = results["eac"].successes.astype(np.float64) - results["ac"].successes
         result["calibration"] = {
-            "source": "the run's own seeds, drawn for each simulated experiment "
-                      "(jaxeac.stats.sequential.simulate)",
-            "ac_vs_ac": simulate(design, ac, None, SEQUENTIAL_CALIBRATION, rng),
-            "ac_vs_eac": simulate(design, ac, eac, SEQUENTIAL_CALIBRATION, rng),
+            "source": "the run's own per-seed differences, drawn for each simulated experiment "
+                      "(jaxeac.stats.sequential.simulate_paired)",
+            "null": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=True),
+            "observed": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=False),
         }
         run = GridRun(dataclasses.replace(settings, seeds=result["seeds_used"]), grid_map, results)
         summary = summarize(run)

@@ -233,7 +233,8 @@ def sequential_section(seq: dict | None) -> list[str]:
         f"**{seq['decision']}** after {len(seq['looks_taken'])} of {seq['looks']} looks, at "
         f"{seq['seeds_used']} seeds per method (of at most {seq['sizes'][-1]}). "
         f"Design, fixed before the first batch: {seq['design']} ({seq['spending']} spending), "
-        f"error rate {seq['alpha']} each way, declared effect ±{seq['effect']:g}. "
+        f"error rate {seq['alpha']} each way, declared effect ±{seq['effect']:g}, "
+        f"{'paired looks (seed i of both methods shares its key)' if seq.get('paired') else 'Welch looks'}. "
         "“difference”: the repeated CI excludes 0; “no difference”: it lies within ± the effect; "
         "the K repeated CIs cover the true difference at once with probability ≥ 1 − α whenever "
         "the run stops. The fixed-sample tests below are computed on the seeds run and do not "
@@ -249,13 +250,13 @@ def sequential_section(seq: dict | None) -> list[str]:
         def rates(r):
             return ", ".join(f"{k} {v['rate']:.3f} ± {v['se']:.3f}" for k, v in r["decisions"].items())
 
-        null, alt = cal["ac_vs_ac"], cal["ac_vs_eac"]
+        null, alt = cal["null"], cal["observed"]
         out += [
-            f"Simulated from this run's seeds ({null['experiments']} sequential experiments each"
-            f"{', drawn with replacement' if null.get('with_replacement') else ''}): AC against AC "
+            f"Simulated from this run's per-seed differences ({null['experiments']} sequential experiments "
+            f"each{', drawn with replacement' if null.get('with_replacement') else ''}): with random signs "
             f"(no true difference; “difference” is a false positive, nominal ≤ {seq['alpha']}): "
-            f"{rates(null)}; mean {null['mean_seeds_used']:.0f} seeds per method. AC against EAC "
-            f"(the observed effect): {rates(alt)}; mean {alt['mean_seeds_used']:.0f} seeds per method.",
+            f"{rates(null)}; mean {null['mean_seeds_used']:.0f} seeds per method. As observed: "
+            f"{rates(alt)}; mean {alt['mean_seeds_used']:.0f} seeds per method.",
             "",
         ]
     return out

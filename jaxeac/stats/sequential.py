@@ -173,11 +173,18 @@ class SequentialDesign:
 DECISIONS = ("difference", "no difference", "undecided", "continue")
 
 
-def look(baseline: np.ndarray, treatment: np.ndarray, boundary: float, effect: float, last: bool) -> dict:
-    """One look: Welch difference, its standard error, the repeated CI and the decision."""
+def look(baseline: np.ndarray, treatment: np.ndarray, boundary: float, effect: float, last: bool,
+         paired: bool = False) -> dict:
+    """One look: the difference of means, its standard error (Welch's, or with `paired` that of
+    the mean per-seed difference: seed i of both methods shares its key), the repeated CI and
+    the decision."""
     xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
-    diff = float(xt.mean() - xb.mean())
-    se = math.sqrt(xb.var(ddof=1) / xb.size + xt.var(ddof=1) / xt.size)
+    if paired:
+        d = xt - xb
+        diff, se = float(d.mean()), math.sqrt(d.var(ddof=1) / d.size)
+    else:
+        diff = float(xt.mean() - xb.mean())
+        se = math.sqrt(xb.var(ddof=1) / xb.size + xt.var(ddof=1) / xt.size)
     lo, hi = diff - boundary * se, diff + boundary * se
     if lo > 0 or hi < 0:
         decision = "difference"
@@ -191,10 +198,11 @@ def look(baseline: np.ndarray, treatment: np.ndarray, boundary: float, effect: f
 
 
 def run_sequential(design: SequentialDesign, measure: Callable[[int, int], tuple[np.ndarray, np.ndarray]],
-                   progress: Callable[[dict], None] | None = None) -> dict:
+                   progress: Callable[[dict], None] | None = None, paired: bool = False) -> dict:
     """Take looks until one decides. `measure(first, n)` returns the primary measure of seeds
     first … first+n−1 of (baseline, treatment); it is called once per batch, in order.
-    Returns the design, every look taken and the decision."""
+    `paired`: row i of both is the same seed (see `look`). Returns the design, every look taken
+    and the decision."""
     c = design.boundaries()
     xb, xt, looks = [], [], []
     done = 0
@@ -203,13 +211,14 @@ def run_sequential(design: SequentialDesign, measure: Callable[[int, int], tuple
         xb.append(np.asarray(b, np.float64))
         xt.append(np.asarray(t, np.float64))
         done = size
-        result = look(np.concatenate(xb), np.concatenate(xt), c[k], design.effect, k + 1 == design.looks)
+        last = k + 1 == design.looks
+        result = look(np.concatenate(xb), np.concatenate(xt), c[k], design.effect, last, paired)
         looks.append(result)
         if progress is not None:
             progress(result)
         if result["decision"] != "continue":
             break
-    return {**design.describe(), "looks_taken": looks, "decision": looks[-1]["decision"],
+    return {**design.describe(), "paired": paired, "looks_taken": looks, "decision": looks[-1]["decision"],
             "seeds_used": looks[-1]["seeds"]}
 
 
@@ -251,3 +260,36 @@ def simulate(design: SequentialDesign, pool_baseline: np.ndarray, pool_treatment
         rates[name] = {"rate": p, "se": math.sqrt(p * (1 - p) / experiments), "count": k}
     return {"experiments": experiments, "with_replacement": bool(replace), "decisions": rates,
             "mean_seeds_used": used / experiments}
+
+
+def simulate_paired(design: SequentialDesign, differences: np.ndarray, experiments: int,
+                    rng: np.random.Generator, null: bool) -> dict:
+    """Decision rates of `design` on paired data, from per-seed differences d_i (treatment −
+    baseline of seed i): each experiment draws N of them (without replacement when there are
+    enough, else with) and looks with the paired standard error. `null`: each drawn difference
+    gets a random sign (under no difference, d_i and −d_i are equally likely), so "difference"
+    is a false positive."""
+    d = np.asarray(differences, np.float64)
+    n = design.max_seeds
+    replace = d.size < n
+    c = design.boundaries()
+    zero = np.zeros(n)
+    counts = dict.fromkeys(DECISIONS[:3], 0)
+    used = 0
+    for _ in range(experiments):
+        x = d[rng.choice(d.size, n, replace=replace)]
+        if null:
+            x = np.where(rng.random(n) < 0.5, -x, x)
+        for k, size in enumerate(design.sizes):
+            r = look(zero[:size], x[:size], c[k], design.effect, k + 1 == design.looks, paired=True)
+            if r["decision"] != "continue":
+                counts[r["decision"]] += 1
+                used += size
+                break
+    rates = {}
+    for name, k in counts.items():
+        p = k / experiments
+        rates[name] = {"rate": p, "se": math.sqrt(p * (1 - p) / experiments), "count": k}
+    return {"experiments": experiments, "with_replacement": bool(replace), "paired": True,
+            "null": "random signs of the run's per-seed differences" if null else None,
+            "decisions": rates, "mean_seeds_used": used / experiments}
