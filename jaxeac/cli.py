@@ -89,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=folder_name, default="runs/bowling", metavar="DIR")
     b.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_sequential_flags(b)
 
     t = sub.add_parser("throw", help="throw balls at a fresh rack and print what fell (JSON)")
     t.add_argument("--angles", nargs="+", type=finite_float, required=True, metavar="A",
@@ -213,7 +214,7 @@ def _grid_sequential(args: argparse.Namespace, settings, design, out) -> int:
 
     def on_look(result: dict) -> None:
         if not args.quiet:
-            print(sequential_look(result, design.effect), file=sys.stderr, flush=True)
+            print(sequential_look(result, design.effect, "successes"), file=sys.stderr, flush=True)
 
     run, summary = run_grid_sequential(settings, out, design, options=_output_options(args, design.sizes[-1]),
                                        on_look=on_look)
@@ -359,11 +360,23 @@ def cmd_bowling(args: argparse.Namespace) -> int:
     from jaxeac.experiments.common import check_bowling_resources
 
     check_bowling_resources(settings)  # sizes that cannot fit or finish fail here, with the numbers
+    design = sequential_design(args, settings)
     out = _claim_out(args, args.out)
+    seq = None
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc=f"bowling ({settings.backend})", file=sys.stderr) as bar:
-        run = run_bowling(settings, progress=bar.update)
-    summary = write_bowling_outputs(run, out)
+        if design is None:
+            run = run_bowling(settings, progress=bar.update)
+        else:
+            from jaxeac.experiments.bowling import run_bowling_sequential
+            from jaxeac.fmt import sequential_look
+
+            def on_look(result: dict) -> None:
+                if not args.quiet:
+                    bar.write(sequential_look(result, design.effect, "pins"), file=sys.stderr)
+
+            run, seq = run_bowling_sequential(settings, design, progress=bar.update, on_look=on_look)
+    summary = write_bowling_outputs(run, out, sequential=seq)
     print("\n".join(line for line in table_one(run).splitlines() if line.startswith("- ")))
     if "eac_minus_ac" in summary:
         d = summary["eac_minus_ac"]
@@ -372,7 +385,10 @@ def cmd_bowling(args: argparse.Namespace) -> int:
     throws = sum(r.throws for r in run.results.values())
     print(f"{throws} throws, compile {summary['compile_seconds']:.1f} s, "
           f"run {summary['run_seconds']:.1f} s; results in {out}/")
-    if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2:
+    if seq is not None:
+        print(f"sequential decision: {seq['decision']} after {len(seq['looks_taken'])} of {design.looks} "
+              f"looks ({seq['seeds_used']} seeds per method, {seq['seconds_to_decision']:.1f} s)")
+    if not args.no_compare and {"ac", "eac"} <= set(settings.algos) and run.settings.seeds >= 2:
         return run_compare(out, quiet=args.quiet)
     return 0
 

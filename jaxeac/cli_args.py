@@ -132,7 +132,8 @@ def add_sequential_flags(p: argparse.ArgumentParser) -> None:
                    help="run seeds in batches and stop at the first look that decides EAC vs AC "
                         "(repeated confidence intervals; --seeds is the most per method)")
     p.add_argument("--effect", type=finite_float, metavar="E",
-                   help="with --sequential: the smallest difference in mean successes that matters")
+                   help="with --sequential: the smallest difference of the primary measure that matters "
+                        "(mean successes on the grid, mean pins in bowling)")
     p.add_argument("--looks", type=positive_int, default=5, metavar="K",
                    help="with --sequential: looks, after equal batches of seeds (default 5)")
     p.add_argument("--spending", default="obrien_fleming", metavar="obrien_fleming|pocock",
@@ -150,8 +151,8 @@ def sequential_design(args: argparse.Namespace, settings):
     from jaxeac.stats.sequential import SequentialDesign
 
     if args.effect is None:
-        raise UsageError("--sequential needs --effect E: the smallest difference in mean successes that "
-                         "matters (e.g. --effect 5)")
+        raise UsageError("--sequential needs --effect E: the smallest difference of the primary measure "
+                         "that matters (e.g. --effect 5)")
     if getattr(args, "num_processes", 1) > 1:
         raise UsageError("--sequential runs in one process; drop --num-processes")
     if not {"ac", "eac"} <= set(settings.algos):

@@ -65,9 +65,9 @@ def size_word(g: float, words: tuple[str, str, str, str] = ("negligible", "small
     return words[0] if g < 0.2 else words[1] if g < 0.5 else words[2] if g < 0.8 else words[3]
 
 
-def sequential_look(look: dict, effect: float) -> str:
+def sequential_look(look: dict, effect: float, unit: str) -> str:
     """One line per look of a sequential comparison (`jaxeac.stats.sequential.look`)."""
     lo, hi = look["rci"]
-    return (f"look at {look['seeds']} seeds per method: EAC − AC {look['diff']:+.2f}, repeated CI "
+    return (f"look at {look['seeds']} seeds per method: EAC − AC {look['diff']:+.2f} {unit}, repeated CI "
             f"[{lo:+.2f}, {hi:+.2f}] (z boundary {look['boundary_z']:.3f}, effect ±{effect:g}): "
             f"{look['decision']}")

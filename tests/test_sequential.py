@@ -166,3 +166,21 @@ def test_paired_looks_and_their_null_simulation(rng):
     assert fp["rate"] <= 0.05 + 2 * fp["se"], null
     observed = simulate_paired(design, pool, 500, rng, null=False)
     assert observed["decisions"]["difference"]["rate"] > 0.95
+
+
+def test_bowling_sequential_keeps_the_seeds_of_a_fixed_run(tmp_path, capsys):
+    """`jaxeac bowling --sequential` (C physics): paired looks on total pins, the seeds used are
+    those of a fixed run of that many seeds (R1), and the report leads with the decision."""
+    pytest.importorskip("mujoco")
+    out = tmp_path / "seq"
+    small = ["--trials", "2", "--angles", "5", "--quiet"]
+    assert main(["bowling", *small, "--seeds", "20", "--sequential", "--effect", "4", "--looks", "2",
+                 "--out", str(out)]) == 0
+    seq = json.loads((out / "summary.json").read_text())["sequential"]
+    assert seq["paired"] and seq["sizes"] == [10, 20] and seq["seeds_used"] in (10, 20)
+    fixed = tmp_path / "fixed"
+    n = str(seq["seeds_used"])
+    assert main(["bowling", *small, "--seeds", n, "--no-compare", "--out", str(fixed)]) == 0
+    assert (out / "per_seed.csv").read_text() == (fixed / "per_seed.csv").read_text()
+    assert "## Sequential decision" in (out / "report.md").read_text()
+    assert f"sequential decision: {seq['decision']}" in capsys.readouterr().out

@@ -270,26 +270,42 @@ class BowlingResult:
     def first_success(self) -> np.ndarray:
         return np.where(self.success.any(axis=1), self.success.argmax(axis=1) + 1, -1)
 
+    @classmethod
+    def concatenate(cls, parts: list[BowlingResult]) -> BowlingResult:
+        """Consecutive batches of one algorithm's seeds as one result (a sequential run)."""
+        return cls(np.concatenate([p.action for p in parts]), np.concatenate([p.knocked for p in parts]),
+                   np.concatenate([p.success for p in parts]), parts[0].angles,
+                   parts[0].compile_seconds, sum(p.run_seconds for p in parts))
+
+
+_MJX_COMPILED: dict = {}  # (config, physics, backend, chunk) -> (compiled run, compile seconds)
+
 
 def run_bowling_algo(settings: BowlingSettings, algo: str, *,
-                     progress: Callable[[int], None] | None = None) -> BowlingResult:
-    """Seeds 0..N−1 of one algorithm (R1: seed i uses fold_in(root, i)), in chunks."""
+                     progress: Callable[[int], None] | None = None, first_seed: int = 0,
+                     n_seeds: int | None = None) -> BowlingResult:
+    """Seeds first_seed … first_seed+n−1 (default all N) of one algorithm (R1: seed i uses
+    fold_in(root, i)), in chunks; an MJX program is compiled once per chunk shape."""
     cfg, phys = settings.run_config(algo), settings.physics()
     hyper = cfg.hyper()
     root = jax.random.key(settings.key)
-    chunk = min(settings.chunk_size, settings.seeds)
+    n = settings.seeds if n_seeds is None else n_seeds
+    chunk = min(settings.chunk_size, n)
     parts: list[BowlingRecord] = []
-    compile_seconds = 0.0
-    run_mjx = None
+    compile_seconds = compiled_now = 0.0
     t0 = time.perf_counter()
-    for seeds in chunks(settings.seeds, chunk):
+    for seeds in chunks(n, chunk):
+        seeds = seeds + first_seed
         padded = np.pad(seeds, (0, chunk - seeds.size), mode="edge")
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root, jnp.asarray(padded))
         if settings.backend in MJX_IMPL:
-            if run_mjx is None:
+            cache = (cfg, phys, settings.backend, chunk)
+            if cache not in _MJX_COMPILED:
                 c0 = time.perf_counter()
-                run_mjx = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(keys, hyper).compile()
-                compile_seconds = time.perf_counter() - c0
+                program = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(keys, hyper).compile()
+                _MJX_COMPILED[cache] = program, time.perf_counter() - c0
+                compiled_now = _MJX_COMPILED[cache][1]
+            run_mjx, compile_seconds = _MJX_COMPILED[cache]
             rec = jax.device_get(run_mjx(keys, hyper))
         else:
             rec = run_chunk_c(cfg, phys, keys, hyper)
@@ -299,7 +315,7 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
     elapsed = time.perf_counter() - t0
     cat = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     return BowlingResult(cat.action, cat.knocked, cat.success.astype(bool), angle_grid(phys),
-                         compile_seconds, elapsed - compile_seconds)
+                         compile_seconds, elapsed - compiled_now)
 
 
 @dataclasses.dataclass
@@ -373,11 +389,52 @@ def per_seed_csv(run: BowlingRun) -> str:
     return "\n".join(rows) + "\n"
 
 
-def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True) -> dict:
-    """per_seed.csv, curves.npz, bowling.npz, table1.md, summary.json and figures, all or nothing."""
+def run_bowling_sequential(settings: BowlingSettings, design, *,
+                           progress: Callable[[int], None] | None = None,
+                           on_look: Callable[[dict], None] | None = None) -> tuple[BowlingRun, dict]:
+    """A sequential comparison of EAC with AC on total pins (`jaxeac.stats.sequential`): seeds in
+    batches of ⌊N / K⌋ per method, a paired look after each (seed i of both shares its key),
+    stop at the first decision. Returns the run of the seeds used and the ``sequential`` record
+    (design, looks, decision, decision rates simulated from the run's per-seed differences)."""
+    from jaxeac.stats.sequential import run_sequential, simulate_paired
+
+    if not {"ac", "eac"} <= set(settings.algos):
+        raise UsageError("--sequential compares eac with ac: --algos must include both")
+    parts: dict[str, list[BowlingResult]] = {a: [] for a in settings.algos}
+    t0 = time.perf_counter()
+
+    def measure(first: int, n: int):
+        for a in settings.algos:
+            parts[a].append(run_bowling_algo(settings, a, progress=progress, first_seed=first, n_seeds=n))
+        return parts["ac"][-1].total_return, parts["eac"][-1].total_return
+
+    result = run_sequential(design, measure, on_look, paired=True)
+    result["seconds_to_decision"] = time.perf_counter() - t0
+    results = {a: BowlingResult.concatenate(p) for a, p in parts.items()}
+    d = results["eac"].total_return.astype(np.float64) - results["ac"].total_return
+    rng = np.random.default_rng([settings.key, 0x5E0])
+    result["calibration"] = {
+        "source": "the run's own per-seed differences, drawn for each simulated experiment "
+                  "(jaxeac.stats.sequential.simulate_paired)",
+        "null": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=True),
+        "observed": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=False),
+    }
+    return BowlingRun(dataclasses.replace(settings, seeds=result["seeds_used"]), results), result
+
+
+#: Simulated sequential experiments in a sequential run's own calibration (summary.json).
+SEQUENTIAL_CALIBRATION = 1000
+
+
+def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True,
+                          sequential: dict | None = None) -> dict:
+    """per_seed.csv, curves.npz, bowling.npz, table1.md, summary.json and figures, all or nothing.
+    `sequential`: a sequential run's record, kept in summary.json."""
     from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, staged_dir
 
     summary = summarize_bowling(run)
+    if sequential is not None:
+        summary["sequential"] = sequential
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         (stage / "per_seed.csv").write_text(per_seed_csv(run))
         np.savez_compressed(stage / "curves.npz",

@@ -196,11 +196,11 @@ def paired_section(stats: dict) -> list[str]:
     b, t = stats["baseline"].upper(), stats["treatment"].upper()
     rows = []
     for name, r in paired["measures"].items():
-        lo, hi = r["mean_diff_ci95"]
-        zlo, zhi = r["d_z_ci95"]
-        rows.append(f"| {name} | {r['mean_diff']:+.4g} [{lo:+.4g}, {hi:+.4g}] | {r['se_diff']:.3g} | "
+        rows.append(f"| {name} | {compact(r['mean_diff'], 4, sign=True)} "
+                    f"{compact_interval(r['mean_diff_ci95'], 4)} | {compact(r['se_diff'])} | "
                     f"{p_value(r['p_paired_t'], **P_STYLE)} | {p_value(r['p_sign_flip'], **P_STYLE)} | "
-                    f"{r['d_z']:.3f} [{zlo:.3f}, {zhi:.3f}] | {r['correlation']:.2f} |")
+                    f"{compact(r['d_z'])} {compact_interval(r['d_z_ci95'])} | "
+                    f"{compact(r['correlation'], 2)} |")
     primary = stats["primary"]
     pr = paired["measures"][primary["measure"]]
     ratio = primary["diff_ci95"][1] - primary["diff_ci95"][0]

@@ -161,7 +161,9 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
             raise UsageError(
                 f"per_seed.csv return for {algo} does not match curves.npz; re-run the experiment"
             )
-    return RunData(path, experiment, primary, algos, trials, success, returns, per_seed)
+    seq = summary.get("sequential")
+    return RunData(path, experiment, primary, algos, trials, success, returns, per_seed,
+                   seq if isinstance(seq, dict) else None)
 
 
 def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunData:
