@@ -282,12 +282,13 @@ def cmd_merge(args: argparse.Namespace) -> int:
 
 
 def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, alpha=0.05, key=0,
-                quiet=False, data=None, unpaired=False) -> int:
+                quiet=False, data=None, unpaired=False, require_paired=False) -> int:
     from jaxeac.fmt import p_value
     from jaxeac.stats import compare_run_dir
 
     result = compare_run_dir(run_dir, baseline=baseline, treatment=treatment, resamples=resamples,
-                             alpha=alpha, key=key, progress=not quiet, data=data, unpaired=unpaired)
+                             alpha=alpha, key=key, progress=not quiet, data=data, unpaired=unpaired,
+                             require_paired=require_paired)
     if result.get("analysis") == "paired":
         pr = result["paired"]["measures"][result["primary"]["measure"]]
         lo, hi = pr["mean_diff_ci95"]
@@ -319,7 +320,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     _claim_existing(args, args.dir)
     return run_compare(args.dir, baseline=args.baseline or "ac", treatment=args.treatment or "eac",
                        resamples=args.resamples, alpha=args.test_alpha, key=args.stats_key,
-                       unpaired=args.unpaired)
+                       unpaired=args.unpaired, require_paired=args.paired)
 
 
 def compare_table_command(args: argparse.Namespace) -> int:

@@ -201,9 +201,13 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
                    help="significance level (default 0.05)")
     p.add_argument("--key", dest="stats_key", type=prng_key, default=0, metavar="K",
                    help="PRNG key of the resampling, 0..2^32-1")
-    p.add_argument("--unpaired", action="store_true",
-                   help="run folders: compare the methods as independent samples only (default: also "
-                        "paired, since seed i of both methods shares its key)")
+    pairing = p.add_mutually_exclusive_group()
+    pairing.add_argument("--unpaired", action="store_true",
+                         help="run folders: compare the methods as independent samples only (default: "
+                              "also paired where both ran the same seeds, which then share their keys)")
+    pairing.add_argument("--paired", action="store_true",
+                         help="run folders: require the paired analysis (an error if the methods ran "
+                              "different seeds)")
 
 
 def fit_grid(args: argparse.Namespace, settings, grid_map):

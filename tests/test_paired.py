@@ -106,3 +106,24 @@ def test_compare_pairs_a_shared_key_run_unless_told_not_to(tmp_path, capsys):
 def test_paired_needs_the_same_seeds(bad):
     with pytest.raises(ValueError, match="same seeds"):
         paired_analysis(np.array(bad[0]), np.array(bad[1]), 0)
+
+
+def test_paired_on_unequal_seeds_is_one_clear_error(tmp_path, capsys, rng):
+    """Seeds of unequal count: compare falls back to unpaired, and --paired is one error line."""
+    success = {"ac": rng.random((30, 6)) < 0.4, "eac": rng.random((25, 6)) < 0.6}
+    np.savez(tmp_path / "curves.npz", **success)
+    rows = ["algo,seed,successes,steps,first_success"]
+    for algo, s in success.items():
+        first = np.where(s.any(1), s.argmax(1) + 1, -1)
+        rows += [f"{algo},{i},{s[i].sum()},0,{first[i]}" for i in range(len(s))]
+    (tmp_path / "per_seed.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "summary.json").write_text(json.dumps({"experiment": "grid", "primary_measure": "successes",
+                                                       "algos": ["ac", "eac"], "trials": 6}))
+    assert main(["compare", str(tmp_path), "--resamples", "200"]) == 0
+    assert json.loads((tmp_path / "stats.json").read_text())["analysis"] == "unpaired"
+    before = (tmp_path / "stats.json").read_text()
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path), "--paired", "--resamples", "200"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --paired needs the same seeds") and len(err.splitlines()) == 1
+    assert (tmp_path / "stats.json").read_text() == before  # nothing rewritten

@@ -300,13 +300,14 @@ def compare_run_dir(
     progress: bool = True,
     data: RunData | None = None,
     unpaired: bool = False,
+    require_paired: bool = False,
 ) -> dict:
     """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
 
     `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
     the run it just wrote), instead of reading them back. The comparison is paired when both
     methods ran the same seeds (a jaxeac run: seed i of each shares its key, R1), unless
-    `unpaired`. Returns the content of stats.json.
+    `unpaired`; `require_paired` makes other seeds an error. Returns the content of stats.json.
     Bad input raises `jaxeac.errors.UsageError`.
     """
     t0 = time.perf_counter()
@@ -321,6 +322,11 @@ def compare_run_dir(
             f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
             f"(expected {expected!r}); fix summary.json or re-run the experiment"
         )
+    paired = not unpaired and _same_seeds(data, baseline, treatment)
+    if require_paired and not paired:
+        nb, nt = len(data.success[baseline]), len(data.success[treatment])
+        raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has {nb} "
+                         f"and {nt}, or different seed ids); drop --paired to compare them unpaired")
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -340,7 +346,7 @@ def compare_run_dir(
         calibration_splits=calibration_splits,
         calibration_resamples=calibration_resamples,
         chunk=chunk,
-        paired=not unpaired and _same_seeds(data, baseline, treatment),
+        paired=paired,
     )
     if bar is not None:
         bar.set_description(f"compare {treatment} vs {baseline}: report")
