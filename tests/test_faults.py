@@ -1,0 +1,82 @@
+"""Faults at random points of a run: a grid run killed (SIGKILL) or interrupted (SIGINT) at any
+moment over a folder holding an earlier run leaves that folder holding one whole run, the old
+or the new, never a mix and never a half-written file; the next run cleans up and finishes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RUN = ["grid", "--seeds", "300", "--trials", "40", "--chances", "20", "--quiet"]
+
+
+def jaxeac(argv, env, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "jaxeac", *argv], env=env, cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, **kwargs)
+
+
+def visible(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+
+
+def whole_run(folder: Path, references: dict) -> int:
+    """The key of the one run `folder` holds, checking that every file belongs to it."""
+    summary = json.loads((folder / "summary.json").read_text())
+    key = summary["key"]
+    ref = references[key]
+    assert pq.read_table(folder / "results.parquet").equals(pq.read_table(ref / "results.parquet"))
+    assert (folder / "per_seed.csv").read_text() == (ref / "per_seed.csv").read_text()
+    if (folder / "stats.json").exists():  # a report, if any, is this run's
+        stats = json.loads((folder / "stats.json").read_text())
+        assert stats["primary"]["n_baseline"] == summary["seeds"]
+        assert stats["primary"]["mean_baseline"] == json.loads((ref / "stats.json").read_text())["primary"][
+            "mean_baseline"]
+    return key
+
+
+@pytest.fixture(scope="module")
+def references(tmp_path_factory):
+    """Complete runs for keys 1 and 2 (with their reports), and how long one takes."""
+    root = tmp_path_factory.mktemp("faults")
+    env = dict(os.environ, JAXEAC_COMPILATION_CACHE=str(root / "cache"))  # compile once for all runs
+    refs, seconds = {}, []
+    for key in (1, 2):
+        t0 = time.perf_counter()
+        proc = jaxeac([*RUN, "--key", str(key), "--out", str(root / f"ref{key}")], env)
+        assert proc.wait(timeout=600) == 0, proc.stderr.read().decode()[-2000:]
+        seconds.append(time.perf_counter() - t0)
+        refs[key] = root / f"ref{key}"
+    return refs, env, min(seconds)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_a_run_stopped_at_random_points_leaves_one_whole_run(tmp_path, references, sig):
+    refs, env, seconds = references
+    out = tmp_path / "run"
+    assert jaxeac([*RUN, "--key", "1", "--out", str(out)], env).wait(timeout=600) == 0
+    rng = np.random.default_rng(sig)
+    for at in rng.uniform(0.1, 1.1, 4) * seconds:  # from start-up to past the end
+        proc = jaxeac([*RUN, "--key", "2", "--out", str(out)], env)
+        time.sleep(at)
+        proc.send_signal(sig)
+        code = proc.wait(timeout=600)
+        err = proc.stderr.read().decode()
+        assert "Traceback" not in err, err[-2000:]
+        if sig == signal.SIGINT:
+            assert code in (0, 130), (code, err[-2000:])
+        key = whole_run(out, refs)
+        assert set(visible(out)) <= set(visible(refs[key])), visible(out)
+    # the next run removes what the stopped ones left and ends with the new run, whole
+    assert jaxeac([*RUN, "--key", "2", "--out", str(out)], env).wait(timeout=600) == 0
+    assert whole_run(out, refs) == 2 and not list(out.glob(".staging-*"))
+    assert visible(out) == visible(refs[2])
