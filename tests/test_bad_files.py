@@ -13,6 +13,7 @@ import shutil
 import pytest
 
 from jaxeac.cli import main
+from jaxeac.errors import UsageError
 
 SMALL = ["--seeds", "4", "--trials", "5", "--chances", "10", "--quiet"]
 
@@ -157,3 +158,21 @@ def test_a_new_run_replaces_the_old_folder_as_a_whole(tmp_path):
     assert "stats.json" not in names and "report.md" not in names and "table1.md" not in names
     assert not [n for n in names if n.startswith("compare_")]
     assert "notes.txt" in names and json.loads((out / "summary.json").read_text())["trials"] == 4
+
+
+@pytest.mark.parametrize("damage", ["binary", "list", "truncated", "no result", "empty"])
+def test_reproduce_treats_a_damaged_step_record_as_unfinished(tmp_path, damage):
+    """`jaxeac reproduce` resumes finished steps from their records; a damaged record or run
+    summary means "run that step again" (its folder is then replaced whole), never a traceback;
+    a damaged results file of a finished step is one error naming it."""
+    from jaxeac.experiments.reproduce.runs import _finished, _marker, _npz_arrays
+
+    content = {"binary": bytes(range(256)), "list": b"[1, 2]", "truncated": b'{"fingerprint": {"st',
+               "no result": b'{"fingerprint": {}, "seconds": 3}', "empty": b""}[damage]
+    (tmp_path / "reproduce.json").write_bytes(content)
+    (tmp_path / "summary.json").write_bytes(content)
+    assert _marker(tmp_path) is None
+    assert _finished(tmp_path, {"seeds": 10}) is False
+    (tmp_path / "curves.npz").write_bytes(content[:40])
+    with pytest.raises(UsageError, match="curves.npz is not a readable .npz file"):
+        _npz_arrays(tmp_path / "curves.npz", ["ac_return"], ["ac"])

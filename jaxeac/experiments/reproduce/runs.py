@@ -50,7 +50,14 @@ from jaxeac.experiments.reproduce.report import (
     plain_words,
     render_report,
 )
-from jaxeac.io import atomic_write_json, atomic_write_text, check_writable_dir, staged_dir, to_jsonable
+from jaxeac.io import (
+    atomic_write_json,
+    atomic_write_text,
+    check_writable_dir,
+    read_json_object,
+    staged_dir,
+    to_jsonable,
+)
 
 #: Calibration: a sweep point "matches" the paper's AC when |AC mean − `paper.GRID_SUCCESSES['ac']`| ≤ this.
 CALIBRATION_TOLERANCE = 5.0
@@ -93,13 +100,17 @@ def _normal(obj):
 
 
 def _finished(folder: Path, expect: dict) -> bool:
-    """A run folder whose summary.json exists and whose config has every `expect` item."""
+    """A run folder whose summary.json exists and whose config has every `expect` item. A
+    damaged summary.json (not JSON, not an object, no config) is not finished: the step runs
+    again and replaces the folder as a whole."""
     path = folder / "summary.json"
     if not path.is_file():
         return False
     try:
-        config = json.loads(path.read_text()).get("config", {})
-    except json.JSONDecodeError:
+        config = read_json_object(path).get("config")
+    except UsageError:
+        return False
+    if not isinstance(config, dict):
         return False
     return all(_normal(config.get(k)) == _normal(v) for k, v in expect.items())
 
@@ -155,13 +166,28 @@ def _grid_data(folder: Path, algos, trials: int) -> tuple[dict, dict]:
 
 def _bowling_data(folder: Path, algos) -> tuple[dict, dict]:
     """(pins per trial [N, T], angles [N, T, 2] with NaN where not thrown) per algorithm."""
-    with np.load(folder / "curves.npz") as npz:
-        returns = {a: npz[f"{a}_return"].astype(np.int64) for a in algos}
+    arrays = _npz_arrays(folder / "curves.npz", [f"{a}_return" for a in algos], algos)
+    returns = {a: x.astype(np.int64) for a, x in arrays.items()}
     angles = {}
     if (folder / "bowling.npz").is_file():
-        with np.load(folder / "bowling.npz") as npz:
-            angles = {a: npz[f"{a}_angle"] for a in algos}
+        angles = _npz_arrays(folder / "bowling.npz", [f"{a}_angle" for a in algos], algos)
     return returns, angles
+
+
+def _npz_arrays(path: Path, names: list[str], algos) -> dict:
+    """{algo: array `name`} from an .npz file; a damaged file or a missing array is one
+    `UsageError` naming the file (delete the step's folder to run it again)."""
+    import zipfile
+
+    fix = f"delete {path.parent} and run `jaxeac reproduce` again to rebuild it"
+    try:
+        with np.load(path) as npz:
+            missing = [n for n in names if n not in npz.files]
+            if missing:
+                raise UsageError(f"{path} has no array {missing[0]!r}; {fix}")
+            return {a: np.asarray(npz[n]) for a, n in zip(algos, names, strict=True)}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise UsageError(f"{path} is not a readable .npz file ({exc}); {fix}") from None
 
 
 # ------------------------------------------------------------------ steps
@@ -404,13 +430,17 @@ def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
 
 
 def _marker(folder: Path) -> dict | None:
+    """A finished step's record (fingerprint, seconds, result), or None: no record, or a damaged
+    one (the step then runs again and replaces its folder as a whole)."""
     path = folder / "reproduce.json"
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError:
+        m = read_json_object(path)
+    except UsageError:
         return None
+    ok = isinstance(m.get("result"), dict) and isinstance(m.get("seconds"), int | float)
+    return m if ok and "fingerprint" in m else None
 
 
 def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
@@ -457,8 +487,8 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
         timings[step] = {"seconds": seconds, "resumed": False}
         _say(progress, f"[{i + 1}/{len(STEPS)}] {step}: done in {seconds:.0f} s")
 
-    gstats = json.loads((out / "grid" / "stats.json").read_text())
-    bstats = json.loads((out / "bowling" / "stats.json").read_text())
+    gstats, bstats = (read_json_object(out / step / "stats.json", f"delete {out / step} and run `jaxeac "
+                                       "reproduce` again to rebuild it") for step in ("grid", "bowling"))
     cls = judge_claims(records["grid"], gstats, records["bowling"], bstats)
     for c in cls:
         c["headline"] = headline(c)
