@@ -198,13 +198,38 @@ def cmd_grid(args: argparse.Namespace) -> int:
         return _grid_part(args, settings, out)
     if design is not None:
         return _grid_sequential(args, settings, design, out)
+    ahead = _compile_statistics_ahead(settings, compare=not args.no_compare)
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
         run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
                                           progress=bar.update)
     print(summary_table(summary))
     print(f"results in {out}/")
+    if ahead is not None:
+        ahead.join()
     return _compare_grid(run, out, compare=not args.no_compare, quiet=args.quiet)
+
+
+def _compile_statistics_ahead(settings, *, compare: bool):
+    """On accelerators, compile the comparison's device programs on a thread while the run
+    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache). On
+    CPUs the run needs every core, so nothing is started. Returns the thread, or None."""
+    import threading
+
+    import jax
+
+    if not compare or jax.default_backend() == "cpu":
+        return None
+    from jaxeac.stats import large
+    from jaxeac.stats.run import CALIBRATION_SPLITS
+
+    def work() -> None:
+        with contextlib.suppress(Exception):  # only a head start: the comparison compiles anyway
+            large.compile_ahead(settings.seeds, settings.trials, splits=CALIBRATION_SPLITS)
+
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+    return thread
 
 
 def _grid_sequential(args: argparse.Namespace, settings, design, out) -> int:

@@ -455,3 +455,23 @@ def dispatch_subset_sums(key, c: np.ndarray, k: int, reps: int, block: int = 409
         return np.asarray(acc, np.float64)
 
     return wait
+
+
+def compile_ahead(n: int, trials: int, splits: int, block: int = 4096) -> None:
+    """Compile the large-N path's device programs for success bits of n seeds per method and T
+    trials (curve sums, calibration halves) before the data exists: `jaxeac grid` calls it on a
+    thread while the run computes. The programs land in the persistent compilation cache, so
+    the comparison loads them instead of compiling them (with the cache off, nothing changes)."""
+    if not is_large(n):
+        return
+    width = -(-trials // 8)
+    h = n // 2
+    for rows in {n, 2 * h}:
+        bits = jax.ShapeDtypeStruct((rows, width), jnp.uint8)
+        _unpack_bits.lower(bits, trials).compile()
+    _gram.lower(jax.ShapeDtypeStruct((n, trials), jnp.bool_), BLOCK).compile()
+    if splits > 0:
+        nblocks = -(-2 * h // block)
+        key = jax.random.key(0)
+        _subset_sums.lower(key, jax.ShapeDtypeStruct((2 * h, trials), jnp.bool_),
+                           jax.ShapeDtypeStruct((splits, nblocks), jnp.int32), block, True, 32).compile()

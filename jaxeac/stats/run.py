@@ -28,6 +28,8 @@ from jaxeac.stats.report import FIGURES, render_markdown, write_figures
 from jaxeac.stats.rundir import MEASURES, RunData, describe, load_run_dir, per_seed_measures
 
 SCHEMA = "jaxeac.stats/1"
+#: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).
+CALIBRATION_SPLITS = 200
 #: fold_in index of the paired analysis under the comparison's key (its own stream: the
 #: unpaired results stay as they were).
 PAIRED_STREAM = 2_000_000
@@ -99,7 +101,7 @@ def compare_experiment(
     resamples: int = 10_000,
     alpha: float = 0.05,
     key=0,
-    calibration_splits: int = 200,
+    calibration_splits: int = CALIBRATION_SPLITS,
     calibration_resamples: int = 200,
     chunk: int = 1000,
     perm_chunk: int = 1000,
@@ -294,7 +296,7 @@ def compare_run_dir(
     resamples: int = 10_000,
     alpha: float = 0.05,
     key: int = 0,
-    calibration_splits: int = 200,
+    calibration_splits: int = CALIBRATION_SPLITS,
     calibration_resamples: int = 200,
     chunk: int = 1000,
     progress: bool = True,
