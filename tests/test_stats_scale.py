@@ -471,3 +471,10 @@ if __name__ == "__main__":
     )
     print("PINNED_NUMBERS = " + json.dumps(to_jsonable(_numbers(grid)), indent=4))
     sys.exit(0)
+
+
+def test_compile_ahead_builds_the_large_path_programs_only_when_needed():
+    """`large.compile_ahead` (a head start for `jaxeac grid` on GPUs): nothing below the
+    threshold; above it, every device program of the large path compiles for the given shapes."""
+    assert large.compile_ahead(100, 16, 4) is None
+    large.compile_ahead(large.LARGE_N + 3, 16, 4)  # odd n: halves of 2·⌊n/2⌋ seeds too
