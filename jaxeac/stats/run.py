@@ -140,13 +140,13 @@ def compare_experiment(
         if calibration_splits > 0
         else None
     )
-    if paired:  # on host threads beside the rest (NumPy frees the GIL); its own key stream
+    if paired:  # on a host thread beside the rest (NumPy frees the GIL); its own key stream
         if sb.shape[0] != st.shape[0]:
             raise UsageError(f"a paired comparison needs the same seeds of both methods, got {sb.shape[0]} "
                              f"and {st.shape[0]}; compare them unpaired (--unpaired)")
         k_pair = jax.random.fold_in(as_key(key), PAIRED_STREAM)
         pair_keys = [jax.random.fold_in(k_pair, j) for j in range(len(names))]
-        pool = ThreadPoolExecutor(max_workers=len(names))
+        pool = ThreadPoolExecutor(max_workers=1)  # one thread: beside the rest, little extra memory
         paired_jobs = [pool.submit(paired_analysis, vb[k], vt[k], pair_keys[j], resamples=resamples,
                                    alpha=alpha) for j, k in enumerate(names)]
         pool.shutdown(wait=False)  # the threads end with their jobs
