@@ -336,6 +336,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not (0 < args.test_alpha < 1):
         raise UsageError(f"--alpha must lie in (0, 1) (got {args.test_alpha})")
     if args.table is not None:
+        if args.paired or args.unpaired:
+            flag = "--paired" if args.paired else "--unpaired"
+            raise UsageError(f"{flag} applies to run folders; a --table comparison is unpaired (its "
+                             "algorithms' seeds need not match); drop the flag")
         return compare_table_command(args)
     if args.dir is None:
         raise UsageError("compare needs a run folder DIR or --table PATH")

@@ -127,3 +127,13 @@ def test_paired_on_unequal_seeds_is_one_clear_error(tmp_path, capsys, rng):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: --paired needs the same seeds") and len(err.splitlines()) == 1
     assert (tmp_path / "stats.json").read_text() == before  # nothing rewritten
+
+
+def test_pairing_flags_with_a_table_are_refused(tmp_path, capsys):
+    table = tmp_path / "t.csv"
+    table.write_text("algo,seed,value\na,0,1\na,1,2\nb,0,3\nb,1,4\n")
+    for flag in ("--paired", "--unpaired"):
+        assert main(["compare", "--table", str(table), flag]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"error: {flag} applies to run folders") and len(err.splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
