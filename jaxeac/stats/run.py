@@ -6,7 +6,9 @@ through `jaxeac.io.staged_dir`.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -279,6 +281,17 @@ def compare_experiment(
     return stats, plot
 
 
+def _start_device() -> None:
+    """Start JAX's default device on a thread: on a GPU, creating its context and loading its
+    libraries takes a second or two, which the host's reading and per-seed measures can hide
+    (JAX initialises a backend once, under a lock, so the main thread simply finds it ready)."""
+    def work() -> None:
+        with contextlib.suppress(Exception):  # a failure shows up, with its message, at first use
+            jax.block_until_ready(jax.numpy.zeros(1))
+
+    threading.Thread(target=work, daemon=True).start()
+
+
 def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
     """Whether row i of both methods is the same seed i (then their results share its key)."""
     nb, nt = len(data.success[baseline]), len(data.success[treatment])
@@ -314,6 +327,7 @@ def compare_run_dir(
     """
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
+    _start_device()  # a GPU's context starts while the host reads the folder
     t_load = time.perf_counter()
     data = load_run_dir(run_dir, baseline, treatment) if data is None else data
     t_load = time.perf_counter() - t_load
