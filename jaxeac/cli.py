@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from here as before)
@@ -527,6 +530,26 @@ def _out_of_device_memory(exc: BaseException) -> bool:
         "RESOURCE_EXHAUSTED" in text or "Out of memory" in text or "out of memory" in text)
 
 
+def _in_gc_callback(frame) -> bool:
+    """Whether `frame` runs inside a garbage-collection callback (JAX registers one)."""
+    codes = {getattr(cb, "__code__", None) for cb in gc.callbacks}
+    while frame is not None:
+        if frame.f_code in codes:
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _on_ctrl_c(signum, frame) -> None:
+    """SIGINT: KeyboardInterrupt, unless it lands inside a garbage-collection callback, where
+    Python would print and drop it ("Exception ignored") and the run would carry on; then the
+    signal is sent again a moment later, to land in ordinary code."""
+    if _in_gc_callback(frame):
+        threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()
+        return
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `jaxeac` console script; returns the exit code.
 
@@ -534,6 +557,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``error: ...`` on stderr and exit code 2; Ctrl-C is one line and exit code 130. Output
     folders are held (`jaxeac.io.folder_lock`) until the command ends.
     """
+    if threading.current_thread() is not threading.main_thread():  # signals go to the main thread only
+        return _main(argv)
+    before = signal.signal(signal.SIGINT, _on_ctrl_c)
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     try:
         use_all_cpu_cores()
         with contextlib.ExitStack() as cleanup:

@@ -80,3 +80,52 @@ def test_a_run_stopped_at_random_points_leaves_one_whole_run(tmp_path, reference
     assert jaxeac([*RUN, "--key", "2", "--out", str(out)], env).wait(timeout=600) == 0
     assert whole_run(out, refs) == 2 and not list(out.glob(".staging-*"))
     assert visible(out) == visible(refs[2])
+
+
+def test_ctrl_c_during_start_up_is_one_line(tmp_path):
+    """Ctrl-C while `jaxeac` is still importing its modules, or early in the run (where JAX's
+    garbage-collection callback used to swallow it): one line, exit 130, never a traceback,
+    nothing written."""
+    out = tmp_path / "run"
+    for at in (1.0, 1.5, 2.0, 3.0):  # past the interpreter's own start, which may be slow
+        proc = jaxeac([*RUN, "--out", str(out)], dict(os.environ))
+        time.sleep(at)
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=120)
+        err = proc.stderr.read().decode()
+        assert "Traceback" not in err, err[-2000:]
+        assert code in (130, -signal.SIGINT), (code, err)
+        if code == 130:
+            assert len(err.strip().splitlines()) == 1 and err.startswith("error: "), err
+        assert not out.exists() or not [p for p in out.iterdir() if not p.name.startswith(".")]
+
+
+def test_ctrl_c_inside_a_gc_callback_is_sent_again(monkeypatch):
+    """A SIGINT that lands inside a garbage-collection callback (JAX has one) is not raised there,
+    where Python would drop it, but sent again to land in ordinary code; elsewhere it raises."""
+    import gc
+
+    from jaxeac import cli
+
+    sent, seen = [], {}
+    monkeypatch.setattr(cli.os, "kill", lambda pid, sig: sent.append(sig))
+
+    def callback(phase, info):
+        if phase == "start" and "raised" not in seen:
+            try:
+                cli._on_ctrl_c(signal.SIGINT, sys._getframe())
+                seen["raised"] = False
+            except KeyboardInterrupt:
+                seen["raised"] = True
+
+    gc.callbacks.append(callback)
+    try:
+        gc.collect()
+    finally:
+        gc.callbacks.remove(callback)
+    deadline = time.time() + 5
+    while not sent and time.time() < deadline:
+        time.sleep(0.01)
+    assert seen["raised"] is False and sent == [signal.SIGINT]
+    with pytest.raises(KeyboardInterrupt):
+        cli._on_ctrl_c(signal.SIGINT, sys._getframe())
