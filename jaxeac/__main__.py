@@ -23,7 +23,8 @@ def run() -> int:
     signal.signal(signal.SIGINT, _interrupted_while_starting)
     from jaxeac.cli import main
 
-    return main()  # installs its own Ctrl-C handling
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # what `main` restores when it ends
+    return main()  # installs its own Ctrl-C handling while it runs
 
 
 if __name__ == "__main__":

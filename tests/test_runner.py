@@ -235,4 +235,4 @@ def test_algorithms_in_one_pipeline_equal_separate_runs():
         alone = run_seeds(ENV, cfg, root_key=9, n_seeds=10, chunk_size=5)
         for field in ("success", "steps", "policy", "finite"):
             np.testing.assert_array_equal(getattr(got, field), getattr(alone, field))
-        assert got.settings["chunk_size"] == 4 and got.compile_seconds > 0
+        assert got.settings["chunk_size"] == 4 and got.compile_seconds >= 0

@@ -278,7 +278,7 @@ class BowlingResult:
                    parts[0].compile_seconds, sum(p.run_seconds for p in parts))
 
 
-_MJX_COMPILED: dict = {}  # (config, physics, backend, chunk) -> (compiled run, compile seconds)
+_MJX_COMPILED: dict = {}  # (config, physics, backend, chunk) -> compiled run
 
 
 def run_bowling_algo(settings: BowlingSettings, algo: str, *,
@@ -301,11 +301,13 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
         if settings.backend in MJX_IMPL:
             cache = (cfg, phys, settings.backend, chunk)
             if cache not in _MJX_COMPILED:
+                if len(_MJX_COMPILED) >= 16:
+                    _MJX_COMPILED.clear()
                 c0 = time.perf_counter()
-                program = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(keys, hyper).compile()
-                _MJX_COMPILED[cache] = program, time.perf_counter() - c0
-                compiled_now = _MJX_COMPILED[cache][1]
-            run_mjx, compile_seconds = _MJX_COMPILED[cache]
+                _MJX_COMPILED[cache] = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(
+                    keys, hyper).compile()
+                compiled_now = compile_seconds = time.perf_counter() - c0
+            run_mjx = _MJX_COMPILED[cache]
             rec = jax.device_get(run_mjx(keys, hyper))
         else:
             rec = run_chunk_c(cfg, phys, keys, hyper)

@@ -89,8 +89,9 @@ _COMPILED_LOCK = threading.Lock()
 
 
 def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
-    """(compiled chunk program, compile seconds) for this env object, config, devices and chunk
-    shape, compiled once: a second caller, on any thread, waits for the first (cached)."""
+    """(compiled chunk program, seconds this call spent compiling it) for this env object, config,
+    devices and chunk shape, compiled once: a later caller, on any thread, waits for the first
+    and gets 0 seconds (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
     key = (env, cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
     with _COMPILED_LOCK:
@@ -99,20 +100,21 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
             if len(_COMPILED) >= 64:
                 _COMPILED.clear()
             future, mine = _COMPILED.setdefault(key, Future()), True
-    if mine:
-        try:
-            t0 = time.perf_counter()
-            mesh = seed_mesh(devices) if len(devices) > 1 else None
-            program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
-            seconds = time.perf_counter() - t0
-            trim_host_memory()
-            future.set_result((program, seconds))
-        except BaseException as exc:
+    if not mine:
+        return future.result()[0], 0.0  # compiled by an earlier call (or another thread)
+    try:
+        t0 = time.perf_counter()
+        mesh = seed_mesh(devices) if len(devices) > 1 else None
+        program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
+        seconds = time.perf_counter() - t0
+        trim_host_memory()
+        future.set_result((program, seconds))
+        return program, seconds
+    finally:
+        if not future.done():  # failed or interrupted: waiters get the error, a later call tries again
             with _COMPILED_LOCK:
-                _COMPILED.pop(key, None)  # a later call tries again
-            future.set_exception(exc)
-            raise
-    return future.result()
+                _COMPILED.pop(key, None)
+            future.set_exception(RuntimeError("the program's compile did not finish"))
 
 
 def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> tuple[list, int]:
@@ -139,7 +141,7 @@ class _Entries:
         self.compiled, self.compile_seconds = _compiled(env, cfg, tuple(self.devices), self.root, seeds0,
                                                         hyper0)
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
-        self.first_dispatch = self.last_collect = 0.0
+        self.first_dispatch = self.last_collect = self.started_after = 0.0
 
     def chunk_inputs(self, start: int):
         stop = min(start + self.chunk_size, self.n)
@@ -167,7 +169,9 @@ class _Entries:
 
     @property
     def run_seconds(self) -> float:
-        return self.last_collect - self.first_dispatch
+        """From its first dispatch (or the previous job's last result, if later: the pipeline
+        overlaps jobs by a chunk) to its last result, so the jobs' times add up to the wall time."""
+        return self.last_collect - max(self.first_dispatch, self.started_after)
 
 
 def _run_chunks(jobs: Sequence[_Entries], progress) -> None:
@@ -183,6 +187,8 @@ def _run_chunks(jobs: Sequence[_Entries], progress) -> None:
                     pending[0].collect(*pending[1], pool, progress)
                 pending = running
         pending[0].collect(*pending[1], pool, progress)
+    for before, job in zip(jobs[:-1], jobs[1:], strict=True):  # time starts where the last job ended
+        job.started_after = before.last_collect
     trim_host_memory()
 
 
@@ -191,8 +197,11 @@ def _prepare_all(make: Callable[[int], _Entries], count: int) -> list[_Entries]:
     with the GIL released)."""
     if count == 1:
         return [make(0)]
-    with ThreadPoolExecutor(max_workers=count) as pool:
+    pool = ThreadPoolExecutor(max_workers=count)
+    try:
         return list(pool.map(make, range(count)))
+    finally:  # on Ctrl-C, do not wait for the other compiles to end
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def run_entries(

@@ -203,15 +203,17 @@ def paired_section(stats: dict) -> list[str]:
                     f"{compact(r['correlation'], 2)} |")
     primary = stats["primary"]
     pr = paired["measures"][primary["measure"]]
-    ratio = primary["diff_ci95"][1] - primary["diff_ci95"][0]
+    unpaired_width = primary["diff_ci95"][1] - primary["diff_ci95"][0]
     width = pr["mean_diff_ci95"][1] - pr["mean_diff_ci95"][0]
+    relative = (f"{width / unpaired_width:.2f}×" if unpaired_width and math.isfinite(width / unpaired_width)
+                else "n/a (a zero-width unpaired interval) of")
     return [
         "## Paired analysis (this design's default)",
         "",
         f"Design: {paired['design']}. Differences are {t} − {b} of the same seed; CIs are 95 % paired "
         "BCa bootstrap (seeds resampled as pairs); p from the paired t test and the sign-flip "
         "permutation test; d_z = mean / sd of the differences; r: correlation of the two methods' "
-        f"per-seed values. On the primary measure the paired interval is {width / ratio:.2f}× the "
+        f"per-seed values. On the primary measure the paired interval is {relative} the "
         "width of the unpaired one below (`jaxeac compare --unpaired` leaves this section out).",
         "",
         "| measure | mean difference [95 % CI] | SE | p paired t | p sign-flip | d_z [95 % CI] | r |",

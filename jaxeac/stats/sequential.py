@@ -36,6 +36,7 @@ f(t) = (α/2)·ln(1 + (e − 1)t).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 
@@ -52,6 +53,10 @@ SPENDING: dict[str, Callable[[float, float], float]] = {
 }
 #: Fewest seeds per method in a batch (Welch's statistic close to normal from the first look).
 MIN_BATCH = 10
+#: Most looks a design may take (boundaries cost O(K²) integration; more looks buy little).
+MAX_LOOKS = 50
+#: A look whose share of α rounds to 0 gets this boundary (z), not an infinite one.
+Z_CAP = 8.0
 #: Grid points per unit of standard deviation in the numerical integration.
 GRID_PER_SD = 64
 
@@ -77,6 +82,13 @@ def _simpson(lo: float, hi: float, sd: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def boundaries(fractions, alpha: float = 0.05, spend: str = "obrien_fleming") -> np.ndarray:
+    """Two-sided boundaries for looks at information `fractions` (see `_boundaries`; cached)."""
+    return _boundaries(tuple(float(f) for f in np.asarray(fractions, np.float64).reshape(-1)),
+                       float(alpha), spend).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _boundaries(fractions: tuple, alpha: float, spend: str) -> np.ndarray:
     """Two-sided boundaries c_1 … c_K on the z scale for looks at information `fractions`
     (increasing, the last 1): P_0(first |Z_k| ≥ c_k at look k) = 2·(f(t_k) − f(t_{k−1})).
 
@@ -96,7 +108,7 @@ def boundaries(fractions, alpha: float = 0.05, spend: str = "obrien_fleming") ->
         target = spending(spend, tk, alpha) - spent  # upper-side crossing at look k
         spent += target
         if k == 0:
-            out[0] = -special.ndtri(target) if target > 0 else np.inf
+            out[0] = min(-special.ndtri(target), Z_CAP) if target > 0 else Z_CAP
             b = out[0] * math.sqrt(tk)
             x, w = _simpson(-b, b, math.sqrt(tk))
             dens = np.exp(-0.5 * x * x / tk) / math.sqrt(2 * math.pi * tk)
@@ -108,7 +120,7 @@ def boundaries(fractions, alpha: float = 0.05, spend: str = "obrien_fleming") ->
             return float(mass @ special.ndtr((grid - b) / step))  # P(continued so far, S(t_k) > b)
 
         if target <= 0:
-            b = np.inf
+            b = Z_CAP * math.sqrt(tk)
         else:
             hi = x[-1] + 12 * step
             b = optimize.brentq(lambda v, target=target: upper(v) - target, -hi, hi, xtol=1e-12)
@@ -135,8 +147,8 @@ class SequentialDesign:
         if not (isinstance(self.effect, int | float) and math.isfinite(self.effect) and self.effect > 0):
             raise UsageError(f"--effect must be a positive number, the smallest difference that matters "
                              f"(got {self.effect!r})")
-        if not isinstance(self.looks, int) or self.looks < 1:
-            raise UsageError(f"--looks must be a positive integer (got {self.looks!r})")
+        if not isinstance(self.looks, int) or not 1 <= self.looks <= MAX_LOOKS:
+            raise UsageError(f"--looks must be an integer from 1 to {MAX_LOOKS} (got {self.looks!r})")
         if not isinstance(self.max_seeds, int) or self.max_seeds < self.looks * MIN_BATCH:
             raise UsageError(f"--seeds {self.max_seeds} is too few for {self.looks} looks: each batch "
                              f"needs at least {MIN_BATCH} seeds per method "
