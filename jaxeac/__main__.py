@@ -21,7 +21,12 @@ def _interrupted_while_starting(signum, frame) -> None:
 def run() -> int:
     """Import the command line and run it (see the module docstring for Ctrl-C)."""
     signal.signal(signal.SIGINT, _interrupted_while_starting)
-    from jaxeac.cli import main
+    from jaxeac.cli import main, use_all_cpu_cores
+
+    use_all_cpu_cores()  # XLA's flags, before JAX is imported
+    import jax  # noqa: F401  (the heaviest imports, still under the start-up handler)
+
+    import jaxeac.running.cache  # noqa: F401
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # what `main` restores when it ends
     return main()  # installs its own Ctrl-C handling while it runs

@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--table", type=folder_name, metavar="PATH",
                    help="instead of DIR: a tidy table (CSV or Parquet: algo, seed[, trial], value), an "
                         "rliable .npz ([runs, tasks] per algorithm) or a folder of SB3 monitor files")
-    c.add_argument("--aggregate", choices=("sum", "mean", "last"), default="sum",
+    c.add_argument("--aggregate", choices=("sum", "mean", "last"), default=None,
                    help="with --table and a trial column: per-seed value = sum (default), mean or last "
                         "over trials")
     c.add_argument("--out", type=folder_name, metavar="DIR",
@@ -318,13 +318,14 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
                              alpha=alpha, key=key, progress=not quiet, data=data, unpaired=unpaired,
                              require_paired=require_paired)
     if result.get("analysis") == "paired":
+        from jaxeac.fmt import compact, compact_interval
+
         pr = result["paired"]["measures"][result["primary"]["measure"]]
-        lo, hi = pr["mean_diff_ci95"]
         print(f"paired (seed i of both shares its key): {treatment} - {baseline} on "
-              f"{result['primary']['measure']}: {pr['mean_diff']:+.3f} "
-              f"(95% paired BCa CI [{lo:+.3f}, {hi:+.3f}]), "
+              f"{result['primary']['measure']}: {compact(pr['mean_diff'], 4, sign=True)} "
+              f"(95% paired BCa CI {compact_interval(pr['mean_diff_ci95'], 4)}), "
               f"paired t p = {p_value(pr['p_paired_t'], 3, sci_below=None, general=True)}, "
-              f"d_z = {pr['d_z']:.3f}, r = {pr['correlation']:.2f}")
+              f"d_z = {compact(pr['d_z'])}, r = {compact(pr['correlation'], 2)}")
     p = result["primary"]
     lo, hi = p["diff_ci95"]
     print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
@@ -348,6 +349,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise UsageError("compare needs a run folder DIR or --table PATH")
     if args.out is not None:
         raise UsageError("--out goes with --table; a run folder's report is written into the folder")
+    if args.aggregate is not None:
+        raise UsageError("--aggregate goes with --table; a run folder's measures are fixed (SPEC §6)")
     check_compare_size(args.dir, args.resamples)
     _claim_existing(args, args.dir)
     return run_compare(args.dir, baseline=args.baseline or "ac", treatment=args.treatment or "eac",
@@ -362,9 +365,9 @@ def compare_table_command(args: argparse.Namespace) -> int:
 
     if args.dir is not None:
         raise UsageError(f"pass either a run folder ({args.dir}) or --table, not both")
-    result, out = compare_table(args.table, args.out, aggregate=args.aggregate, baseline=args.baseline,
-                                treatment=args.treatment, resamples=args.resamples, alpha=args.test_alpha,
-                                key=args.stats_key)
+    result, out = compare_table(args.table, args.out, aggregate=args.aggregate or "sum",
+                                baseline=args.baseline, treatment=args.treatment, resamples=args.resamples,
+                                alpha=args.test_alpha, key=args.stats_key)
     print(f"{result['per_seed_value']}; family: {result['family']}, Holm over "
           f"{result['comparisons_in_family']} comparison(s)")
     for r in result["comparisons"]:

@@ -134,19 +134,22 @@ def add_sequential_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effect", type=finite_float, metavar="E",
                    help="with --sequential: the smallest difference of the primary measure that matters "
                         "(mean successes on the grid, mean pins in bowling)")
-    p.add_argument("--looks", type=positive_int, default=5, metavar="K",
+    p.add_argument("--looks", type=positive_int, metavar="K",
                    help="with --sequential: looks, after equal batches of seeds (default 5)")
-    p.add_argument("--spending", default="obrien_fleming", metavar="obrien_fleming|pocock",
+    p.add_argument("--spending", metavar="obrien_fleming|pocock",
                    help="with --sequential: alpha-spending function (default obrien_fleming)")
-    p.add_argument("--error-rate", type=finite_float, default=0.05, metavar="A",
+    p.add_argument("--error-rate", type=finite_float, metavar="A",
                    help="with --sequential: chance of a wrong decision, each way (default 0.05)")
 
 
 def sequential_design(args: argparse.Namespace, settings):
     """The `SequentialDesign` of `--sequential` (None without it); bad flags raise `UsageError`."""
     if not getattr(args, "sequential", False):
-        if getattr(args, "effect", None) is not None:
-            raise UsageError("--effect only applies with --sequential; add --sequential or drop --effect")
+        flags = (("--effect", "effect"), ("--looks", "looks"), ("--spending", "spending"),
+                 ("--error-rate", "error_rate"))
+        given = [flag for flag, name in flags if getattr(args, name, None) is not None]
+        if given:
+            raise UsageError(f"{given[0]} only applies with --sequential; add --sequential or drop it")
         return None
     from jaxeac.stats.sequential import SequentialDesign
 
@@ -157,8 +160,10 @@ def sequential_design(args: argparse.Namespace, settings):
         raise UsageError("--sequential runs in one process; drop --num-processes")
     if not {"ac", "eac"} <= set(settings.algos):
         raise UsageError("--sequential compares eac with ac: --algos must include both")
-    return SequentialDesign(effect=float(args.effect), max_seeds=int(settings.seeds), looks=args.looks,
-                            alpha=float(args.error_rate), spend=args.spending)
+    return SequentialDesign(effect=float(args.effect), max_seeds=int(settings.seeds),
+                            looks=5 if args.looks is None else args.looks,
+                            alpha=0.05 if args.error_rate is None else float(args.error_rate),
+                            spend=args.spending or "obrien_fleming")
 
 
 def add_solver_flags(p: argparse.ArgumentParser) -> None:
@@ -232,7 +237,7 @@ def check_compare_size(run_dir, resamples: int) -> None:
 
     try:
         trials = int(json.loads((Path(run_dir) / "summary.json").read_text())["trials"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         trials = 1  # compare_run_dir names what is wrong with the folder
     check_compare_resources(resamples, trials)
 

@@ -306,6 +306,8 @@ def read_json_object(path: str | os.PathLike, fix: str = "re-run the command tha
         obj = json.loads(text)
     except json.JSONDecodeError as exc:
         raise UsageError(f"{path} is not valid JSON ({exc.msg} at line {exc.lineno}); {fix}") from None
+    except RecursionError:
+        raise UsageError(f"{path} is nested too deeply to be a jaxeac file; {fix}") from None
     if not isinstance(obj, dict):
         raise UsageError(f"{path} holds a JSON {type(obj).__name__}, not an object; {fix}")
     return obj

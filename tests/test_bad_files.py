@@ -176,3 +176,90 @@ def test_reproduce_treats_a_damaged_step_record_as_unfinished(tmp_path, damage):
     (tmp_path / "curves.npz").write_bytes(content[:40])
     with pytest.raises(UsageError, match="curves.npz is not a readable .npz file"):
         _npz_arrays(tmp_path / "curves.npz", ["ac_return"], ["ac"])
+
+
+def _rewrite_results(p, change):
+    import pyarrow.parquet as pq
+
+    table = change(pq.read_table(p))
+    pq.write_table(table, p)
+
+
+def _seeds_all_zero(table):
+    import pyarrow as pa
+
+    return table.set_column(table.schema.get_field_index("seed"), "seed", pa.array([0] * table.num_rows))
+
+
+def _sequential(seq):
+    return lambda p, s: p.write_text(json.dumps({**s, "sequential": seq}))
+
+
+MORE_DAMAGES = {  # found by a hostile-input campaign on the streaming and sequential build
+    "summary nested too deeply": ("summary.json", lambda p, s: p.write_text("[" * 200_000)),
+    "trials disagree with results": ("summary.json",
+                                     lambda p, s: p.write_text(json.dumps({**s, "trials": 8}))),
+    "seeds not distinct": ("results.parquet", lambda p, s: _rewrite_results(p, _seeds_all_zero)),
+    "sequential garbage": ("summary.json", _sequential("garbage")),
+    "sequential missing looks": ("summary.json", _sequential({"x": 1})),
+    "sequential looks of text": ("summary.json", _sequential({"looks_taken": "abc"})),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(MORE_DAMAGES))
+def test_compare_refuses_more_damaged_run_folders(grid_run, tmp_path, capsys, damage):
+    run = tmp_path / "run"
+    shutil.copytree(grid_run, run)
+    name, spoil = MORE_DAMAGES[damage]
+    spoil(run / name, summary_of(run))
+    assert_refused(["compare", str(run)], run, capsys, (name,))
+
+
+@pytest.mark.parametrize("damage", ["curves truncated", "curves zeros", "per_seed binary",
+                                    "return not a number"])
+def test_compare_refuses_damaged_bowling_style_folders(tmp_path, capsys, rng, damage):
+    """Folders of curves.npz and per_seed.csv (bowling, older grid runs): damaged files are one line."""
+    import numpy as np
+
+    success = {a: rng.random((6, 4)) < 0.5 for a in ("ac", "eac")}
+    returns = {f"{a}_return": rng.integers(0, 11, (6, 4)) for a in success}
+    np.savez(tmp_path / "curves.npz", **success, **returns)
+    rows = ["algo,seed,return,successes,first_success"]
+    for a, s in success.items():
+        first = np.where(s.any(1), s.argmax(1) + 1, -1)
+        rows += [f"{a},{i},{returns[f'{a}_return'][i].sum()},{s[i].sum()},{first[i]}" for i in range(6)]
+    (tmp_path / "per_seed.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "summary.json").write_text(json.dumps({"experiment": "bowling", "primary_measure": "return",
+                                                       "algos": ["ac", "eac"], "trials": 4}))
+    assert main(["compare", str(tmp_path), "--resamples", "200"]) == 0  # the intact folder compares
+    curves, csv = tmp_path / "curves.npz", tmp_path / "per_seed.csv"
+    if damage == "curves truncated":
+        curves.write_bytes(curves.read_bytes()[:50])
+    elif damage == "curves zeros":
+        curves.write_bytes(bytes(len(curves.read_bytes())))
+    elif damage == "per_seed binary":
+        csv.write_bytes(bytes(range(256)) * 4)
+    else:
+        csv.write_text(csv.read_text().replace("ac,0,", "ac,0,lots", 1))
+    assert_refused(["compare", str(tmp_path), "--resamples", "200"], tmp_path, capsys,
+                   ("curves.npz" if "curves" in damage else "per_seed.csv",))
+
+
+def test_aggregate_only_with_a_table(grid_run, capsys):
+    assert_refused(["compare", str(grid_run), "--aggregate", "mean"], grid_run, capsys, ("--aggregate",))
+
+
+@pytest.mark.parametrize("kind", ["datetime", "complex"])
+def test_table_values_must_be_real_numbers(tmp_path, capsys, kind):
+    import numpy as np
+
+    if kind == "datetime":
+        import pandas as pd
+
+        path = tmp_path / "t.parquet"
+        pd.DataFrame({"algo": ["a", "a", "b", "b"], "seed": [0, 1, 0, 1],
+                      "value": pd.to_datetime(["2024-01-01"] * 4)}).to_parquet(path)
+    else:
+        path = tmp_path / "t.npz"
+        np.savez(path, a=np.ones((3, 2), complex), b=np.ones((3, 2), complex))
+    assert_refused(["compare", "--table", str(path)], tmp_path, capsys, (path.name,))

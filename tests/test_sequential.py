@@ -135,6 +135,10 @@ def test_grid_sequential_end_to_end(tmp_path, capsys):
 
 @pytest.mark.parametrize("extra, message", [
     (["--effect", "2"], "--effect only applies with --sequential"),
+    (["--looks", "3"], "--looks only applies with --sequential"),
+    (["--spending", "bogus"], "--spending only applies with --sequential"),
+    (["--error-rate", "0.1"], "--error-rate only applies with --sequential"),
+    (["--sequential", "--effect", "2", "--looks", "51"], "--looks must be an integer from 1 to 50"),
     (["--sequential"], "--sequential needs --effect"),
     (["--sequential", "--effect", "2", "--looks", "9"], "too few for 9 looks"),
     (["--sequential", "--effect", "-1"], "--effect must be a positive number"),
@@ -184,3 +188,10 @@ def test_bowling_sequential_keeps_the_seeds_of_a_fixed_run(tmp_path, capsys):
     assert (out / "per_seed.csv").read_text() == (fixed / "per_seed.csv").read_text()
     assert "## Sequential decision" in (out / "report.md").read_text()
     assert f"sequential decision: {seq['decision']}" in capsys.readouterr().out
+
+
+def test_tiny_error_rates_and_many_looks_give_finite_boundaries():
+    """A look whose share of α rounds to zero gets a finite boundary (no overflow, no hang)."""
+    for alpha, looks in ((1e-300, 5), (0.05, 50)):
+        c = SequentialDesign(effect=1.0, max_seeds=looks * 10, looks=looks, alpha=alpha).boundaries()
+        assert np.all(np.isfinite(c)) and np.all(c > 0)

@@ -92,7 +92,7 @@ def schema(trials: int, n_states: int, options: OutputOptions):
         fields.append(pa.field("trial_steps", pa.list_(pa.int16(), trials)))
     if options.policies:
         fields.append(pa.field("policy", pa.list_(pa.int8(), n_states)))
-    return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1"})
+    return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1", "jaxeac.trials": str(trials)})
 
 
 def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
@@ -242,6 +242,10 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
     missing = needed - set(table.column_names)
     if missing:
         raise UsageError(f"{path} lacks the column(s) {', '.join(sorted(missing))}; re-run the experiment")
+    written = (table.schema.metadata or {}).get(b"jaxeac.trials")
+    if written is not None and written != str(trials).encode():
+        raise UsageError(f"{path} holds runs of {written.decode(errors='replace')} trials but summary.json "
+                         f"says {trials}; the files come from different runs: re-run the experiment")
     out = {}
     try:
         algo_column = table.column("algo").cast(pa.string())
@@ -265,6 +269,9 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
                 finite=rows.column("finite").to_numpy(zero_copy_only=False) if "finite" in rows.column_names
                 else None,
             )
+            if np.any(np.diff(out[algo].seeds) <= 0):
+                raise UsageError(f"{path}: the seeds of {algo} are not distinct and in order, as a run "
+                                 "writes them; re-run the experiment")
             counted = np.bitwise_count(bits.bits).sum(axis=1, dtype=np.int64)  # padding bits are zero
             if bits.shape[0] != out[algo].seeds.shape[0] or not np.array_equal(out[algo].successes, counted):
                 raise UsageError(f"{path}: successes for {algo} do not match its success curves; "

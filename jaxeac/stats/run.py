@@ -347,7 +347,8 @@ def compare_run_dir(
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False)
+        bar = tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False,
+                   disable=None)  # not into a log or a pipe: only on a terminal
     stats, plot = compare_experiment(
         data.success[baseline],
         data.success[treatment],

@@ -14,6 +14,7 @@ import csv
 import dataclasses
 import math
 import os
+import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,9 +53,17 @@ class RunData:
     sequential: dict | None = None  # a sequential run's design, looks and decision (summary.json)
 
 
+#: per_seed.csv columns jaxeac writes as numbers (a value that is not one is a damaged file).
+NUMERIC_COLUMNS = ("seed", "successes", "return", "steps", "first_success")
+
+
 def _read_per_seed(path: Path) -> dict:
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise UsageError(f"{path} is not a readable CSV file ({exc.__class__.__name__}); "
+                         "re-run the experiment to rewrite it") from None
     if not rows or "algo" not in rows[0]:
         raise UsageError(f"{path} has no rows or no 'algo' column; re-run the experiment to rewrite it")
     out: dict = {}
@@ -69,6 +78,9 @@ def _read_per_seed(path: Path) -> dict:
             try:
                 cols[col] = np.array([float(r[col]) for r in rs])
             except (TypeError, ValueError):
+                if col in NUMERIC_COLUMNS:
+                    raise UsageError(f"{path}: column {col!r} of {algo} holds a value that is not a number; "
+                                     "re-run the experiment to rewrite it") from None
                 continue  # ignore non-numeric extra columns
         table[algo] = cols
     return table
@@ -105,10 +117,13 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
         raise UsageError("--baseline and --treatment are the same method; choose two different ones")
     if columnar:
         data = _load_columnar(path, experiment, primary, algos, trials, (baseline, treatment))
-        seq = summary.get("sequential")
-        return dataclasses.replace(data, sequential=seq) if isinstance(seq, dict) else data
-    with np.load(path / "curves.npz") as npz:
-        arrays = {k: np.asarray(npz[k]) for k in npz.files}
+        return dataclasses.replace(data, sequential=sequential_record(summary, where))
+    try:
+        with np.load(path / "curves.npz") as npz:
+            arrays = {k: np.asarray(npz[k]) for k in npz.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise UsageError(f"{path / 'curves.npz'} is not a readable .npz file ({str(exc).splitlines()[0]}); "
+                         "re-run the experiment to rewrite it") from None
     per_seed = _read_per_seed(path / "per_seed.csv")
     success, returns = {}, {}
     for algo in (baseline, treatment):
@@ -161,9 +176,8 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
             raise UsageError(
                 f"per_seed.csv return for {algo} does not match curves.npz; re-run the experiment"
             )
-    seq = summary.get("sequential")
     return RunData(path, experiment, primary, algos, trials, success, returns, per_seed,
-                   seq if isinstance(seq, dict) else None)
+                   sequential_record(summary, where))
 
 
 def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunData:
@@ -180,6 +194,44 @@ def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunD
                           "steps": r.steps_total.astype(float),
                           "first_success": r.first_success.astype(float)}
     return RunData(path, experiment, primary, algos, trials, success, {}, per_seed)
+
+
+def sequential_record(summary: dict, where: Path) -> dict | None:
+    """summary.json's ``sequential`` record (a sequential run's design, looks and decision), checked
+    so the report can rely on it; absent: None; damaged: one `UsageError` naming the file."""
+    from jaxeac.stats.sequential import DECISIONS
+
+    if "sequential" not in summary:
+        return None
+    seq = summary["sequential"]
+
+    def number(x) -> bool:
+        return isinstance(x, int | float) and not isinstance(x, bool)
+
+    def look_ok(x) -> bool:
+        return (isinstance(x, dict) and isinstance(x.get("seeds"), int) and number(x.get("diff"))
+                and number(x.get("boundary_z")) and x.get("decision") in DECISIONS
+                and isinstance(x.get("rci"), list) and len(x["rci"]) == 2 and all(map(number, x["rci"])))
+
+    def rates_ok(x) -> bool:
+        return (isinstance(x, dict) and isinstance(x.get("experiments"), int)
+                and number(x.get("mean_seeds_used")) and isinstance(x.get("decisions"), dict)
+                and all(isinstance(v, dict) and number(v.get("rate")) and number(v.get("se"))
+                        for v in x["decisions"].values()))
+
+    ok = (isinstance(seq, dict) and isinstance(seq.get("looks_taken"), list) and seq["looks_taken"]
+          and all(map(look_ok, seq["looks_taken"])) and seq.get("decision") in DECISIONS[:3]
+          and isinstance(seq.get("looks"), int) and isinstance(seq.get("seeds_used"), int)
+          and isinstance(seq.get("sizes"), list) and seq["sizes"]
+          and all(isinstance(v, int) for v in seq["sizes"])
+          and all(number(seq.get(k)) for k in ("alpha", "effect"))
+          and all(isinstance(seq.get(k), str) for k in ("design", "spending"))
+          and (seq.get("calibration") is None or (isinstance(seq["calibration"], dict) and all(
+              rates_ok(seq["calibration"].get(k)) for k in ("null", "observed")))))
+    if not ok:
+        raise UsageError(f"{where}: its 'sequential' record is damaged (not the design, looks and decision "
+                         "a sequential run writes); re-run the experiment")
+    return seq
 
 
 def late_window(trials: int) -> int:

@@ -78,8 +78,13 @@ def _numeric(frame, column: str, path: Path, *, finite: bool = True) -> np.ndarr
     import pandas as pd
 
     raw = frame[column]
+    textual = raw.dtype == object or pd.api.types.is_string_dtype(raw)
+    if not textual and not (pd.api.types.is_integer_dtype(raw) or pd.api.types.is_float_dtype(raw)
+                            or pd.api.types.is_bool_dtype(raw)):
+        raise UsageError(f"{path}: column {column!r} is of type {raw.dtype}, not real numbers; "
+                         f"every {column} must be a finite number")
     vals = pd.to_numeric(raw, errors="coerce").to_numpy(np.float64, na_value=np.nan) \
-        if raw.dtype == object or pd.api.types.is_string_dtype(raw) else raw.to_numpy(np.float64)
+        if textual else raw.to_numpy(np.float64)
     bad = ~np.isfinite(vals) if finite else np.isnan(vals)
     if bad.any():
         i = int(np.argmax(bad))
@@ -218,9 +223,10 @@ def read_rliable(path) -> tuple[dict[str, np.ndarray], str]:
     for name, arr in arrays.items():
         if arr.ndim == 1:
             arr = arr[:, None]
-        if arr.ndim != 2 or not np.issubdtype(arr.dtype, np.number):
+        real = np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+        if arr.ndim != 2 or not real or 0 in arr.shape:
             raise UsageError(f"{path}: array {name!r} has shape {arr.shape} and dtype {arr.dtype}; "
-                             "each algorithm needs a numeric [runs, tasks] array")
+                             "each algorithm needs a non-empty [runs, tasks] array of real numbers")
         bad = ~np.isfinite(arr.astype(np.float64))
         if bad.any():
             run, task = (int(i) for i in np.argwhere(bad)[0])
