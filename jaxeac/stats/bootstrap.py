@@ -53,9 +53,10 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
         dens += (u**2).sum() / n**2
     a = nums / (6 * dens**1.5) if dens > 0 else 0.0
     za = special.ndtri(alpha / 2)
-    lo_q = special.ndtr(z0 + (z0 + za) / (1 - a * (z0 + za)))
-    hi_q = special.ndtr(z0 + (z0 - za) / (1 - a * (z0 - za)))
-    if not np.isfinite(z0):  # all replicates on one side: fall back to the percentile interval
+    if np.isfinite(z0):
+        lo_q = special.ndtr(z0 + (z0 + za) / (1 - a * (z0 + za)))
+        hi_q = special.ndtr(z0 + (z0 - za) / (1 - a * (z0 - za)))
+    else:  # all replicates on one side: fall back to the percentile interval
         lo_q, hi_q = alpha / 2, 1 - alpha / 2
     with np.errstate(invalid="ignore"):
         lo, hi = np.percentile(theta_star, [100 * lo_q, 100 * hi_q])
