@@ -398,7 +398,7 @@ def run_bowling_sequential(settings: BowlingSettings, design, *,
     batches of ⌊N / K⌋ per method, a paired look after each (seed i of both shares its key),
     stop at the first decision. Returns the run of the seeds used and the ``sequential`` record
     (design, looks, decision, decision rates simulated from the run's per-seed differences)."""
-    from jaxeac.stats.sequential import run_sequential, simulate_paired
+    from jaxeac.stats.sequential import calibration_record, run_sequential
 
     if not {"ac", "eac"} <= set(settings.algos):
         raise UsageError("--sequential compares eac with ac: --algos must include both")
@@ -414,18 +414,9 @@ def run_bowling_sequential(settings: BowlingSettings, design, *,
     result["seconds_to_decision"] = time.perf_counter() - t0
     results = {a: BowlingResult.concatenate(p) for a, p in parts.items()}
     d = results["eac"].total_return.astype(np.float64) - results["ac"].total_return
-    rng = np.random.default_rng([settings.key, 0x5E0])
-    result["calibration"] = {
-        "source": "the run's own per-seed differences, drawn for each simulated experiment "
-                  "(jaxeac.stats.sequential.simulate_paired)",
-        "null": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=True),
-        "observed": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=False),
-    }
+    result["calibration"] = calibration_record(design, d, settings.key)
     return BowlingRun(dataclasses.replace(settings, seeds=result["seeds_used"]), results), result
 
-
-#: Simulated sequential experiments in a sequential run's own calibration (summary.json).
-SEQUENTIAL_CALIBRATION = 1000
 
 
 def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True,

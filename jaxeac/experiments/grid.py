@@ -316,9 +316,6 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
         return run, _finish_folder(run, stage, summarize(run), options, figures)
 
 
-#: Simulated sequential experiments in a sequential run's own calibration (summary.json).
-SEQUENTIAL_CALIBRATION = 1000
-
 
 def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
                         options: OutputOptions | None = None, figures: bool = True,
@@ -333,7 +330,7 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
     differences (with random signs: the false "difference" rate under no difference; as they
     are: the rates at the observed effect). Looks are paired: seed i of both shares its key.
     """
-    from jaxeac.stats.sequential import run_sequential, simulate_paired
+    from jaxeac.stats.sequential import calibration_record, run_sequential
 
     if not {"ac", "eac"} <= set(settings.algos):
         raise UsageError("--sequential compares eac with ac: --algos must include both")
@@ -360,14 +357,8 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
             result = run_sequential(design, measure, on_look, paired=True)  # seed i shares its key (R1)
         result["seconds_to_decision"] = time.perf_counter() - t0
         results = {a: CompactSeeds.concatenate(p) for a, p in parts.items()}
-        rng = np.random.default_rng([settings.key, 0x5E0])  # the calibration's own stream
         d = results["eac"].successes.astype(np.float64) - results["ac"].successes
-        result["calibration"] = {
-            "source": "the run's own per-seed differences, drawn for each simulated experiment "
-                      "(jaxeac.stats.sequential.simulate_paired)",
-            "null": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=True),
-            "observed": simulate_paired(design, d, SEQUENTIAL_CALIBRATION, rng, null=False),
-        }
+        result["calibration"] = calibration_record(design, d, settings.key)
         run = GridRun(dataclasses.replace(settings, seeds=result["seeds_used"]), grid_map, results)
         summary = summarize(run)
         summary["sequential"] = result

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxeac.errors import UsageError
-from jaxeac.running.outputs import SuccessBits
+from jaxeac.running.outputs import SuccessBits, measures_of
 
 RESULTS_FILE = "results.parquet"
 ROW_GROUP = 1 << 16  # seeds per row group: bounded temporaries when writing and reading
@@ -93,16 +93,6 @@ def schema(trials: int, n_states: int, options: OutputOptions):
     if options.policies:
         fields.append(pa.field("policy", pa.list_(pa.int8(), n_states)))
     return pa.schema(fields, metadata={"jaxeac.format": "grid-results-1", "jaxeac.trials": str(trials)})
-
-
-def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
-    """The per-seed columns of rows with success bool [M, T] and steps [M, T]."""
-    any_success = success.any(axis=1)
-    return {"bits": np.packbits(success, axis=1, bitorder="little"),
-            "successes": np.count_nonzero(success, axis=1),
-            "first_success": np.where(any_success, success.argmax(axis=1) + 1, -1),
-            "steps_total": np.asarray(steps).sum(axis=1, dtype=np.int64),
-            "finite": np.ones(success.shape[0], bool) if finite is None else np.asarray(finite, bool)}
 
 
 class ResultsWriter:

@@ -266,6 +266,16 @@ class CompactSeeds:
                    settings=first.settings)
 
 
+def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
+    """The per-seed columns of rows with success bool [M, T] and steps [M, T] (results.parquet's)."""
+    any_success = success.any(axis=1)
+    return {"bits": np.packbits(success, axis=1, bitorder="little"),
+            "successes": np.count_nonzero(success, axis=1),
+            "first_success": np.where(any_success, success.argmax(axis=1) + 1, -1),
+            "steps_total": np.asarray(steps).sum(axis=1, dtype=np.int64),
+            "finite": np.ones(success.shape[0], bool) if finite is None else np.asarray(finite, bool)}
+
+
 KEEP_POLICIES = 16  # policies of the first seeds a compact run keeps, for figures
 
 
@@ -294,11 +304,9 @@ class CompactCollector:
         def measures(rows: slice) -> None:
             log = chunk.log[rows]
             at = slice(start + rows.start, start + rows.stop)
-            success = log > 0
-            o.success.bits[at] = np.packbits(success, axis=1, bitorder="little")
-            o.successes[at] = np.count_nonzero(success, axis=1)
-            o.first_success[at] = np.where(success.any(axis=1), success.argmax(axis=1) + 1, -1)
-            o.steps_total[at] = np.abs(log).sum(axis=1, dtype=np.int64)
+            m = measures_of(log > 0, np.abs(log))
+            o.success.bits[at], o.successes[at] = m["bits"], m["successes"]
+            o.first_success[at], o.steps_total[at] = m["first_success"], m["steps_total"]
 
         m = chunk.log.shape[0]
         list(pool.map(measures, _row_blocks(m)))

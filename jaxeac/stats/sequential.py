@@ -57,6 +57,8 @@ MIN_BATCH = 10
 MAX_LOOKS = 50
 #: A look whose share of α rounds to 0 gets this boundary (z), not an infinite one.
 Z_CAP = 8.0
+#: Simulated sequential experiments in a sequential run's own calibration (`calibration_record`).
+SIMULATED_EXPERIMENTS = 1000
 #: Grid points per unit of standard deviation in the numerical integration.
 GRID_PER_SD = 64
 
@@ -250,18 +252,28 @@ def simulate(design: SequentialDesign, pool_baseline: np.ndarray, pool_treatment
     n = design.max_seeds
     null = pool_treatment is None
     replace = pb.size < (2 * n if null else n) or pt.size < n
+    def draw():
+        if null and not replace:
+            idx = rng.choice(pb.size, 2 * n, replace=False)
+            return pb[idx[:n]], pb[idx[n:]]
+        return pb[rng.choice(pb.size, n, replace=replace)], pt[rng.choice(pt.size, n, replace=replace)]
+
+    decisions, used = _tally(design, draw, experiments, paired=False)
+    return {"experiments": experiments, "with_replacement": bool(replace), "decisions": decisions,
+            "mean_seeds_used": used}
+
+
+def _tally(design: SequentialDesign, draw: Callable[[], tuple[np.ndarray, np.ndarray]], experiments: int,
+           paired: bool) -> tuple[dict, float]:
+    """Run `experiments` sequential comparisons of the (baseline, treatment) samples `draw()`
+    gives: each decision's share with its Monte Carlo standard error, and the mean seeds used."""
     c = design.boundaries()
-    sizes = design.sizes
     counts = dict.fromkeys(DECISIONS[:3], 0)
     used = 0
     for _ in range(experiments):
-        if null and not replace:
-            idx = rng.choice(pb.size, 2 * n, replace=False)
-            b, t = pb[idx[:n]], pb[idx[n:]]
-        else:
-            b, t = pb[rng.choice(pb.size, n, replace=replace)], pt[rng.choice(pt.size, n, replace=replace)]
-        for k, size in enumerate(sizes):
-            r = look(b[:size], t[:size], c[k], design.effect, k + 1 == len(sizes))
+        b, t = draw()
+        for k, size in enumerate(design.sizes):
+            r = look(b[:size], t[:size], c[k], design.effect, k + 1 == design.looks, paired)
             if r["decision"] != "continue":
                 counts[r["decision"]] += 1
                 used += size
@@ -270,8 +282,7 @@ def simulate(design: SequentialDesign, pool_baseline: np.ndarray, pool_treatment
     for name, k in counts.items():
         p = k / experiments
         rates[name] = {"rate": p, "se": math.sqrt(p * (1 - p) / experiments), "count": k}
-    return {"experiments": experiments, "with_replacement": bool(replace), "decisions": rates,
-            "mean_seeds_used": used / experiments}
+    return rates, used / experiments
 
 
 def simulate_paired(design: SequentialDesign, differences: np.ndarray, experiments: int,
@@ -284,24 +295,26 @@ def simulate_paired(design: SequentialDesign, differences: np.ndarray, experimen
     d = np.asarray(differences, np.float64)
     n = design.max_seeds
     replace = d.size < n
-    c = design.boundaries()
     zero = np.zeros(n)
-    counts = dict.fromkeys(DECISIONS[:3], 0)
-    used = 0
-    for _ in range(experiments):
+
+    def draw():
         x = d[rng.choice(d.size, n, replace=replace)]
-        if null:
-            x = np.where(rng.random(n) < 0.5, -x, x)
-        for k, size in enumerate(design.sizes):
-            r = look(zero[:size], x[:size], c[k], design.effect, k + 1 == design.looks, paired=True)
-            if r["decision"] != "continue":
-                counts[r["decision"]] += 1
-                used += size
-                break
-    rates = {}
-    for name, k in counts.items():
-        p = k / experiments
-        rates[name] = {"rate": p, "se": math.sqrt(p * (1 - p) / experiments), "count": k}
+        return zero, np.where(rng.random(n) < 0.5, -x, x) if null else x
+
+    decisions, used = _tally(design, draw, experiments, paired=True)
     return {"experiments": experiments, "with_replacement": bool(replace), "paired": True,
             "null": "random signs of the run's per-seed differences" if null else None,
-            "decisions": rates, "mean_seeds_used": used / experiments}
+            "decisions": decisions, "mean_seeds_used": used}
+
+
+def calibration_record(design: SequentialDesign, differences: np.ndarray, key: int,
+                       experiments: int = SIMULATED_EXPERIMENTS) -> dict:
+    """A sequential run's own calibration (summary.json): its decision rates simulated from the
+    run's per-seed differences, with random signs (the null) and as they are."""
+    rng = np.random.default_rng([key, 0x5E0])  # the calibration's own stream
+    return {
+        "source": "the run's own per-seed differences, drawn for each simulated experiment "
+                  "(jaxeac.stats.sequential.simulate_paired)",
+        "null": simulate_paired(design, differences, experiments, rng, null=True),
+        "observed": simulate_paired(design, differences, experiments, rng, null=False),
+    }
