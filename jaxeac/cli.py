@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import gc
 import os
 import signal
 import sys
@@ -533,24 +532,19 @@ def _out_of_device_memory(exc: BaseException) -> bool:
         "RESOURCE_EXHAUSTED" in text or "Out of memory" in text or "out of memory" in text)
 
 
-def _in_gc_callback(frame) -> bool:
-    """Whether `frame` runs inside a garbage-collection callback (JAX registers one)."""
-    codes = {getattr(cb, "__code__", None) for cb in gc.callbacks}
-    while frame is not None:
-        if frame.f_code in codes:
-            return True
-        frame = frame.f_back
-    return False
-
-
-def _on_ctrl_c(signum, frame) -> None:
-    """SIGINT: KeyboardInterrupt, unless it lands inside a garbage-collection callback, where
-    Python would print and drop it ("Exception ignored") and the run would carry on; then the
-    signal is sent again a moment later, to land in ordinary code."""
-    if _in_gc_callback(frame):
+def _resend_dropped_ctrl_c(unraisable) -> None:
+    """`sys.unraisablehook` while `main` runs: a Ctrl-C that landed where Python cannot raise it
+    (a garbage-collection or weakref callback, a ``__del__``: JAX runs such code) would be
+    printed as "Exception ignored" and dropped, and the run would carry on; instead the signal
+    is sent again a moment later, to land in ordinary code. Anything else goes to the
+    previous hook."""
+    if unraisable.exc_type is KeyboardInterrupt:
         threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGINT)).start()
         return
-    raise KeyboardInterrupt
+    _previous_unraisablehook(unraisable)
+
+
+_previous_unraisablehook = sys.unraisablehook
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -560,13 +554,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``error: ...`` on stderr and exit code 2; Ctrl-C is one line and exit code 130. Output
     folders are held (`jaxeac.io.folder_lock`) until the command ends.
     """
+    global _previous_unraisablehook
     if threading.current_thread() is not threading.main_thread():  # signals go to the main thread only
         return _main(argv)
-    before = signal.signal(signal.SIGINT, _on_ctrl_c)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    _previous_unraisablehook, sys.unraisablehook = sys.unraisablehook, _resend_dropped_ctrl_c
     try:
         return _main(argv)
     finally:
         signal.signal(signal.SIGINT, before)
+        sys.unraisablehook = _previous_unraisablehook
 
 
 def _main(argv: Sequence[str] | None) -> int:
