@@ -236,3 +236,69 @@ def test_algorithms_in_one_pipeline_equal_separate_runs():
         for field in ("success", "steps", "policy", "finite"):
             np.testing.assert_array_equal(getattr(got, field), getattr(alone, field))
         assert got.settings["chunk_size"] == 4 and got.compile_seconds >= 0
+
+
+def _iterations_until_done(env, cfg, n_seeds=16):
+    """Run the flat loop one chance per call with a lane per seed; (lane iterations until each
+    seed was done, final agents)."""
+    from jaxeac.rng import seed_words
+    from jaxeac.running.loops import flat_init, flat_slot
+
+    cfg = cfg.resolve(env, n_seeds)
+    words = jax.vmap(lambda i: seed_words(seed_key(jax.random.key(2), i)))(np.arange(n_seeds))
+    hyper = jax.tree.map(lambda x: np.broadcast_to(x, (n_seeds,)), cfg.hyper())
+    step = jax.jit(jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h)))
+    run = jax.vmap(lambda w: flat_init(env, cfg, w))(words)
+    iterations = 0
+    while (live := int((run.agent.trial < cfg.trials).sum())):
+        run, iterations = step(run, words, hyper), iterations + live
+    return iterations, run.agent
+
+
+@pytest.mark.parametrize(("algo", "variant", "chances", "at_most"), [
+    ("eac", {}, 40, 0.6),  # paper: E6 compares with trial t−1's r̃ along its skipped path
+    ("eac", {}, 9, 0.95),  # short trials: jumps onto paths longer than the chances left fail (G5)
+    ("eac", {"failure_rule": "within_trial"}, 40, 0.6),
+    ("eac_success_only", {}, 40, 0.6),
+])
+def test_memory_jumps_skip_steps_and_keep_every_result(algo, variant, chances, at_most):
+    """A trial on a state whose success-memory path has a known length ends at once: far fewer
+    iterations, and the same trial log (successes and chances used) and policy as taking every
+    step, as the literal trials loop does."""
+    from jaxeac.algorithm.agent import greedy_policy
+
+    env = GridWorld(get_map("paper"), chances)
+    agent = algorithm(algo, **variant)
+    runs = {jump: _iterations_until_done(env, RunConfig(trials=120, agent=agent, jump=jump))
+            for jump in ("off", "on")}
+    (slow, every), (fast, jumped) = runs["off"], runs["on"]
+    assert fast < at_most * slow, (fast, slow)
+    np.testing.assert_array_equal(jumped.log, every.log)
+    cfg = RunConfig(trials=120, agent=agent).resolve(env)
+    policy = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
+    np.testing.assert_array_equal(policy(jumped), policy(every))
+    literal = run_seeds(env, RunConfig(trials=120, agent=agent, loop="trials"), root_key=2, n_seeds=16)
+    np.testing.assert_array_equal(np.abs(np.asarray(jumped.log)), literal.steps)
+    if chances == 9:
+        assert (np.asarray(every.log) < 0).any()  # failures happen, jumps among them
+
+
+def test_memory_jumps_resolve_where_exact_only():
+    """`auto` jumps for a deterministic world with a success memory and no learning on memory
+    steps, in the flat loop with XLA ops; `on` elsewhere is refused, naming why."""
+    env = GridWorld(get_map("paper"), 40)
+
+    def resolved(algo, **kw):
+        return RunConfig(trials=10, agent=algorithm(algo), **kw).resolve(env, 64, "cpu").jump
+
+    assert resolved("eac") == "on" and resolved("eac_success_only") == "on"
+    assert resolved("ac") == "off" and resolved("eac_failure_only") == "off"
+    assert resolved("eac_learn_on_memory") == "off" and resolved("eac", loop="trials") == "off"
+    assert resolved("eac", jump="off") == "off"
+    assert RunConfig(trials=10, agent=algorithm("eac")).resolve(None, 64, "cpu").jump == "off"  # bowling
+    with pytest.raises(UsageError, match="deterministic environment"):
+        RunConfig(trials=10, agent=algorithm("eac"), jump="on").resolve(None, 64, "cpu")
+    with pytest.raises(UsageError, match="learn_on_memory_steps"):
+        RunConfig(trials=10, agent=algorithm("eac_learn_on_memory"), jump="on").resolve(env, 64, "cpu")
+    with pytest.raises(UsageError, match="unknown jump setting"):
+        RunConfig(trials=10, agent=algorithm("eac"), jump="sometimes")

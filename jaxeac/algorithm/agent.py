@@ -199,20 +199,23 @@ def failure_met(rule: FailureRule, chance, prev_length, rtilde, before) -> jax.A
     return (chance >= 1) & (rtilde < before)
 
 
-def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde) -> jax.Array:
-    """E6 (`failure_met`) for the agent's current chance."""
+def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde, before=None) -> jax.Array:
+    """E6 (`failure_met`) for the agent's current chance; `before` overrides the compared r̃
+    read from its slot (the flat loop's memory jumps leave trial t−1's slots unwritten)."""
     c = agent.chance
-    before = agent.rtilde[failure_slot(cfg.failure_rule, c, agent.rtilde.shape[0])]
+    if before is None:
+        before = agent.rtilde[failure_slot(cfg.failure_rule, c, agent.rtilde.shape[0])]
     return failure_met(cfg.failure_rule, c, agent.prev_length, rtilde, before)
 
 
-def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active) -> AgentState:
-    """After each chance: keep r̃ (E5) and what the memories need (E4, E6); count the chance."""
+def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active, before=None) -> AgentState:
+    """After each chance: keep r̃ (E5) and what the memories need (E4, E6); count the chance.
+    `before`: the r̃ E6 compares with, when not the one in its slot (`failure_condition`)."""
     c = agent.chance
     kept = agent.rtilde
     flag = None
     if cfg.failure_memory:  # only E6 reads r̃ back
-        flag = active & failure_condition(cfg, agent, rtilde)
+        flag = active & failure_condition(cfg, agent, rtilde, before)
         # An inactive step writes out of range (dropped). `active | flag` equals `active`, but it
         # makes the write depend on the read above, so XLA updates r̃ in place instead of copying it.
         kept = kept.at[jnp.where(active | flag, c, kept.shape[0])].set(rtilde, mode="drop")

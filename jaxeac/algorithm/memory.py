@@ -101,6 +101,10 @@ class DenseMemory:
     def failure_flags(self, state, trial, outcomes) -> jax.Array:
         return _bits_to_flags(_failure_bits(self, state, trial, outcomes), self.n_actions)
 
+    def path_action(self, state) -> jax.Array:
+        """The success action of a state on a success-memory path (see `PackedMemory.path_action`)."""
+        return _unpack_success(self.success[state])[1]
+
     def record(self, state, action, chance, trial, outcomes, active, *, remember, flag) -> DenseMemory:
         memory = self
         if remember:
@@ -160,6 +164,12 @@ class PackedMemory:
     def failure_flags(self, state, trial, outcomes) -> jax.Array:
         f, (succeeded, failed) = self._settled(state, trial, outcomes)
         return _bits_to_flags(packed_in_effect(f, succeeded, failed)[1], self.n_actions)
+
+    def path_action(self, state) -> jax.Array:
+        """The success action of a state with one, read without the trial log: its pending
+        action. Such a state's last visit was in the successful trial that gave it the action
+        (E4 keeps the last action of that trial) or a later step E1(a) took (the same action)."""
+        return self.unpack(self.words[state]).pending
 
     def record(self, state, action, chance, trial, outcomes, active, *, remember, flag) -> PackedMemory:
         return record_packed(self, state, action, trial, outcomes, active, remember,

@@ -189,6 +189,7 @@ class GridWorld:
     """Functional grid world with precomputed transition tables (G1–G5)."""
 
     n_actions = 4
+    deterministic = True  # G4: a (cell, action) always leads to the same cell
 
     def __init__(self, grid_map: GridMap, n_chances: int):
         if n_chances < 1:

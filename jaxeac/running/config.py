@@ -22,6 +22,8 @@ Loop = Literal["auto", "flat", "trials"]
 LOOPS = ("auto", "flat", "trials")
 Kernel = Literal["auto", "xla", "pallas"]
 KERNELS = ("auto", "xla", "pallas")
+Jump = Literal["auto", "on", "off"]
+JUMPS = ("auto", "on", "off")
 
 CPU_CHUNK = 1 << 14  # seeds per chunk on CPUs: progress every few seconds, small outputs in flight
 GPU_CHUNK_PER_DEVICE = 1 << 20  # seeds per chunk and GPU: saturates one H100 (BENCHMARKS.md)
@@ -43,8 +45,11 @@ class RunConfig:
     loop: Loop = "auto"
     lanes: int | None = None  # flat loop: seeds in flight per device; None: `default_lanes`
     kernel: Kernel = "auto"  # flat loop's chances: the fused kernel (GPUs) or XLA ops; `resolved_kernel`
+    jump: Jump = "auto"  # flat loop: end a trial at once where it follows its success memory; `resolved_jump`
 
     def __post_init__(self):
+        if self.jump not in JUMPS:
+            raise UsageError(f"unknown jump setting {self.jump!r}; choose one of {JUMPS}")
         if self.kernel not in KERNELS:
             raise UsageError(f"unknown kernel {self.kernel!r}; choose one of {KERNELS}")
         if self.loop not in LOOPS:
@@ -67,7 +72,8 @@ class RunConfig:
 
     @property
     def is_resolved(self) -> bool:
-        return self.agent.tables != "auto" and self.loop != "auto" and self.kernel != "auto"
+        return (self.agent.tables != "auto" and self.loop != "auto" and self.kernel != "auto"
+                and self.jump != "auto")
 
     def resolve(self, env: Any = None, n_entries: int | None = None, backend: str | None = None) -> RunConfig:
         """Every `auto` decided for `backend` (default: JAX's): tables, loop, kernel, and lanes for a
@@ -75,6 +81,7 @@ class RunConfig:
         backend = backend or jax.default_backend()
         cfg = dataclasses.replace(self, agent=self.agent.resolve(backend), loop=self.resolved_loop)
         cfg = dataclasses.replace(cfg, kernel=resolved_kernel(env, cfg, backend))
+        cfg = dataclasses.replace(cfg, jump=resolved_jump(env, cfg))
         if cfg.lanes is None and n_entries is not None and cfg.loop == "flat":
             cfg = dataclasses.replace(cfg, lanes=default_lanes(cfg.agent, n_entries, backend, cfg.kernel))
         return cfg
@@ -86,7 +93,7 @@ class RunConfig:
 
         return {"trials": self.trials, "agent": dataclasses.asdict(self.agent), "alpha": rate(self.alpha),
                 "beta": rate(self.beta), "gamma": self.gamma, "temperature": self.temperature,
-                "loop": self.loop, "lanes": self.lanes, "kernel": self.kernel}
+                "loop": self.loop, "lanes": self.lanes, "kernel": self.kernel, "jump": self.jump}
 
 
 def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:
@@ -107,6 +114,37 @@ def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Lit
             raise UsageError(f"{why}; use kernel='xla' (or 'auto')")
         return "pallas"
     return "pallas" if why is None and backend == "gpu" else "xla"
+
+
+def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
+    """Why a (loop- and kernel-resolved) config cannot end trials by memory jumps (None: it can).
+
+    A jump needs what makes it exact: a deterministic environment, a success memory that
+    chooses (E1 a) without learning (E2), and the flat loop with XLA ops (the fused kernel
+    and the trials loop take every step)."""
+    if not getattr(env, "deterministic", False):
+        return "memory jumps need a deterministic environment"
+    if not cfg.agent.success_memory:
+        return "memory jumps follow the success memory, which this algorithm does not keep"
+    if cfg.agent.learn_on_memory_steps:
+        return "memory jumps skip steps that learn under learn_on_memory_steps"
+    if cfg.loop != "flat" or cfg.kernel != "xla":
+        return "memory jumps run in the flat loop with XLA ops"
+    if (cfg.trials + 1) << max(1, (env.n_chances - 1).bit_length()) >= 1 << 31:
+        return "memory jumps store (trial, chance) in one int32, too small for this many trials and chances"
+    return None
+
+
+def resolved_jump(env: Any, cfg: RunConfig) -> Literal["on", "off"]:
+    """``on``: a trial that stands on a state whose success-memory path to the goal has a
+    known length ends at once (`jaxeac.running.loops`); same per-seed results as ``off``,
+    which takes every step. `auto`: on wherever `jump_unsupported` allows."""
+    if cfg.jump == "off":
+        return "off"
+    why = jump_unsupported(env, cfg)
+    if cfg.jump == "on" and why is not None:
+        raise UsageError(f"{why}; use jump='off' (or 'auto')")
+    return "on" if why is None else "off"
 
 
 def default_lanes(agent: AgentConfig, n_entries: int, backend: str | None = None,

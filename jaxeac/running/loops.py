@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from jaxeac.algorithm.agent import (
     AgentState,
     end_trial,
+    failure_slot,
     greedy_policy,
     init_agent,
     learn_step,
@@ -73,21 +74,23 @@ def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chan
 
 
 def learn_and_record(cfg: RunConfig, agent: AgentState, state, action, learns, reward, next_state,
-                     terminated, rtilde, active, hyper: Hyper) -> AgentState:
+                     terminated, rtilde, active, hyper: Hyper, before=None) -> AgentState:
     """After a chance: (2)–(4) on the transition where `learns` (E2), then r̃ and the memory
-    records (E4–E6) where `active`, with the step sizes of the current trial."""
+    records (E4–E6) where `active`, with the step sizes of the current trial (`before`:
+    `record_step`)."""
     trial = jnp.minimum(agent.trial, cfg.trials - 1)
     agent = learn_step(
         agent, state, action, reward, next_state, terminated, learns,
         rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
     )
-    return record_step(cfg.agent, agent, state, action, rtilde, active)
+    return record_step(cfg.agent, agent, state, action, rtilde, active, before)
 
 
-def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, hyper: Hyper, active):
+def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, hyper: Hyper, active,
+                before=None):
     """Alg. 1 lines 4–14 for one chance, if `active`: E1 choice, move, (2)–(4), r̃ (E5), records.
 
-    Returns (agent, step, state, action, r̃).
+    Returns (agent, step, state, action, r̃). `before`: the r̃ E6 compares with, if not its slot's.
     """
     s = env.observation(env_state)
     action, learns = choose(cfg, agent, s, words, hyper, env.n_chances, active)
@@ -96,7 +99,7 @@ def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, h
     goal_known = agent.goal_known | (active & step.terminated)  # E5: this step included
     rtilde = env.shaped_reward(s_next, step.bumped, goal_known)
     agent = learn_and_record(cfg, agent.replace(goal_known=goal_known), s, action, learns, step.reward,
-                             s_next, step.terminated, rtilde, active, hyper)
+                             s_next, step.terminated, rtilde, active, hyper, before)
     return agent, step, s, action, rtilde
 
 
@@ -156,31 +159,107 @@ def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResul
 
 
 @pytree_dataclass
+class _Jumps:
+    """What memory jumps carry per lane (`flat_slot`); absent where the run does not jump."""
+
+    visits: jax.Array  # int32 [S]: (trial + 1, chance) of the last step E1(a) took from each state; 0: none
+    anchor: jax.Array  # int32 []: chance at which the previous trial jumped (C: it took every step)
+    shadow: Any  # env state on the previous trial's memory path at the current chance (E6); None without E6
+
+
+@pytree_dataclass
 class _FlatCarry:
     agent: AgentState
     env_state: Any
+    jumps: _Jumps | None = None
 
 
 def flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
     start = env.reset_at(start_index(words, 0, env.n_chances, env.n_starts))
-    return _FlatCarry(agent, start)
+    jumps = None
+    if cfg.jump == "on":
+        shadow = start if _shadowed(cfg) else None
+        jumps = _Jumps(jnp.zeros((env.n_states,), jnp.int32), jnp.int32(env.n_chances), shadow)
+    return _FlatCarry(agent, start, jumps)
+
+
+def _chance_bits(n_chances: int) -> int:
+    """Low bits of a `_Jumps.visits` word that hold the chance (the trial + 1 is above them)."""
+    return max(1, (n_chances - 1).bit_length())
+
+
+def _shadowed(cfg: RunConfig) -> bool:
+    """Whether E6 compares with trial t−1's r̃ (the paper's rule), which a jump leaves unwritten."""
+    return cfg.agent.failure_memory and cfg.agent.failure_rule == "previous_trial"
 
 
 def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) -> _FlatCarry:
-    """One chance of one seed; a trial that ends here is closed and the next one started."""
+    """One chance of one seed; a trial that ends here is closed and the next one started.
+
+    **Memory jumps** (``cfg.jump == "on"``; `jaxeac.running.config.resolved_jump`). In a
+    deterministic world, a trial standing on a state with a success action follows the
+    success memory to the goal (E1 a, E4 erases loops), without learning (E2). A state's
+    success action never changes once set: E1(a) always takes it, so the only later writes
+    (E4) write it again. So the path from it, and its length h, are fixed, and one step
+    E1(a) took from it at chance c of trial t tells h = (chances trial t used) − c if
+    trial t succeeded. Where h is known, the trial ends at once: a success with c + h
+    chances if h ≤ C − c, else a failure after C. Nothing the skipped steps would have
+    written is read again: their memory writes rewrite the same actions, failure flags
+    on states with a success action are never consulted, and the r̃ that E6 compares the
+    next trial with (paper's rule) is recomputed along the path (`shadow`). Per-seed
+    results are those of taking every step (tested against the `trials` loop).
+    """
     agent = carry.agent
     active = agent.trial < cfg.trials
-    agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, words, hyper, active)
-    ends = active & (step.terminated | step.truncated)
-    agent = end_trial(cfg.agent, agent, step.terminated, ends)
+    jumps = carry.jumps
+    if jumps is None:
+        agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, words, hyper, active)
+        ends = active & (step.terminated | step.truncated)
+        success = step.terminated
+    else:
+        n_chances, c = env.n_chances, agent.chance
+        s = env.observation(carry.env_state)
+        remembered = agent.memory.success_action(s, agent.trial, agent.outcomes)
+        visit = jumps.visits[s]
+        visit_trial = (visit >> _chance_bits(n_chances)) - 1
+        walked = agent.log[jnp.maximum(visit_trial, 0)]  # > 0: that trial's chances, a success
+        known = (remembered >= 0) & (visit_trial >= 0) & (walked > 0)
+        to_goal = walked - (visit & ((1 << _chance_bits(n_chances)) - 1))  # h: chances from s to the goal
+        jump = active & known
+        takes = active & ~jump
+        before = shadow = None
+        if jumps.shadow is not None:  # E6 reads trial t−1's r̃ at c: on its path past its jump
+            on_path = c >= jumps.anchor
+            path_state = env.observation(jumps.shadow)
+            # `path_action` reads no trial log: a read that the log's write does not depend on
+            # would make XLA copy the whole log every chance to keep the old values.
+            moved = env.step(jumps.shadow, jnp.maximum(agent.memory.path_action(path_state), 0))
+            path_rtilde = env.shaped_reward(env.observation(moved.state), moved.bumped, jnp.bool_(True))
+            before = jnp.where(on_path, path_rtilde, agent.rtilde[failure_slot(cfg.agent.failure_rule, c, n_chances)])
+            shadow = jax.tree.map(lambda here, nxt, old: jnp.where(jump, here, jnp.where(on_path, nxt, old)),
+                                  carry.env_state, moved.state, jumps.shadow)
+        agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, words, hyper, takes, before)
+        remaining = n_chances - c
+        agent = agent.replace(chance=jnp.where(jump, c + jnp.minimum(to_goal, remaining), agent.chance))
+        ends = jump | (takes & (step.terminated | step.truncated))
+        success = jnp.where(jump, to_goal <= remaining, step.terminated)
+        row = jnp.where(takes & (remembered >= 0), s, env.n_states)  # a step E1(a) took: h known later
+        jumps = _Jumps(
+            visits=jumps.visits.at[row].set(((agent.trial + 1) << _chance_bits(n_chances)) | c, mode="drop",
+                                            unique_indices=True),
+            anchor=jnp.where(ends, jnp.where(jump, c, n_chances), jumps.anchor),
+            shadow=shadow,
+        )
+        active = takes
+    agent = end_trial(cfg.agent, agent, success, ends)
     nxt = jnp.minimum(agent.trial, cfg.trials - 1)
     start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
     env_state = jax.tree.map(
         lambda fresh, moved, old: jnp.where(ends, fresh, jnp.where(active, moved, old)),
         start, step.state, carry.env_state,
     )
-    return _FlatCarry(agent, env_state)
+    return _FlatCarry(agent, env_state, jumps)
 
 
 @pytree_dataclass
