@@ -58,7 +58,7 @@ def command_line() -> str:
 
 
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
-               lanes: int | None = None, kernel: str = "auto") -> dict:
+               lanes: int | None = None, kernel: str = "auto", jump: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
     from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
@@ -68,7 +68,7 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
 
     env = GridWorld(get_map("paper"), 40)
     cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
-                    lanes=lanes, kernel=kernel)
+                    lanes=lanes, kernel=kernel, jump=jump)
     resolved = cfg.resolve(env)  # what the row ran: every `auto` decided
     best, compile_s, steps, mean = float("inf"), None, 0, 0.0
     for _ in range(repeats):
@@ -79,7 +79,7 @@ def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = 
     return {
         "impl": "jaxeac", "algo": algo, "seeds": n_seeds, "chunk": min(chunk, n_seeds),
         "loop": resolved.loop, "tables": resolved.agent.tables, "lanes": lanes or "auto",
-        "kernel": resolved.kernel,
+        "kernel": resolved.kernel, "jump": resolved.jump,
         "compile_s": compile_s, "run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
         "state_bytes_per_seed": state_bytes_per_seed(env, cfg), "mean_successes": mean,
     }
@@ -162,8 +162,8 @@ def measure(args) -> dict:
         record["rows"].append(row)
 
     for n in args.seeds:
-        for algo in ("ac", "eac"):
-            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel)
+        for algo, jump in [(a, j) for a in ("ac", "eac") for j in (args.jump if a == "eac" else ["auto"])]:
+            row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel, jump)
             for name in peers:
                 peer = bench_peer(name, algo, n, args.repeats, args.peer_threads)
                 row |= {f"{name}_{key}": value for key, value in peer.items()}
@@ -297,6 +297,7 @@ def render(paths: list[Path]) -> str:
             tables = r.get("tables", "split" if r["impl"] == "jaxeac" else "–")  # older records: split
             lanes = r.get("lanes", "auto" if r["impl"] == "jaxeac" else "–")
             kernel = r.get("kernel", "xla" if r["impl"] == "jaxeac" else "–")  # older records: XLA ops
+            kernel += ", jumps" if r.get("jump") == "on" else ""  # older records: no memory jumps
             out.append(f"| {r['impl']} | {r['algo']} | {tables} | {kernel} | {r['seeds']:,} | {chunk} | "
                        f"{lanes} | {compile_s} | {r['run_s']:.2f} | {r['steps_per_s']:.3g} | "
                        f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |"
@@ -338,6 +339,9 @@ def main() -> None:
                    help="seeds in flight per device (default auto: 256 on CPU, every seed of a chunk on GPU)")
     p.add_argument("--kernel", choices=["auto", "xla", "pallas"], default="auto",
                    help="the flat loop's chances: fused GPU kernel (pallas) or XLA ops; auto as jaxeac")
+    p.add_argument("--jump", nargs="+", choices=["auto", "on", "off"], default=["auto"],
+                   help="EAC's memory jumps (RunConfig.jump), a row for each (e.g. `--jump on off` for "
+                        "a same-run ratio); auto as jaxeac")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
     args = p.parse_args()

@@ -36,8 +36,10 @@ def _lanes(cfg, n, trials_done=0):
 
 @pytest.mark.parametrize("algo", ALGOS)
 def test_kernel_block_equals_c_xla_slots(algo):
-    """Three blocks of C chances from fresh lanes: every integer field equal, tables to float rounding."""
-    cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"))
+    """Three blocks of C chances from fresh lanes: every integer field equal, tables to float rounding.
+    With a success memory both paths jump (`flat_slot`), the jumps' own records included."""
+    cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"), kernel="xla").resolve(ENV)
+    assert (cfg.jump == "on") == (algo in ("eac", "eac_within_trial", "eac_success_only"))
     run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM)
     slot = jax.vmap(lambda c, w, h: flat_slot(ENV, cfg, c, w, h))
     xla = jax.jit(lambda r: jax.lax.fori_loop(0, 3 * ENV.n_chances, lambda _, x: slot(x, words, hyper), r))
@@ -46,6 +48,8 @@ def test_kernel_block_equals_c_xla_slots(algo):
     want, got = xla(run), kernel(run)
     assert int(want.agent.trial.min()) >= 1  # trials ended and restarted inside the blocks
     for (path, a), b in zip(jax.tree_util.tree_flatten_with_path(got)[0], jax.tree.leaves(want), strict=True):
+        if jax.tree_util.keystr(path) == ".jumps.shadow.chance":
+            continue  # E6's walk along the previous trial's path uses its cell only; the kernel keeps that
         if jnp.issubdtype(a.dtype, jnp.floating):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-7,
                                        err_msg=jax.tree_util.keystr(path))
@@ -56,7 +60,8 @@ def test_kernel_block_equals_c_xla_slots(algo):
 @pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
 @pytest.mark.parametrize("lanes", [None, LANES_PER_PROGRAM])  # a lane per seed (padded), and a queue
 def test_kernel_runs_equal_xla_runs(algo, lanes):
-    """Whole runs through `run_seeds`: the same successes and steps per trial for every seed."""
+    """Whole runs through `run_seeds`: the same successes and steps per trial for every seed
+    (EAC: both jump)."""
     runs = [run_seeds(ENV, RunConfig(trials=25, agent=algorithm(algo, tables="rows"), kernel=k, lanes=lanes),
                       root_key=3, n_seeds=150, chunk_size=150) for k in ("xla", "pallas")]
     np.testing.assert_array_equal(runs[0].success, runs[1].success)

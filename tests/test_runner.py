@@ -285,7 +285,7 @@ def test_memory_jumps_skip_steps_and_keep_every_result(algo, variant, chances, a
 
 def test_memory_jumps_resolve_where_exact_only():
     """`auto` jumps for a deterministic world with a success memory and no learning on memory
-    steps, in the flat loop with XLA ops; `on` elsewhere is refused, naming why."""
+    steps, in the flat loop (XLA ops or the fused kernel); `on` elsewhere is refused, naming why."""
     env = GridWorld(get_map("paper"), 40)
 
     def resolved(algo, **kw):

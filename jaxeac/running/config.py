@@ -120,16 +120,15 @@ def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
     """Why a (loop- and kernel-resolved) config cannot end trials by memory jumps (None: it can).
 
     A jump needs what makes it exact: a deterministic environment, a success memory that
-    chooses (E1 a) without learning (E2), and the flat loop with XLA ops (the fused kernel
-    and the trials loop take every step)."""
+    chooses (E1 a) without learning (E2), and the flat loop (XLA ops or the fused kernel)."""
     if not getattr(env, "deterministic", False):
         return "memory jumps need a deterministic environment"
     if not cfg.agent.success_memory:
         return "memory jumps follow the success memory, which this algorithm does not keep"
     if cfg.agent.learn_on_memory_steps:
         return "memory jumps skip steps that learn under learn_on_memory_steps"
-    if cfg.loop != "flat" or cfg.kernel != "xla":
-        return "memory jumps run in the flat loop with XLA ops"
+    if cfg.loop != "flat":
+        return "memory jumps run in the flat loop (the trials loop takes every step)"
     if (cfg.trials + 1) << max(1, (env.n_chances - 1).bit_length()) >= 1 << 31:
         return "memory jumps store (trial, chance) in one int32, too small for this many trials and chances"
     return None

@@ -47,6 +47,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.grid import GridWorld, decode_move, move_reward, shaped_reward
 from jaxeac.rng import action_uniform, start_index
+from jaxeac.running.loops import visit_fields, visit_word
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
 
@@ -110,9 +111,11 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
     rows, log, rtilde = state["rows"], state["log"], state["rtilde"]
     packed = mem.PackedMemory(words=None, n_actions=n_actions) if agent.uses_memory else None
 
+    jumps = "visits" in state  # memory jumps (`flat_slot`)
+
     def chance(_, carry):
-        position, env_chance, trial_now, c, goal_known, prev_length = carry
-        active = trial_now < n_trials
+        position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow = carry
+        live = trial_now < n_trials
         trial = jnp.minimum(trial_now, n_trials - 1)
         u = action_uniform(words, trial, c, n_chances)
         s = position
@@ -123,9 +126,20 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         if packed is not None:  # E1 (a), (b) from the seed's memory word at s
             f = packed.unpack(state["memory"][lane, s])
             succeeded, failed = mem.settled(f.stamp, trial_now, log[lane, jnp.maximum(f.stamp, 0)] > 0)
-            remembered, bits = mem.packed_in_effect(f, succeeded, failed)
+            remembered, failed_bits = mem.packed_in_effect(f, succeeded, failed)
+        active, jump = live, None
+        if jumps:  # a known path length from s: the trial ends here without a step
+            # The log is read only where the visit word names a trial (a masked load: memory
+            # traffic bounds this kernel); the visit word is read beside the memory word.
+            visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
+            visit_trial, visit_chance = visit_fields(visit, n_chances)
+            known = (remembered >= 0) & (visit_trial >= 0)
+            walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
+            to_goal = walked - visit_chance
+            jump = live & known & (walked > 0)
+            active = live & ~jump
         if agent.failure_memory:
-            flags = [(bits >> a) & 1 == 1 for a in range(n_actions)]
+            flags = [(failed_bits >> a) & 1 == 1 for a in range(n_actions)]
             n_flagged = functools.reduce(lambda n, x: n + x.astype(jnp.int32), flags[1:],
                                          flags[0].astype(jnp.int32))
             restricted = restricts(n_flagged, n_actions)
@@ -152,6 +166,13 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         flag = None
         if agent.failure_memory:  # E6
             before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
+            if jumps and shadow is not None:  # trial t−1's r̃ past its jump, along its path
+                on_path = c >= anchor
+                path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
+                path_action = packed.unpack(path_word).pending  # `path_action`
+                path_next, path_bumped = decode_move(moves_ref[shadow * n_actions + jnp.maximum(path_action, 0)])
+                before = jnp.where(on_path, shaped_reward(dist_ref[path_next], path_bumped, True), before)
+                shadow = jnp.where(jump, s, jnp.where(on_path, path_next, shadow))
             flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
             put(rtilde.at[lane, jnp.minimum(c, n_chances - 1)], shaped, active)
         if packed is not None:  # `PackedMemory.record`
@@ -160,11 +181,19 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
                 action if agent.success_memory else jnp.full_like(action, -1),
                 0 if flag is None else jnp.where(flag, 1 << action, 0))
             put(state["memory"].at[lane, s], packed.pack(new), active)
+        success = terminated
+        ends = active & (terminated | truncated)
+        if jumps:
+            put(state["visits"].at[lane, s], visit_word(trial_now, c, n_chances), active & (remembered >= 0))
+            remaining = n_chances - c
+            success = jnp.where(jump, to_goal <= remaining, terminated)
+            ends = ends | jump
+            anchor = jnp.where(ends, jnp.where(jump, c, n_chances), anchor)
+            c = jnp.where(jump, c + jnp.minimum(to_goal, remaining), c)
         c = c + active.astype(jnp.int32)
 
         # `end_trial` and the next trial's start (`flat_slot`)
-        ends = active & (terminated | truncated)
-        put(log.at[lane, jnp.minimum(trial_now, n_trials - 1)], log_entry(terminated, c), ends)
+        put(log.at[lane, jnp.minimum(trial_now, n_trials - 1)], log_entry(success, c), ends)
         prev_length = jnp.where(ends, c, prev_length)
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
@@ -172,13 +201,14 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         start = starts_ref[start_index(words, nxt, n_chances, env.n_starts)]
         position = jnp.where(ends, start, jnp.where(active, s_next, position))
         env_chance = jnp.where(ends, 0, jnp.where(active, env_chance + 1, env_chance))
-        return position, env_chance, trial_now, c, goal_known, prev_length
+        return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow
 
-    vectors = ("position", "env_chance", "trial", "chance", "goal_known", "prev_length")
-    carry = tuple(state[k][lane] for k in vectors)
+    vectors = ("position", "env_chance", "trial", "chance", "goal_known", "prev_length", "anchor", "shadow")
+    carry = tuple(state[k][lane] if k in state else None for k in vectors)
     carry = jax.lax.fori_loop(0, n_chances, chance, carry)
     for k, v in zip(vectors, carry, strict=True):
-        put(state[k].at[lane], v)
+        if k in state:
+            put(state[k].at[lane], v)
 
 
 def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
@@ -203,6 +233,10 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     }
     if agent.memory is not None:
         state["memory"] = agent.memory.words
+    if run.jumps is not None:
+        state["visits"], state["anchor"] = run.jumps.visits, run.jumps.anchor
+        if run.jumps.shadow is not None:
+            state["shadow"] = run.jumps.shadow.position
     names = tuple(state)
     f32 = agent.tables.rows.dtype
     consts = (
@@ -227,6 +261,10 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
         rtilde=new["rtilde"], trial=new["trial"], chance=new["chance"],
         goal_known=new["goal_known"] == 1, prev_length=new["prev_length"],
     )
-    return run.replace(agent=agent, env_state=run.env_state.replace(
+    jumps = run.jumps
+    if jumps is not None:
+        shadow = jumps.shadow if jumps.shadow is None else jumps.shadow.replace(position=new["shadow"])
+        jumps = jumps.replace(visits=new["visits"], anchor=new["anchor"], shadow=shadow)
+    return run.replace(agent=agent, jumps=jumps, env_state=run.env_state.replace(
         position=new["position"], chance=new["env_chance"]))
 

@@ -184,8 +184,18 @@ def flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
     return _FlatCarry(agent, start, jumps)
 
 
+def visit_word(trial, chance, n_chances: int):
+    """A `_Jumps.visits` word: trial + 1 above the bits of the chance (0: no visit)."""
+    return ((trial + 1) << _chance_bits(n_chances)) | chance
+
+
+def visit_fields(word, n_chances: int):
+    """(trial, chance) of a `visit_word`; trial −1: no visit."""
+    bits = _chance_bits(n_chances)
+    return (word >> bits) - 1, word & ((1 << bits) - 1)
+
+
 def _chance_bits(n_chances: int) -> int:
-    """Low bits of a `_Jumps.visits` word that hold the chance (the trial + 1 is above them)."""
     return max(1, (n_chances - 1).bit_length())
 
 
@@ -221,11 +231,10 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         n_chances, c = env.n_chances, agent.chance
         s = env.observation(carry.env_state)
         remembered = agent.memory.success_action(s, agent.trial, agent.outcomes)
-        visit = jumps.visits[s]
-        visit_trial = (visit >> _chance_bits(n_chances)) - 1
+        visit_trial, visit_chance = visit_fields(jumps.visits[s], n_chances)
         walked = agent.log[jnp.maximum(visit_trial, 0)]  # > 0: that trial's chances, a success
         known = (remembered >= 0) & (visit_trial >= 0) & (walked > 0)
-        to_goal = walked - (visit & ((1 << _chance_bits(n_chances)) - 1))  # h: chances from s to the goal
+        to_goal = walked - visit_chance  # h: chances from s to the goal
         jump = active & known
         takes = active & ~jump
         before = shadow = None
@@ -246,7 +255,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         success = jnp.where(jump, to_goal <= remaining, step.terminated)
         row = jnp.where(takes & (remembered >= 0), s, env.n_states)  # a step E1(a) took: h known later
         jumps = _Jumps(
-            visits=jumps.visits.at[row].set(((agent.trial + 1) << _chance_bits(n_chances)) | c, mode="drop",
+            visits=jumps.visits.at[row].set(visit_word(agent.trial, c, n_chances), mode="drop",
                                             unique_indices=True),
             anchor=jnp.where(ends, jnp.where(jump, c, n_chances), jumps.anchor),
             shadow=shadow,
