@@ -54,9 +54,12 @@ def parse_set(text: str) -> tuple[str, list]:
     key = ALIASES.get(key.strip(), key.strip())
     if key not in KEYS:
         raise UsageError(f"--set: unknown key {key!r}; sweepable keys: {', '.join(sorted(KEYS))}")
-    items = [v.strip() for v in values.split(",") if v.strip()]
-    if not items:
+    items = [v.strip() for v in values.split(",")]
+    if not any(items):
         raise UsageError(f"--set {key}: empty list of values; give at least one value")
+    if not all(items):
+        raise UsageError(f"--set {key}={values}: a value between commas is empty; separate the values with "
+                         "single commas (e.g. alpha=0.05,0.1)")
     parsed = []
     for item in items:
         try:
