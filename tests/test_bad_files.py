@@ -337,3 +337,66 @@ def test_a_damaged_folder_waits_for_the_device_start(grid_run, tmp_path, monkeyp
     with pytest.raises(UsageError, match="results.parquet"):
         stats_run.compare_run_dir(run, resamples=200, progress=False)
     assert Starter.joined
+
+
+def _edit_summary(part, **fields):
+    path = part / "summary.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), **fields}))
+
+
+def _edit_results(part, name, fill):
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(part / "results.parquet")
+    width = table.schema.field(name).type.list_size
+    dtype = table.schema.field(name).type.value_type.to_pandas_dtype()
+    values = pa.array(np.full(table.num_rows * width, fill, dtype))
+    column = pa.FixedSizeListArray.from_arrays(values, width)
+    table = table.set_column(table.schema.get_field_index(name), name, column)
+    pq.write_table(table, part / "results.parquet")
+
+
+@pytest.mark.parametrize("damage", ["per_algo list", "timing text", "seeds 2^70", "map of another size",
+                                    "policy not an action", "negative steps"])
+def test_merge_refuses_damage_found_by_the_campaign(parts_run, tmp_path, capsys, damage):
+    """Tracebacks (AttributeError, ValueError, ArrowTypeError) or parts merged as they were."""
+    run = tmp_path / "run"
+    shutil.copytree(parts_run, run)
+    parts = sorted(run.glob("part-*"))
+    config = summary_of(parts[0])["config"]
+    if damage == "per_algo list":
+        _edit_summary(parts[1], per_algo=[1])
+    elif damage == "timing text":
+        _edit_summary(parts[1], per_algo={"ac": {"compile_seconds": "abc"}, "eac": {}})
+    elif damage in ("seeds 2^70", "map of another size"):
+        for part in parts:
+            _edit_summary(part, config={**config, **({"seeds": 2**70} if damage == "seeds 2^70" else
+                                                      {"map": "..G\n"})})
+    else:
+        change = ("policy", 100) if damage == "policy not an action" else ("trial_steps", -3)
+        _edit_results(parts[1], *change)
+    assert_refused(["merge", str(run), "--no-compare"], run, capsys,
+                   ("summary.json", "results.parquet", "seeds"))
+
+
+@pytest.mark.parametrize("damage", ["part of NaN", "part of another shape", "parts a file"])
+def test_resumed_sweep_refuses_damage_found_by_the_campaign(sweep_run, tmp_path, capsys, damage):
+    import numpy as np
+
+    out = tmp_path / "s"
+    shutil.copytree(sweep_run, out)
+    (out / "results.csv").unlink()
+    part = sorted((out / "parts").glob("*.npz"))[0]
+    if damage == "parts a file":
+        shutil.rmtree(out / "parts")
+        (out / "parts").write_text("x")
+    else:
+        with np.load(part) as npz:
+            arrays = dict(npz)
+        arrays = ({k: v.astype(float) * np.nan for k, v in arrays.items()} if damage == "part of NaN"
+                  else {k: v[None] for k, v in arrays.items()})
+        np.savez(part, **arrays)
+    assert_refused(["sweep", *SMALL, "--set", "alpha=0.1,0.2", "--out", str(out)], out, capsys,
+                   ("parts", part.name))
