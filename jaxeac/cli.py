@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from here as before)
     KEY_LIMIT,
     MIN_CONTACT_CAP,
+    MIN_TEST_ALPHA,
     Parser,
     add_compare_flags,
     add_grid_flags,
@@ -336,8 +337,10 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, al
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    if not (0 < args.test_alpha < 1):
-        raise UsageError(f"--alpha must lie in (0, 1) (got {args.test_alpha})")
+    if not (MIN_TEST_ALPHA <= args.test_alpha < 1):
+        why = "" if not 0 < args.test_alpha < 1 else ": smaller levels are beyond double precision"
+        raise UsageError(f"--alpha must lie in [{MIN_TEST_ALPHA:g}, 1) (got {args.test_alpha:g}){why}; "
+                         "e.g. --alpha 0.05")
     if args.table is not None:
         if args.paired or args.unpaired:
             flag = "--paired" if args.paired else "--unpaired"
@@ -518,6 +521,8 @@ def use_all_cpu_cores() -> None:
 def _fail(message: str, code: int = 2) -> int:
     """Print ``error: message`` as one line on stderr; return `code`."""
     line = " ".join(str(message).split("\n")).replace("\r", " ")
+    # control characters (from a damaged file's bytes) would break the one line: escaped
+    line = "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in line)
     try:
         print(f"error: {line}", file=sys.stderr, flush=True)
     except (OSError, ValueError):  # stderr closed: the exit code still says it

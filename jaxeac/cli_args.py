@@ -95,10 +95,21 @@ def folder_name(text: str) -> str:
     return text
 
 
+def map_file_name(text: str) -> str:
+    """A --map file: a non-empty name (`''` would silently mean the preset's map) without NUL."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty name is not a map file; name one, e.g. --map "
+                                         "maps/mine.txt, or leave --map out for the preset's map")
+    if "\0" in text:
+        raise argparse.ArgumentTypeError(f"{show(text)} contains a NUL byte; name a file without one")
+    return text
+
+
 def add_grid_flags(p: argparse.ArgumentParser) -> None:
     """The grid-world flags shared by `grid` and `sweep`; unset flags come from the preset."""
     p.add_argument("--preset", default="paper", help="settings preset (default: paper, SPEC G6)")
-    p.add_argument("--map", dest="map_file", metavar="FILE", help="ASCII map file (SPEC G1)")
+    p.add_argument("--map", dest="map_file", type=map_file_name, metavar="FILE",
+                   help="ASCII map file (SPEC G1)")
     p.add_argument("--trials", type=positive_int, metavar="T", help="trials per run")
     p.add_argument("--chances", type=positive_int, metavar="C", help="steps per trial (G5)")
     p.add_argument("--alpha", type=finite_float, metavar="A", help="critic step size α")
@@ -197,6 +208,11 @@ def solver_settings(args: argparse.Namespace):
     return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
 
 
+#: The smallest significance level `compare --alpha` takes: below it the quantiles 1 - α/2 of the
+#: tests and intervals round to 1 in double precision (infinite critical values).
+MIN_TEST_ALPHA = 1e-12
+
+
 def add_compare_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--baseline", default="ac", help="baseline algorithm (default ac)")
     p.add_argument("--treatment", default="eac", help="treatment algorithm (default eac)")
@@ -236,8 +252,10 @@ def check_compare_size(run_dir, resamples: int) -> None:
     from jaxeac.experiments.common import check_compare_resources
 
     try:
-        trials = int(json.loads((Path(run_dir) / "summary.json").read_text())["trials"])
+        trials = json.loads((Path(run_dir) / "summary.json").read_text())["trials"]
     except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        trials = None
+    if not isinstance(trials, int) or isinstance(trials, bool) or trials < 1:
         trials = 1  # compare_run_dir names what is wrong with the folder
     check_compare_resources(resamples, trials)
 

@@ -105,6 +105,11 @@ def greedy_path(grid: GridMap, policy: np.ndarray, start: int, max_steps: int) -
     return path
 
 
+#: Fig. 2 draws an arrow and a tick per cell on maps of at most this many cells a side (the presets:
+#: 7-21); on larger maps arrows and ticks would be too small to see and take hours to draw.
+POLICY_ARROW_SIDE = 64
+
+
 def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: int, title: str):
     """Fig. 2: one arrow per free cell (the final greedy action) and one greedy path."""
     h, w = grid.height, grid.width
@@ -114,19 +119,22 @@ def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: in
     ys, xs = np.divmod(np.arange(h * w), w)
     free = ~grid.obstacles.reshape(-1)
     free[grid.goal_index] = False
-    d = np.array(ACTION_DELTAS)[policy.astype(int)]
-    # y grows downwards (row index), as in the map, so dy is drawn as is.
-    ax.quiver(xs[free], ys[free], d[free, 0], d[free, 1], angles="xy", scale_units="xy",
-              scale=2.4, width=0.006, color="0.35", pivot="middle")
+    arrows = max(h, w) <= POLICY_ARROW_SIDE  # larger maps: too small to see, and hours to draw
+    if arrows:
+        d = np.array(ACTION_DELTAS)[policy.astype(int)]
+        # y grows downwards (row index), as in the map, so dy is drawn as is.
+        ax.quiver(xs[free], ys[free], d[free, 0], d[free, 1], angles="xy", scale_units="xy",
+                  scale=2.4, width=0.006, color="0.35", pivot="middle")
     path = greedy_path(grid, policy, start, max_steps)
     py, px = np.divmod(np.array(path), w)
     ax.plot(px, py, color="tab:green", lw=2.2, marker="o", ms=3)
     ax.plot(px[0], py[0], marker="s", ms=8, color="tab:green")
     reached = path[-1] == grid.goal_index
     ax.set_title(f"{title}\ngreedy path {'reaches' if reached else 'misses'} the goal "
-                 f"({len(path) - 1} moves)", fontsize=9)
-    ax.set_xticks(range(w))
-    ax.set_yticks(range(h))
+                 f"({len(path) - 1} moves)" + ("" if arrows else f"; {h} x {w} cells: no arrows"), fontsize=9)
+    if arrows:  # a tick per cell
+        ax.set_xticks(range(w))
+        ax.set_yticks(range(h))
     ax.tick_params(labelsize=6)
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)

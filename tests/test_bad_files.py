@@ -182,6 +182,15 @@ def _seeds_all_zero(table):
     return table.set_column(table.schema.get_field_index("seed"), "seed", pa.array([0] * table.num_rows))
 
 
+def _seed_column(values):
+    def change(table):
+        import pyarrow as pa
+
+        n = table.num_rows
+        return table.set_column(table.schema.get_field_index("seed"), "seed", pa.array(values(n)))
+    return change
+
+
 def _sequential(seq):
     return lambda p, s: p.write_text(json.dumps({**s, "sequential": seq}))
 
@@ -194,6 +203,17 @@ MORE_DAMAGES = {  # found by a hostile-input campaign on the streaming and seque
     "sequential garbage": ("summary.json", _sequential("garbage")),
     "sequential missing looks": ("summary.json", _sequential({"x": 1})),
     "sequential looks of text": ("summary.json", _sequential({"looks_taken": "abc"})),
+    "seeds missing": ("results.parquet",
+                      lambda p, s: _rewrite_results(p, _seed_column(lambda n: [None] * n))),
+    "seeds of text": ("results.parquet", lambda p, s: _rewrite_results(  # was a TypeError traceback
+        p, _seed_column(lambda n: [str(i % (n // 2)) for i in range(n)]))),
+    "seeds fractional": ("results.parquet", lambda p, s: _rewrite_results(
+        p, _seed_column(lambda n: [i % (n // 2) + 0.5 for i in range(n)]))),
+    "seeds negative": ("results.parquet", lambda p, s: _rewrite_results(
+        p, _seed_column(lambda n: [i % (n // 2) - n for i in range(n)]))),
+    "trials metadata of control bytes": ("results.parquet", lambda p, s: _rewrite_results(  # six lines
+        p, lambda t: t.replace_schema_metadata({**t.schema.metadata, b"jaxeac.trials": bytes(range(256))}))),
+    "trials 1e308": ("summary.json", lambda p, s: p.write_text(json.dumps({**s, "trials": 1e308}))),
 }
 
 
@@ -208,7 +228,7 @@ def test_compare_refuses_damaged_run_folders(grid_run, tmp_path, capsys, damage)
 
 
 @pytest.mark.parametrize("damage", ["curves truncated", "curves zeros", "per_seed binary",
-                                    "return not a number"])
+                                    "return not a number", "seed NaN", "seed 1e308", "seed inf"])
 def test_compare_refuses_damaged_bowling_style_folders(tmp_path, capsys, rng, damage):
     """Folders of curves.npz and per_seed.csv (bowling, older grid runs): damaged files are one line."""
     import numpy as np
@@ -231,6 +251,8 @@ def test_compare_refuses_damaged_bowling_style_folders(tmp_path, capsys, rng, da
         curves.write_bytes(bytes(len(curves.read_bytes())))
     elif damage == "per_seed binary":
         csv.write_bytes(bytes(range(256)) * 4)
+    elif damage.startswith("seed "):  # was read, and the seeds then differed: silently unpaired
+        csv.write_text(csv.read_text().replace("\neac,3,", f"\neac,{damage[5:]},", 1))
     else:
         csv.write_text(csv.read_text().replace("ac,0,", "ac,0,lots", 1))
     assert_refused(["compare", str(tmp_path), "--resamples", "200"], tmp_path, capsys,
@@ -255,3 +277,126 @@ def test_table_values_must_be_real_numbers(tmp_path, capsys, kind):
         path = tmp_path / "t.npz"
         np.savez(path, a=np.ones((3, 2), complex), b=np.ones((3, 2), complex))
     assert_refused(["compare", "--table", str(path)], tmp_path, capsys, (path.name,))
+
+
+@pytest.mark.parametrize("kind", ["csv 1e308", "csv -1e200", "parquet 1e308", "npz 1e308", "sums beyond",
+                                  "tiny spread", "monitor 1e308"])
+def test_table_values_the_statistics_cannot_take(tmp_path, capsys, kind):
+    """Huge values overflowed (NaN intervals, RuntimeWarnings) and values differing by ~1e-300 gave
+    a zero-width interval with p < 1e-16: refused, naming the file (and the column where it is one)."""
+    import numpy as np
+    import pandas as pd
+
+    values = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]
+    frame = pd.DataFrame({"algo": ["a"] * 4 + ["b"] * 4, "seed": [0, 1, 2, 3] * 2, "value": values})
+    if kind in ("csv 1e308", "parquet 1e308"):
+        frame.loc[2, "value"] = 1e308
+    elif kind == "csv -1e200":
+        frame.loc[5, "value"] = -1e200
+    elif kind == "tiny spread":
+        frame["value"] = np.array(values) * 1e-300
+    path = tmp_path / ("t.parquet" if kind.startswith("parquet") else "t.csv")
+    if kind == "sums beyond":  # every row within the bound, a seed's sum over trials beyond it
+        frame = pd.DataFrame({"algo": ["a"] * 4 + ["b"] * 4, "seed": [0, 0, 1, 1] * 2, "trial": [0, 1] * 4,
+                              "value": [9e14, 9e14, 1, 1, 1, 2, 3, 4]})
+    if kind == "npz 1e308":
+        path = tmp_path / "t.npz"
+        np.savez(path, a=np.array([[1.0], [2.0], [1e308]]), b=np.ones((3, 1)))
+    elif kind == "monitor 1e308":
+        path = tmp_path / "sb3"
+        for algo in ("a", "b"):
+            for seed in range(2):
+                folder = path / algo / str(seed)
+                folder.mkdir(parents=True)
+                r = "1e308" if (algo, seed) == ("a", 1) else str(seed + 1)
+                (folder / "monitor.csv").write_text(f'#{{"t_start": 0}}\nr,l,t\n{r},10,0.1\n')
+    elif kind.startswith("parquet"):
+        frame.to_parquet(path)
+    else:
+        frame.to_csv(path, index=False)
+    names = ("monitor.csv",) if kind.startswith("monitor") else (path.name,)
+    assert_refused(["compare", "--table", str(path), "--resamples", "200"], tmp_path, capsys, names)
+
+
+def test_a_damaged_folder_waits_for_the_device_start(grid_run, tmp_path, monkeypatch):
+    """compare starts the device on a thread while it reads the folder; a damaged folder ends the
+    command at once, and exiting while that thread is inside JAX's start-up aborted the
+    interpreter ("terminate called ...", exit -6) after the error line: the thread is joined."""
+    from jaxeac.stats import run as stats_run
+
+    class Starter:
+        joined = False
+
+        def join(self):
+            Starter.joined = True
+
+    monkeypatch.setattr(stats_run, "_start_device", lambda: Starter())
+    run = tmp_path / "run"
+    shutil.copytree(grid_run, run)
+    (run / "results.parquet").write_bytes(b"")
+    with pytest.raises(UsageError, match="results.parquet"):
+        stats_run.compare_run_dir(run, resamples=200, progress=False)
+    assert Starter.joined
+
+
+def _edit_summary(part, **fields):
+    path = part / "summary.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), **fields}))
+
+
+def _edit_results(part, name, fill):
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(part / "results.parquet")
+    width = table.schema.field(name).type.list_size
+    dtype = table.schema.field(name).type.value_type.to_pandas_dtype()
+    values = pa.array(np.full(table.num_rows * width, fill, dtype))
+    column = pa.FixedSizeListArray.from_arrays(values, width)
+    table = table.set_column(table.schema.get_field_index(name), name, column)
+    pq.write_table(table, part / "results.parquet")
+
+
+@pytest.mark.parametrize("damage", ["per_algo list", "timing text", "seeds 2^70", "map of another size",
+                                    "policy not an action", "negative steps"])
+def test_merge_refuses_damage_found_by_the_campaign(parts_run, tmp_path, capsys, damage):
+    """Tracebacks (AttributeError, ValueError, ArrowTypeError) or parts merged as they were."""
+    run = tmp_path / "run"
+    shutil.copytree(parts_run, run)
+    parts = sorted(run.glob("part-*"))
+    config = summary_of(parts[0])["config"]
+    if damage == "per_algo list":
+        _edit_summary(parts[1], per_algo=[1])
+    elif damage == "timing text":
+        _edit_summary(parts[1], per_algo={"ac": {"compile_seconds": "abc"}, "eac": {}})
+    elif damage in ("seeds 2^70", "map of another size"):
+        for part in parts:
+            _edit_summary(part, config={**config, **({"seeds": 2**70} if damage == "seeds 2^70" else
+                                                      {"map": "..G\n"})})
+    else:
+        change = ("policy", 100) if damage == "policy not an action" else ("trial_steps", -3)
+        _edit_results(parts[1], *change)
+    assert_refused(["merge", str(run), "--no-compare"], run, capsys,
+                   ("summary.json", "results.parquet", "seeds"))
+
+
+@pytest.mark.parametrize("damage", ["part of NaN", "part of another shape", "parts a file"])
+def test_resumed_sweep_refuses_damage_found_by_the_campaign(sweep_run, tmp_path, capsys, damage):
+    import numpy as np
+
+    out = tmp_path / "s"
+    shutil.copytree(sweep_run, out)
+    (out / "results.csv").unlink()
+    part = sorted((out / "parts").glob("*.npz"))[0]
+    if damage == "parts a file":
+        shutil.rmtree(out / "parts")
+        (out / "parts").write_text("x")
+    else:
+        with np.load(part) as npz:
+            arrays = dict(npz)
+        arrays = ({k: v.astype(float) * np.nan for k, v in arrays.items()} if damage == "part of NaN"
+                  else {k: v[None] for k, v in arrays.items()})
+        np.savez(part, **arrays)
+    assert_refused(["sweep", *SMALL, "--set", "alpha=0.1,0.2", "--out", str(out)], out, capsys,
+                   ("parts", part.name))

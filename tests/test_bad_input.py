@@ -161,6 +161,7 @@ def test_key_beyond_32_bits_is_refused_not_wrapped(tmp_path, capsys):
     ["--chances", "100000000"],  # fits, but each step moves the r̃ of 10^8 chances: years
     ["--memory", "buffer", "--capacity", "1000000000000"],
     ["--chunk-size", "1", "--capacity", "1000000000000", "--memory", "buffer"],
+    ["--memory", "buffer", "--capacity", str(2**64)],  # past int64: was an OverflowError traceback
 ])
 def test_grid_sizes_that_cannot_fit_or_finish(flags, tmp_path, capsys):
     err = refused(capsys, ["grid", *TINY, "--out", str(tmp_path / "out"), *flags], tmp_path)
@@ -329,3 +330,65 @@ def test_full_disk_is_one_line_and_leaves_nothing(full_disk, capsys):
     refused(capsys, ["throw", "--angles", "0", "0.05", "--render", str(full_disk / "deck.png")], full_disk,
             "disk is full")  # two pictures do not fit: neither is left half-drawn
     assert list(full_disk.iterdir()) == []
+
+
+# ------------------------------------------------------------------ found by a hostile-input campaign
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["compare", "run", "--alpha", "5e-324"], "--alpha must lie in"),  # 1 - alpha/2 rounds to 1
+    (["compare", "run", "--alpha", "1e-40"], "--alpha must lie in"),
+    (["sweep", "--seeds", "2", "--set", "alpha=0.1,,0.2"], "empty"),  # was run with the empty value dropped
+    (["sweep", "--seeds", "2", "--set", "alpha=0.1,"], "empty"),
+    (["grid", *TINY, "--map", ""], "empty name is not a map file"),  # was the preset's map
+    (["grid", *TINY, "--map", "  "], "empty name is not a map file"),
+    (["bowling", "--seeds", "2", "--noise-speed", "1e12"], "noise_speed"),  # the simulation blew up
+    (["bowling", "--seeds", "2", "--noise-angle", "1e12"], "noise_angle"),
+    (["bowling", "--seeds", "2", "--theta-max", "1e-40"], "theta_max"),  # every angle 0 in float32
+    (["bowling", "--seeds", "2", "--noise-angle", "5e-324"], "noise_angle"),
+    (["throw", "--angles", "0", "--noise", "1e308"], "--noise"),
+    (["throw", "--angles", "0", "--theta-max", "5e-324"], "theta_max"),
+])
+def test_extreme_values_found_by_the_campaign(argv, match, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = [] if argv[0] in ("compare", "throw") else ["--out", str(tmp_path / "out")]
+    refused(capsys, [*argv, *out], tmp_path, match)
+
+
+def test_smallest_compare_alpha_is_accepted():
+    """The check above refuses what double precision cannot resolve, not small levels as such."""
+    from jaxeac.cli_args import MIN_TEST_ALPHA
+    from jaxeac.stats.closed_form import seeds_for_power
+
+    assert seeds_for_power(0.5, 0.8, MIN_TEST_ALPHA) is not None
+
+
+def test_reproduce_analysis_keys_differ_for_every_root_key():
+    """Keys k and k + 2^31 used to share every analysis key (mod 2^31); keys below 2^31 keep theirs."""
+    from jaxeac.experiments.reproduce.measures import sub_key
+
+    assert sub_key(0, "grid/reach") == 50674734  # unchanged for the keys that were distinct
+    for k in (0, 1, 12345, 2**31 - 1):
+        assert sub_key(k, "grid/reach") != sub_key(k + 2**31, "grid/reach")
+        assert sub_key(k + 2**31, "grid/reach") < 2**32
+    assert len({sub_key(k, "x") for k in range(0, 2**32, 2**28)}) == 16
+
+
+def test_policy_figure_of_a_large_map_draws_no_arrow_per_cell(tmp_path, monkeypatch):
+    """A 10,000-cell map took minutes (10^7 cells: hours) to draw an arrow and a tick per cell."""
+    import matplotlib.axes
+
+    from jaxeac import plots
+    from jaxeac.envs.grid import parse_map
+
+    calls = []
+    real = matplotlib.axes.Axes.quiver
+    monkeypatch.setattr(matplotlib.axes.Axes, "quiver",
+                        lambda self, *a, **k: calls.append(1) or real(self, *a, **k))
+    wide = parse_map("." * (plots.POLICY_ARROW_SIDE + 1) + "G\n")
+    plots.policy_figure(wide, {"ac": np.zeros(wide.n_cells, int)}, tmp_path / "wide.png", seed=0, max_steps=5)
+    assert calls == [] and (tmp_path / "wide.png").is_file()
+    small = parse_map(paper_like_map(11))
+    plots.policy_figure(small, {"ac": np.zeros(small.n_cells, int)}, tmp_path / "small.png", seed=0,
+                        max_steps=5)
+    assert calls == [1]

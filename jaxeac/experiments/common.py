@@ -204,6 +204,8 @@ def check_grid_resources(settings, grid_map, *, n_seeds: int | None = None, firs
     check_int32("seed indices", first_seed + n, "--seeds")
     check_int32("trials", trials, "--trials")
     check_int32("chances", chances, "--chances")
+    if settings.memory == "buffer":
+        check_int32("memory slots", settings.capacity, "--capacity")
     memory, algos = machine_memory(), len(settings.algos)
     per_seed = 5 * trials + 4 * cells + 8  # success bool, steps int32 [T]; policy int32 [S]; seed int64
     host = algos * n * per_seed

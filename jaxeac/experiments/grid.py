@@ -182,16 +182,41 @@ def merge_parts(out: str | Path) -> GridRun:
     except (TypeError, UsageError) as exc:
         raise UsageError(f"{parts[0] / 'summary.json'}: its config does not describe a run ({exc}); "
                          f"{fix}") from None
+    from jaxeac.envs.grid import GridWorld, parse_map
+
+    grid_map = parse_map(config["map"], source=f"{parts[0] / 'summary.json'}: the map of its config")
+    n_actions = GridWorld(grid_map, settings.chances).n_actions
+    timings = []
+    for s, p in zip(summaries, parts, strict=True):
+        per_algo = s.get("per_algo", {})
+        ok = isinstance(per_algo, dict) and all(
+            isinstance(t, dict)
+            and all(isinstance(t.get(k, 0.0), int | float) and not isinstance(t.get(k), bool)
+                    for k in ("compile_seconds", "run_seconds"))
+            for t in per_algo.values())
+        if not ok:
+            raise UsageError(f"{p / 'summary.json'}: its per_algo timings are damaged; {fix}")
+        timings.append(per_algo)
     results = {}
     loaded = [load_grid_results(p, settings.algos, settings.trials) for p in parts]
     for algo in settings.algos:
-        pieces = [(part[algo], summary.get("per_algo", {}).get(algo, {}))
-                  for part, summary in zip(loaded, summaries, strict=True)]
+        for part, p in zip(loaded, parts, strict=True):
+            x = part[algo]
+            if x.policy is not None and (x.policy.shape[1] != grid_map.n_cells or x.policy.size and (
+                    x.policy.min() < 0 or x.policy.max() >= n_actions)):
+                raise UsageError(f"{p / 'results.parquet'}: the policies of {algo} are not actions on the "
+                                 f"map of its summary.json; {fix}")
+            if x.trial_steps is not None and x.trial_steps.size and (
+                    x.trial_steps.min() < 0 or x.trial_steps.max() > settings.chances):
+                raise UsageError(f"{p / 'results.parquet'}: the per-trial steps of {algo} lie outside "
+                                 f"0..{settings.chances} chances; {fix}")
+        pieces = [(part[algo], per_algo.get(algo, {}))
+                  for part, per_algo in zip(loaded, timings, strict=True)]
         if any(x.trial_steps is None or x.policy is None for x, _ in pieces):
             raise UsageError(f"{out}: a part holds no per-trial steps or policies; run the parts with "
                              "--full-outputs to merge them")
         seeds = np.concatenate([x.seeds for x, _ in pieces])
-        if not np.array_equal(seeds, np.arange(settings.seeds)):
+        if seeds.size != settings.seeds or not np.array_equal(seeds, np.arange(seeds.size)):
             raise UsageError(f"{out}: the parts' seeds do not cover 0..{settings.seeds - 1} exactly once")
         finite = (None if any(x.finite is None for x, _ in pieces)
                   else np.concatenate([x.finite for x, _ in pieces]))
@@ -204,9 +229,7 @@ def merge_parts(out: str | Path) -> GridRun:
             run_seconds=max(float(x[4].get("run_seconds", 0.0)) for x in pieces),  # processes side by side
             finite=finite,
         )
-    from jaxeac.envs.grid import parse_map
-
-    return GridRun(settings, parse_map(config["map"]), results)
+    return GridRun(settings, grid_map, results)
 
 
 def summarize(run: GridRun) -> dict:

@@ -232,10 +232,22 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
     missing = needed - set(table.column_names)
     if missing:
         raise UsageError(f"{path} lacks the column(s) {', '.join(sorted(missing))}; re-run the experiment")
+    for name in ("seed", "successes", "steps", "first_success", "finite"):
+        if name not in table.column_names:
+            continue  # finite: absent in older folders
+        column = table.column(name)
+        kind = pa.types.is_boolean if name == "finite" else pa.types.is_integer
+        if not kind(column.type) or column.null_count:
+            what = f"has {column.null_count} missing value(s)" if kind(column.type) else f"is {column.type}"
+            raise UsageError(f"{path}: column {name!r} {what}, not the "
+                             f"{'booleans' if name == 'finite' else 'integers'} a run writes; re-run the "
+                             "experiment")
     written = (table.schema.metadata or {}).get(b"jaxeac.trials")
     if written is not None and written != str(trials).encode():
-        raise UsageError(f"{path} holds runs of {written.decode(errors='replace')} trials but summary.json "
-                         f"says {trials}; the files come from different runs: re-run the experiment")
+        shown = written.decode(errors="replace")
+        shown = shown if len(shown) <= 20 and shown.isprintable() else repr(shown[:20])
+        raise UsageError(f"{path} holds runs of {shown} trials but summary.json says {trials}; the files come "
+                         "from different runs: re-run the experiment")
     out = {}
     try:
         algo_column = table.column("algo").cast(pa.string())
@@ -259,9 +271,9 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
                 finite=rows.column("finite").to_numpy(zero_copy_only=False) if "finite" in rows.column_names
                 else None,
             )
-            if np.any(np.diff(out[algo].seeds) <= 0):
-                raise UsageError(f"{path}: the seeds of {algo} are not distinct and in order, as a run "
-                                 "writes them; re-run the experiment")
+            if np.any(np.diff(out[algo].seeds) <= 0) or np.any(out[algo].seeds[:1] < 0):
+                raise UsageError(f"{path}: the seeds of {algo} are not distinct, non-negative and in order, "
+                                 "as a run writes them; re-run the experiment")
             counted = np.bitwise_count(bits.bits).sum(axis=1, dtype=np.int64)  # padding bits are zero
             if bits.shape[0] != out[algo].seeds.shape[0] or not np.array_equal(out[algo].successes, counted):
                 raise UsageError(f"{path}: successes for {algo} do not match its success curves; "

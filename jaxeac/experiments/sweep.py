@@ -54,9 +54,12 @@ def parse_set(text: str) -> tuple[str, list]:
     key = ALIASES.get(key.strip(), key.strip())
     if key not in KEYS:
         raise UsageError(f"--set: unknown key {key!r}; sweepable keys: {', '.join(sorted(KEYS))}")
-    items = [v.strip() for v in values.split(",") if v.strip()]
-    if not items:
+    items = [v.strip() for v in values.split(",")]
+    if not any(items):
         raise UsageError(f"--set {key}: empty list of values; give at least one value")
+    if not all(items):
+        raise UsageError(f"--set {key}={values}: a value between commas is empty; separate the values with "
+                         "single commas (e.g. alpha=0.05,0.1)")
     parsed = []
     for item in items:
         try:
@@ -130,6 +133,9 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
                              "rerun with the same settings or choose another --out")
     else:
         atomic_write_json(manifest_path, manifest)
+    if (out / "parts").exists() and not (out / "parts").is_dir():
+        raise UsageError(f"{out / 'parts'} is not a folder (a sweep keeps its finished parts there); remove "
+                         "it or choose another --out")
     (out / "parts").mkdir(exist_ok=True)
     for stale in (out / "parts").glob(".*.tmp"):  # left by a run killed mid-write
         stale.unlink(missing_ok=True)
@@ -186,10 +192,19 @@ def load_point(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.n
         path = _unit_files(out, point_id, algo, c)
         try:
             with np.load(path) as unit:
-                parts.append({"success": unit["success"], "steps": unit["steps"]})
+                part = {"seeds": unit["seeds"], "success": unit["success"], "steps": unit["steps"]}
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
             raise UsageError(f"{path} is damaged ({type(exc).__name__}); delete it and rerun the same sweep "
                              "command to redo that part") from None
+        success, steps, seeds = part["success"], part["steps"], part["seeds"]
+        first = sum(len(q["success"]) for q in parts)
+        if not (success.dtype == bool and success.ndim == 2 and steps.shape == success.shape
+                and steps.dtype.kind in "iu" and seeds.shape == success.shape[:1] and seeds.dtype.kind in "iu"
+                and np.array_equal(seeds, np.arange(first, first + seeds.size))
+                and (not parts or success.shape[1] == parts[0]["success"].shape[1])):
+            raise UsageError(f"{path} is damaged (not the seeds, success and steps arrays a sweep writes); "
+                             "delete it and rerun the same sweep command to redo that part")
+        parts.append(part)
     return (np.concatenate([p["success"] for p in parts]), np.concatenate([p["steps"] for p in parts]))
 
 

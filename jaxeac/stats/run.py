@@ -281,15 +281,19 @@ def compare_experiment(
     return stats, plot
 
 
-def _start_device() -> None:
+def _start_device() -> threading.Thread:
     """Start JAX's default device on a thread: on a GPU, creating its context and loading its
     libraries takes a second or two, which the host's reading and per-seed measures can hide
-    (JAX initialises a backend once, under a lock, so the main thread simply finds it ready)."""
+    (JAX initialises a backend once, under a lock, so the main thread simply finds it ready).
+    Returns the thread: a command that fails before using the device waits for it, since the
+    interpreter aborts if it exits while that thread is still inside JAX's start-up."""
     def work() -> None:
         with contextlib.suppress(Exception):  # a failure shows up, with its message, at first use
             jax.block_until_ready(jax.numpy.zeros(1))
 
-    threading.Thread(target=work, daemon=True).start()
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+    return thread
 
 
 def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
@@ -327,22 +331,26 @@ def compare_run_dir(
     """
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
-    _start_device()  # a GPU's context starts while the host reads the folder
-    t_load = time.perf_counter()
-    data = load_run_dir(run_dir, baseline, treatment) if data is None else data
-    t_load = time.perf_counter() - t_load
-    bowling = data.experiment == "bowling"
-    expected = "return" if bowling else "successes"
-    if data.primary_measure != expected:
-        raise UsageError(
-            f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
-            f"(expected {expected!r}); fix summary.json or re-run the experiment"
-        )
-    paired = not unpaired and _same_seeds(data, baseline, treatment)
-    if require_paired and not paired:
-        nb, nt = len(data.success[baseline]), len(data.success[treatment])
-        raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has {nb} "
-                         f"and {nt}, or different seed ids); drop --paired to compare them unpaired")
+    starter = _start_device()  # a GPU's context starts while the host reads the folder
+    try:
+        t_load = time.perf_counter()
+        data = load_run_dir(run_dir, baseline, treatment) if data is None else data
+        t_load = time.perf_counter() - t_load
+        bowling = data.experiment == "bowling"
+        expected = "return" if bowling else "successes"
+        if data.primary_measure != expected:
+            raise UsageError(
+                f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
+                f"(expected {expected!r}); fix summary.json or re-run the experiment"
+            )
+        paired = not unpaired and _same_seeds(data, baseline, treatment)
+        if require_paired and not paired:
+            nb, nt = len(data.success[baseline]), len(data.success[treatment])
+            raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has "
+                             f"{nb} and {nt}, or different seed ids); drop --paired to compare them unpaired")
+    except BaseException:
+        starter.join()  # a damaged folder: let JAX finish starting before the command ends
+        raise
     bar = None
     if progress:
         from tqdm.auto import tqdm

@@ -82,6 +82,13 @@ def _read_per_seed(path: Path) -> dict:
                     raise UsageError(f"{path}: column {col!r} of {algo} holds a value that is not a number; "
                                      "re-run the experiment to rewrite it") from None
                 continue  # ignore non-numeric extra columns
+            if col in NUMERIC_COLUMNS:  # counts and seed ids: whole numbers (NaN, inf, 1e308 are damage)
+                v = cols[col]
+                whole = np.isfinite(v) & (np.abs(v) <= 2.0**53)
+                whole[whole] = v[whole] == np.round(v[whole])
+                if not whole.all():
+                    raise UsageError(f"{path}: column {col!r} of {algo} holds {v[np.argmin(whole)]:g}, not a "
+                                     "whole number as a run writes; re-run the experiment to rewrite it")
         table[algo] = cols
     return table
 

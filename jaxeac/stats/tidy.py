@@ -54,6 +54,12 @@ COLUMNS = ("algo", "seed", "value")
 #: Share of the last episodes whose mean reward is the per-seed value of an SB3 run.
 SB3_LAST_SHARE = 0.10
 #: What a per-seed value is when the table has a trial column, per --aggregate.
+#: The largest |value| a table may hold, and the smallest spread (largest minus smallest per-seed
+#: value) of one that varies: the bootstrap sums values and their squares in float32 (about 3.4e38 at
+#: most, 1.2e-38 at least), and the closed-form tests square them in float64, so values beyond these
+#: would overflow or vanish and the intervals and p-values would be wrong (or NaN).
+MAX_VALUE = 1e15
+MIN_SPREAD = 1e-15
 TRIAL_TEXTS = {"sum": "the sum of value over its trials", "mean": "the mean of value over its trials",
                "last": "value at its last (largest) trial"}
 
@@ -97,6 +103,13 @@ def _numeric(frame, column: str, path: Path, *, finite: bool = True) -> np.ndarr
             what = f"the non-numeric value {text!r}"
         raise UsageError(f"{path}: row {i + 1} (data rows counted from 1), column {column!r}, "
                          f"has {what}; every {column} must be a finite number")
+    if finite:
+        huge = np.abs(vals) > MAX_VALUE
+        if huge.any():
+            i = int(np.argmax(huge))
+            raise UsageError(f"{path}: row {i + 1} (data rows counted from 1), column {column!r}, has "
+                             f"{raw.iloc[i]!s}, beyond ±{MAX_VALUE:g}, where the statistics overflow; "
+                             "rescale the column (e.g. divide it by a power of ten)")
     return vals
 
 
@@ -227,11 +240,13 @@ def read_rliable(path) -> tuple[dict[str, np.ndarray], str]:
         if arr.ndim != 2 or not real or 0 in arr.shape:
             raise UsageError(f"{path}: array {name!r} has shape {arr.shape} and dtype {arr.dtype}; "
                              "each algorithm needs a non-empty [runs, tasks] array of real numbers")
-        bad = ~np.isfinite(arr.astype(np.float64))
+        scores = arr.astype(np.float64)
+        bad = ~np.isfinite(scores) | (np.abs(np.nan_to_num(scores)) > MAX_VALUE)
         if bad.any():
             run, task = (int(i) for i in np.argwhere(bad)[0])
-            raise UsageError(f"{path}: array {name!r}, run {run}, task {task} is {arr[run, task]}; "
-                             "every score must be a finite number")
+            raise UsageError(f"{path}: array {name!r}, run {run}, task {task} is {arr[run, task]}; every "
+                             f"score must be a finite number within ±{MAX_VALUE:g}, where the statistics "
+                             "do not overflow (rescale the scores if they are larger)")
         samples[name] = arr.astype(np.float64).mean(axis=1)
         tasks[name] = arr.shape[1]
     if len(set(tasks.values())) > 1:
@@ -248,10 +263,28 @@ def read_any(path, aggregate: str = "sum") -> tuple[dict[str, np.ndarray], str, 
         raise UsageError(f"--table {path} does not exist; pass a CSV or Parquet table, an .npz or an "
                          "SB3 folder")
     if path.is_dir():
-        return (*read_sb3(path), "sb3")
-    if path.suffix.lower() == ".npz":
-        return (*read_rliable(path), "rliable")
-    return (*read_tidy(path, aggregate), "tidy")
+        samples, what, fmt = (*read_sb3(path), "sb3")
+    elif path.suffix.lower() == ".npz":
+        samples, what, fmt = (*read_rliable(path), "rliable")
+    else:
+        samples, what, fmt = (*read_tidy(path, aggregate), "tidy")
+    check_scale(samples, path)
+    return samples, what, fmt
+
+
+def check_scale(samples: dict[str, np.ndarray], path) -> None:
+    """Per-seed values the statistics can take: within ±`MAX_VALUE` (sums over trials can pass the
+    bound their rows keep) and, unless all equal, spread by at least `MIN_SPREAD`."""
+    for name, x in samples.items():
+        if not np.all(np.abs(x) <= MAX_VALUE):
+            raise UsageError(f"{path}: algo {name!r} has a per-seed value beyond ±{MAX_VALUE:g}, where the "
+                             "statistics overflow; rescale the values (e.g. divide them by a power of ten)")
+    values = np.concatenate([np.asarray(x, np.float64).reshape(-1) for x in samples.values()])
+    spread = float(values.max() - values.min()) if values.size else 0.0
+    if 0 < spread < MIN_SPREAD:
+        raise UsageError(f"{path}: the per-seed values differ by at most {spread:.3g}, below {MIN_SPREAD:g}, "
+                         "where their squares vanish in the statistics; rescale the values (e.g. multiply "
+                         "them by a power of ten)")
 
 
 # ---------------------------------------------------------------- checks

@@ -31,6 +31,7 @@ PIN_CENTRE_Z = 0.19  # m: centre height of an upright pin (0.38 m tall)
 PIN_SPACING = 0.30  # m between neighbouring pin centres
 HEAD_PIN_X = 6.6  # m: 6.0 m from the theta = 0 release point
 ROW_GAP = PIN_SPACING * math.sqrt(3.0) / 2.0
+_F32_TINY = float(np.finfo(np.float32).tiny)  # smallest normal float32
 
 
 def _pin_xy() -> np.ndarray:
@@ -116,12 +117,25 @@ class BowlingConfig:
             raise UsageError(f"theta_max={self.theta_max!r}: need a finite angle > 0 (rad)")
         if self.theta_max >= math.pi / 2:
             raise UsageError(f"theta_max={self.theta_max!r}: need < pi/2 so throws go down-lane")
+        if not math.isfinite(self.release_speed) or self.release_speed <= 0:
+            raise UsageError(f"release_speed={self.release_speed!r}: need a speed > 0 (m/s)")
         for name in ("noise_angle", "noise_speed"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise UsageError(f"{name}={value!r}: need a finite value >= 0 (0 = exact)")
-        if not math.isfinite(self.release_speed) or self.release_speed <= 0:
-            raise UsageError(f"release_speed={self.release_speed!r}: need a speed > 0 (m/s)")
+        # Limits of a meaningful throw: noise past them turns throws away from the pins or makes the
+        # ball faster than the physics steps resolve (it passes through pins, or the simulation blows up).
+        for name, most in (("noise_angle", math.pi / 2), ("noise_speed", self.release_speed)):
+            if getattr(self, name) > most:
+                raise UsageError(f"{name}={getattr(self, name)!r}: need at most {most:.4g} (the s.d. of the "
+                                 "noise; larger noise makes throws meaningless)")
+        for name in ("theta_max", "noise_angle", "noise_speed"):  # throws are prepared in float32
+            value = getattr(self, name)
+            if 0 < value < _F32_TINY:
+                zero = "" if name == "theta_max" else "0 or "
+                raise UsageError(f"{name}={value!r}: below float32's smallest normal number, where throws "
+                                 f"are prepared (it acts as 0); use {zero}a value of at least "
+                                 f"{_F32_TINY:.3g}")
         if not isinstance(self.n_steps, int) or not 1 <= self.n_steps <= MAX_STEPS:
             raise UsageError(f"n_steps={self.n_steps!r}: need an integer in [1, {MAX_STEPS}]")
         if not 0 < self.tilt_down_deg < 90:

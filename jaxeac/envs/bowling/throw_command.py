@@ -37,9 +37,13 @@ def throw_command(
     if not math.isfinite(noise) or noise < 0:
         raise UsageError(f"noise={noise!r}: need a finite scale >= 0 (0 = deterministic)")
     a = check_angles(np.asarray(angles, dtype=np.float64).reshape(-1), cfg)
-    run_cfg = dataclasses.replace(
-        cfg, noise_angle=cfg.noise_angle * noise, noise_speed=cfg.noise_speed * noise
-    )
+    try:
+        run_cfg = dataclasses.replace(
+            cfg, noise_angle=cfg.noise_angle * noise, noise_speed=cfg.noise_speed * noise
+        )
+    except UsageError as exc:
+        raise UsageError(f"--noise {noise:g} scales the noise out of range ({exc}); use a --noise from 0 "
+                         "to a few (1: the noise of SPEC B3)") from None
     res = throw(
         initial_pins(len(a)),
         a,

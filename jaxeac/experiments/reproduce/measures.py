@@ -17,8 +17,11 @@ from jaxeac.experiments.common import mean_ci95
 
 
 def sub_key(key: int, name: str) -> int:
-    """The integer statistics key of one named analysis: (key · 7919 + crc32(name)) mod 2³¹."""
-    return (int(key) * 7919 + zlib.crc32(name.encode())) % 2**31
+    """The integer statistics key of one named analysis: (key · 7919 + crc32(name)) mod 2³¹, plus 2³¹
+    for root keys of 2³¹ and above, so every root key in 0..2³²-1 gives each analysis its own key
+    (mod 2³¹ alone, keys k and k + 2³¹ would share them)."""
+    key = int(key)
+    return (key * 7919 + zlib.crc32(name.encode())) % 2**31 + (key >> 31 << 31)
 
 
 def contrast(x_baseline, x_treatment, key: int, *, resamples: int, higher_is_better: bool = True) -> dict:
