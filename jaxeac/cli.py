@@ -136,11 +136,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _claim_out(args: argparse.Namespace, path, lock_path=None):
+def _claim_out(args: argparse.Namespace, path, lock_path=None, kind: str = "run"):
     """Check the output folder `path` and hold it (or `lock_path`, a part of it) for the rest of the
-    command: a second run into the same folder is refused until this one ends."""
-    from jaxeac.io import check_writable_dir, folder_lock
+    command: a second run into the same folder is refused until this one ends, and a folder holding
+    another kind of output (`jaxeac.io.folder_kind`) is refused before any compute."""
+    from jaxeac.io import check_folder_kind, check_writable_dir, folder_lock
 
+    check_folder_kind(path, kind)
     stack = getattr(args, "_cleanup", None)
     if stack is not None:
         stack.enter_context(folder_lock(lock_path or path))
@@ -303,6 +305,9 @@ def _grid_part(args: argparse.Namespace, settings, out) -> int:
 def cmd_merge(args: argparse.Namespace) -> int:
     from jaxeac.experiments.grid import merge_parts
 
+    from jaxeac.io import check_folder_kind
+
+    check_folder_kind(args.dir, "run", flag="merge")
     _claim_existing(args, args.dir)
     run = merge_parts(args.dir)
     return _finish_grid(run, args.dir, compare=not args.no_compare, quiet=args.quiet,
@@ -471,7 +476,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     base.resolved()  # validate the flags before the swept values
     sweep = Sweep.build(base, args.sets)
     sweep = fit_sweep(sweep)  # sizes that cannot fit or finish fail here, at any point
-    _claim_out(args, args.out)
+    _claim_out(args, args.out, kind="sweep")
     total = len(sweep.points()) * base.seeds * len(base.algos)
     with tqdm(total=total, unit="run", disable=args.quiet, desc="sweep", file=sys.stderr) as bar:
         rows = run_sweep(sweep, args.out, progress=bar.update, compare=args.compare)
@@ -483,7 +488,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from jaxeac.experiments.reproduce import reproduce
 
-    _claim_out(args, args.out)
+    _claim_out(args, args.out, kind="reproduce")
     report = reproduce(args.out, quick=args.quick, key=args.key, progress=not args.quiet)
     print(f"report in {report}")
     return 0

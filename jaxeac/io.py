@@ -116,6 +116,31 @@ RUN_FOLDER_FILES = ("summary.json", "results.parquet", "per_seed.csv", "curves.n
                     "bowling.npz", "table1.md", "fig*.png", "stats.json", "report.md", "compare_*.png")
 
 
+FOLDER_KINDS = {"run": "a grid or bowling run", "sweep": "a sweep", "reproduce": "a reproduction"}
+
+
+def folder_kind(path: str | os.PathLike) -> tuple[str, Path] | None:
+    """(kind, the file that says so) of what an existing output folder holds, or None: a
+    reproduction (``reproduce.json`` in it or in a step folder), a sweep (``sweep.json``) or a
+    run (``summary.json``)."""
+    path = Path(path)
+    if not path.is_dir():
+        return None
+    markers = [("reproduce", path / "reproduce.json"), ("sweep", path / "sweep.json"),
+               ("run", path / "summary.json")]
+    markers[1:1] = [("reproduce", step) for step in sorted(path.glob("*/reproduce.json"))]
+    return next(((kind, marker) for kind, marker in markers if marker.is_file()), None)
+
+
+def check_folder_kind(path: str | os.PathLike, kind: str, flag: str = "--out") -> None:
+    """Refuse to write `kind` of output into a folder that holds another kind (their files would
+    mix: a run replaces only a run's files, a sweep or a reproduction resumes its own)."""
+    found = folder_kind(path)
+    if found is not None and found[0] != kind:
+        raise UsageError(f"{flag} {path} holds {FOLDER_KINDS[found[0]]} ({found[1]}), not "
+                         f"{FOLDER_KINDS[kind]}; choose another {flag} or remove that folder")
+
+
 @contextlib.contextmanager
 def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterator[Path]:
     """Yield a staging folder; on success move its files into `out`, else delete it.

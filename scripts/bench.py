@@ -303,19 +303,23 @@ def render(paths: list[Path]) -> str:
                        f"{r.get('state_bytes_per_seed', '–')} | {r['mean_successes']:.2f} |"
                        + "".join(f" {r[f'{n}_steps_per_s']:.3g} | {r[f'jaxeac_over_{n}']:.2f}× |"
                                  if f"{n}_steps_per_s" in r else " – | – |" for n in compiled))
+        def algo(r: dict) -> str:  # EAC rows say whether they jumped (records since memory jumps)
+            jump = {"on": " with jumps", "off": " without jumps"}.get(r.get("jump"), "") if r["algo"] != "ac" else ""
+            return r["algo"].upper() + jump
+
         peers = {(r["algo"], r["seeds"]): r for r in rec["rows"] if r["impl"] == "numpy"}
-        ratios = [(r["algo"], r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
+        ratios = [(algo(r), r["seeds"], r["steps_per_s"] / peers[(r["algo"], r["seeds"])]["steps_per_s"])
                   for r in rec["rows"] if r["impl"] == "jaxeac" and (r["algo"], r["seeds"]) in peers]
         if ratios:
             out.append("")
             out.append("jaxeac / NumPy peer (same run, same seeds): "
-                       + "; ".join(f"{a.upper()} at {n:,} seeds: **{x:.1f}×**" for a, n, x in ratios))
+                       + "; ".join(f"{a} at {n:,} seeds: **{x:.1f}×**" for a, n, x in ratios))
         for name in compiled:
-            pairs = [(r["algo"], r["seeds"], r[f"jaxeac_over_{name}"]) for r in rec["rows"]
+            pairs = [(algo(r), r["seeds"], r[f"jaxeac_over_{name}"]) for r in rec["rows"]
                      if r["impl"] == "jaxeac" and f"jaxeac_over_{name}" in r]
             out.append("")
             out.append(f"jaxeac / {labels[name]} peer (same run, same seeds): "
-                       + "; ".join(f"{a.upper()} at {n:,} seeds: **{x:.2f}×**" for a, n, x in pairs))
+                       + "; ".join(f"{a} at {n:,} seeds: **{x:.2f}×**" for a, n, x in pairs))
         out.append("")
     return "\n".join(out)
 

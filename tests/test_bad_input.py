@@ -219,6 +219,35 @@ def test_empty_out_and_bad_render_paths(tmp_path, capsys, monkeypatch):
     refused(capsys, ["grid", *TINY, "--out", "x" * 5000], tmp_path, "too long")
 
 
+def test_a_folder_holding_another_kind_of_output_is_refused(tmp_path, capsys):
+    """A run, a sweep and a reproduction never share a folder: their files would mix (a run
+    replaces only a run's files; a sweep or a reproduction resumes its own)."""
+    kinds = {"run": "summary.json", "sweep": "sweep.json", "reproduce": "grid/reproduce.json"}
+    for kind, marker in kinds.items():
+        (tmp_path / kind / marker).parent.mkdir(parents=True)
+        (tmp_path / kind / marker).write_text("{}")
+    run, sweep, repro = (str(tmp_path / k) for k in kinds)
+    refused(capsys, ["grid", *TINY, "--out", sweep], tmp_path, r"holds a sweep .*sweep\.json")
+    refused(capsys, ["bowling", "--seeds", "2", "--out", repro], tmp_path, "holds a reproduction")
+    refused(capsys, ["sweep", "--set", "alpha=0.1,0.2", *TINY[:6], "--out", run], tmp_path,
+            "holds a grid or bowling run")
+    refused(capsys, ["reproduce", "--quick", "--out", sweep], tmp_path, "holds a sweep")
+    refused(capsys, ["grid", *TINY, "--out", str(tmp_path / "reproduce" / "grid")], tmp_path,
+            "holds a reproduction")  # a reproduction's step folder is the reproduction's
+    refused(capsys, ["merge", sweep], tmp_path, "holds a sweep")
+
+
+@pytest.mark.parametrize("key", [1, 2])
+def test_two_seeds_compare_without_warnings(tmp_path, capsys, key):
+    """Two seeds per method: resamples and leave-one-out samples without spread make g and
+    max-T infinite or undefined; the report says so, and numpy prints nothing (module mark:
+    a RuntimeWarning fails the test)."""
+    argv = ["grid", "--seeds", "2", "--trials", "20", "--chances", "20", "--key", str(key), "--quiet",
+            "--out", str(tmp_path / "run")]
+    assert main(argv) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_render_reports_the_file_it_wrote(tmp_path, capsys):
     assert main(["throw", "--angles", "0", "--render", str(tmp_path / "deck")]) == 0
     reported = json.loads(capsys.readouterr().out)["render"]

@@ -72,8 +72,8 @@ def test_a_run_stopped_at_random_points_leaves_one_whole_run(tmp_path, reference
         code = proc.wait(timeout=600)
         err = proc.stderr.read().decode()
         assert "Traceback" not in err, err[-2000:]
-        if sig == signal.SIGINT:
-            assert code in (0, 130), (code, err[-2000:])
+        if sig == signal.SIGINT:  # -SIGINT: it landed before the interpreter had a handler at all
+            assert code in (0, 130, -signal.SIGINT), (code, err[-2000:])
         key = whole_run(out, refs)
         assert set(visible(out)) <= set(visible(refs[key])), visible(out)
     # the next run removes what the stopped ones left and ends with the new run, whole

@@ -137,11 +137,14 @@ def bca_ci(
 
 def bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
     nx, ny = x.size, y.size
-    est = float(_two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), ny, y.sum(), (y**2).sum()))
-    star = _two_sample_stat(statistic, nx, sb1, sb2, ny, st1, st2)
-    jx = _two_sample_stat(statistic, *jackknife_moments(x), ny, y.sum(), (y**2).sum())
-    jy = _two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), *jackknife_moments(y))
-    lo, hi = bca_interval(est, star, [jx, jy], alpha)
+    # A few seeds per method: resamples and leave-one-out samples without spread give g = ±inf
+    # or NaN (0/0), which the interval below takes as they are; numpy need not warn of them.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        est = float(_two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), ny, y.sum(), (y**2).sum()))
+        star = _two_sample_stat(statistic, nx, sb1, sb2, ny, st1, st2)
+        jx = _two_sample_stat(statistic, *jackknife_moments(x), ny, y.sum(), (y**2).sum())
+        jy = _two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), *jackknife_moments(y))
+        lo, hi = bca_interval(est, star, [jx, jy], alpha)
     return Estimate(est, lo, hi, 1 - alpha)
 
 

@@ -138,6 +138,8 @@ def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_meth
         while k > 0 and ok[k - 1]:
             k -= 1
         sustained = int(trial[k])
+    with np.errstate(invalid="ignore"):  # a few seeds: max-T of trials without spread is inf (then NaN)
+        maxt_critical = float(np.quantile(max_star, 1 - alpha))
     return {
         "trials": T,
         "kind": "success_rate" if binary else "mean",
@@ -151,7 +153,7 @@ def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_meth
         "band_method": band_method,
         "t_welch": t_obs,
         "p_maxT": p_adj,
-        "maxT_critical": float(np.quantile(max_star, 1 - alpha)),
+        "maxT_critical": maxt_critical,
         "test_method": test_method,
         "significant_trials": trial[sig].tolist(),
         "first_significant_trial": int(trial[sig][0]) if sig.any() else None,

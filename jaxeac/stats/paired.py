@@ -43,7 +43,10 @@ DESIGN = ("paired: seed i of both methods starts from the same key fold_in(root,
 
 
 def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
-    """d_z = mean / sd from the mean and the mean square of the differences."""
+    """d_z = mean / sd from the mean and the mean square of the differences (undefined, NaN, for
+    fewer than two: a jackknife sample of a two-seed run)."""
+    if n < 2:
+        return np.full(np.shape(mean), np.nan)
     var = np.maximum(square - mean * mean, 0.0) * n / (n - 1)
     sd = np.sqrt(var)
     with np.errstate(divide="ignore", invalid="ignore"):
