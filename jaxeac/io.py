@@ -124,12 +124,15 @@ def folder_kind(path: str | os.PathLike) -> tuple[str, Path] | None:
     reproduction (``reproduce.json`` in it or in a step folder), a sweep (``sweep.json``) or a
     run (``summary.json``)."""
     path = Path(path)
-    if not path.is_dir():
+    try:
+        if not path.is_dir():
+            return None
+        markers = [("reproduce", path / "reproduce.json"), ("sweep", path / "sweep.json"),
+                   ("run", path / "summary.json")]
+        markers[1:1] = [("reproduce", step) for step in sorted(path.glob("*/reproduce.json"))]
+        return next(((kind, marker) for kind, marker in markers if marker.is_file()), None)
+    except OSError:  # a name too long, a folder that cannot be listed: `check_writable_dir` says so
         return None
-    markers = [("reproduce", path / "reproduce.json"), ("sweep", path / "sweep.json"),
-               ("run", path / "summary.json")]
-    markers[1:1] = [("reproduce", step) for step in sorted(path.glob("*/reproduce.json"))]
-    return next(((kind, marker) for kind, marker in markers if marker.is_file()), None)
 
 
 def check_folder_kind(path: str | os.PathLike, kind: str, flag: str = "--out") -> None:
