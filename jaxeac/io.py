@@ -144,6 +144,9 @@ def check_folder_kind(path: str | os.PathLike, kind: str, flag: str = "--out") -
                          f"{FOLDER_KINDS[kind]}; choose another {flag} or remove that folder")
 
 
+_STAGES: dict[str, int] = {}  # real path of an output folder -> stages of this process open in it
+
+
 @contextlib.contextmanager
 def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterator[Path]:
     """Yield a staging folder; on success move its files into `out`, else delete it.
@@ -160,10 +163,14 @@ def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterat
     """
     with folder_lock(out):
         out = check_writable_dir(out)
-        for stale in out.glob(".staging-*"):  # left by a run killed before it finished (we hold the lock)
-            shutil.rmtree(stale, ignore_errors=True)
-        stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
+        key = os.path.realpath(out)
+        if not _STAGES.get(key):  # no stage of ours is open here: any is left by a killed run
+            for stale in out.glob(".staging-*"):
+                shutil.rmtree(stale, ignore_errors=True)
+        others = set(out.glob(".staging-*"))  # an enclosing stage of this folder, if any
+        _STAGES[key] = _STAGES.get(key, 0) + 1
         try:
+            stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
             yield stage
             written = {item.name for item in stage.iterdir()}
             for item in sorted(stage.iterdir()):
@@ -176,8 +183,10 @@ def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterat
             if is_disk_full(exc):
                 raise disk_full_error(exc, out) from exc
             raise
-        finally:
-            shutil.rmtree(stage, ignore_errors=True)
+        finally:  # this stage, also if a Ctrl-C came before it had a name (we hold the folder's lock)
+            _STAGES[key] -= 1
+            for stage in set(out.glob(".staging-*")) - others:
+                shutil.rmtree(stage, ignore_errors=True)
 
 
 # ------------------------------------------------------------------ a full disk

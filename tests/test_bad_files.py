@@ -136,6 +136,30 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path):
     assert (out / "results.parquet").is_file()
 
 
+def test_a_stage_interrupted_before_it_has_a_name_is_removed(tmp_path, monkeypatch):
+    """Ctrl-C right after the staging folder is made, before staged_dir knows its name: nothing
+    is left; an enclosing stage of the same folder survives an inner one."""
+    import tempfile
+
+    from jaxeac.io import staged_dir
+
+    out = tmp_path / "run"
+    made = tempfile.mkdtemp
+
+    def interrupted(**kw):
+        made(**kw)
+        raise KeyboardInterrupt
+
+    with staged_dir(out) as outer:
+        (outer / "a.txt").write_text("outer")
+        with monkeypatch.context() as m:
+            m.setattr(tempfile, "mkdtemp", interrupted)
+            with pytest.raises(KeyboardInterrupt), staged_dir(out):
+                pass
+        assert list(out.glob(".staging-*")) == [outer]
+    assert not list(out.glob(".staging-*")) and (out / "a.txt").read_text() == "outer"
+
+
 def test_a_new_run_replaces_the_old_folder_as_a_whole(tmp_path):
     """A run into a folder of another run (its report, its figures, bowling's files) leaves no
     file of the old run beside the new results."""

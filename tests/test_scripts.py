@@ -35,7 +35,7 @@ def test_bench_writes_a_record_with_the_peer_beside_jaxeac(tmp_path):
         assert abs(r["steps_per_s"] - r["agent_steps"] / r["run_s"]) < 1e-6 * r["steps_per_s"]
     table = _script("scripts/bench.py", "--render", str(out))
     assert table.returncode == 0, table.stderr[-2000:]
-    assert "| jaxeac | eac | split | xla | 60 |" in table.stdout
+    assert "| jaxeac | eac | split | xla, jumps | 60 |" in table.stdout  # EAC jumps by default
     assert "jaxeac / NumPy peer (same run, same seeds): AC at 60 seeds:" in table.stdout
 
 
