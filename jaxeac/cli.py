@@ -136,13 +136,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _claim_out(args: argparse.Namespace, path, lock_path=None, kind: str = "run"):
+def _claim_out(args: argparse.Namespace, path, lock_path=None, kind: str = "run", reads: bool = False):
     """Check the output folder `path` and hold it (or `lock_path`, a part of it) for the rest of the
     command: a second run into the same folder is refused until this one ends, and a folder holding
     another kind of output (`jaxeac.io.folder_kind`) is refused before any compute."""
     from jaxeac.io import check_folder_kind, check_writable_dir, folder_lock
 
-    check_folder_kind(path, kind)
+    check_folder_kind(path, kind, reads=reads)
     stack = getattr(args, "_cleanup", None)
     if stack is not None:
         stack.enter_context(folder_lock(lock_path or path))
@@ -154,7 +154,7 @@ def _claim_existing(args: argparse.Namespace, path) -> None:
     from pathlib import Path
 
     if Path(path).is_dir():
-        _claim_out(args, path)
+        _claim_out(args, path, reads=True)
 
 
 def _init_distributed(args: argparse.Namespace) -> None:
@@ -305,9 +305,6 @@ def _grid_part(args: argparse.Namespace, settings, out) -> int:
 def cmd_merge(args: argparse.Namespace) -> int:
     from jaxeac.experiments.grid import merge_parts
 
-    from jaxeac.io import check_folder_kind
-
-    check_folder_kind(args.dir, "run", flag="merge")
     _claim_existing(args, args.dir)
     run = merge_parts(args.dir)
     return _finish_grid(run, args.dir, compare=not args.no_compare, quiet=args.quiet,

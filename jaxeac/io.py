@@ -135,13 +135,15 @@ def folder_kind(path: str | os.PathLike) -> tuple[str, Path] | None:
         return None
 
 
-def check_folder_kind(path: str | os.PathLike, kind: str, flag: str = "--out") -> None:
-    """Refuse to write `kind` of output into a folder that holds another kind (their files would
-    mix: a run replaces only a run's files, a sweep or a reproduction resumes its own)."""
+def check_folder_kind(path: str | os.PathLike, kind: str, *, reads: bool = False) -> None:
+    """Refuse a folder that holds another kind of output than `kind`: to write into (their files
+    would mix: a run replaces only a run's files, a sweep or a reproduction resumes its own), or
+    to read as one (`reads`: compare, merge)."""
     found = folder_kind(path)
     if found is not None and found[0] != kind:
-        raise UsageError(f"{flag} {path} holds {FOLDER_KINDS[found[0]]} ({found[1]}), not "
-                         f"{FOLDER_KINDS[kind]}; choose another {flag} or remove that folder")
+        fix = (f"pass a folder holding {FOLDER_KINDS[kind]}" if reads
+               else "choose another --out (a new or empty folder)")
+        raise UsageError(f"{path} holds {FOLDER_KINDS[found[0]]} ({found[1]}), not {FOLDER_KINDS[kind]}; {fix}")
 
 
 _STAGES: dict[str, int] = {}  # real path of an output folder -> stages of this process open in it

@@ -174,6 +174,10 @@ def test_huge_map_and_device_map_files(tmp_path, capsys):
     big.write_text(paper_like_map(2000))  # 4 million cells
     refused(capsys, ["grid", *TINY, "--seeds", "100000", "--map", str(big), "--out", str(tmp_path / "o")],
             tmp_path, "cannot fit in memory")
+    line = tmp_path / "line.txt"
+    line.write_text("G" + "." * (1 << 22) + "\n")  # one row past the cell limit
+    refused(capsys, ["grid", *TINY, "--map", str(line), "--out", str(tmp_path / "o")], tmp_path,
+            "4,194,305 cells, more than the 4,194,304")
     refused(capsys, ["grid", *TINY, "--map", "/dev/zero", "--out", str(tmp_path / "o")], tmp_path,
             "is a device")
     refused(capsys, ["grid", *TINY, "--map", str(tmp_path), "--out", str(tmp_path / "o")], tmp_path,
@@ -234,7 +238,10 @@ def test_a_folder_holding_another_kind_of_output_is_refused(tmp_path, capsys):
     refused(capsys, ["reproduce", "--quick", "--out", sweep], tmp_path, "holds a sweep")
     refused(capsys, ["grid", *TINY, "--out", str(tmp_path / "reproduce" / "grid")], tmp_path,
             "holds a reproduction")  # a reproduction's step folder is the reproduction's
-    refused(capsys, ["merge", sweep], tmp_path, "holds a sweep")
+    refused(capsys, ["merge", sweep], tmp_path, "holds a sweep .*; pass a folder holding a grid or bowling run")
+    refused(capsys, ["compare", sweep], tmp_path, "holds a sweep .*; pass a folder holding a grid or bowling run")
+    err = refused(capsys, ["grid", *TINY, "--out", sweep], tmp_path, "choose another --out")
+    assert "remove" not in err  # never advice that deletes the user's sweep
 
 
 @pytest.mark.parametrize("key", [1, 2])
@@ -246,6 +253,11 @@ def test_two_seeds_compare_without_warnings(tmp_path, capsys, key):
             "--out", str(tmp_path / "run")]
     assert main(argv) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_throw_noise_that_underflows_is_refused(tmp_path, capsys):
+    refused(capsys, ["throw", "--angles", "0", "--noise=5e-324"], tmp_path, "scales the noise to 0")
+    refused(capsys, ["throw", "--angles", "0", "--noise=1e-40"], tmp_path, "smallest normal")
 
 
 def test_render_reports_the_file_it_wrote(tmp_path, capsys):

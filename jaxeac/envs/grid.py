@@ -92,6 +92,11 @@ class GridMap:
         return np.flatnonzero(free).astype(np.int32)
 
 
+#: Most cells a map may have: the transition table is a constant of the compiled run, and per-seed
+#: tables are dense; a 3-million-cell map took ~30 s for a two-seed run, 10 million over 5 minutes.
+MAX_CELLS = 1 << 22
+
+
 def parse_map(text: str, *, source: str = "map") -> GridMap:
     """Parse and validate an ASCII map (G1); raise `UsageError` naming the problem.
 
@@ -114,6 +119,10 @@ def parse_map(text: str, *, source: str = "map") -> GridMap:
         raise UsageError(
             f"{source} has unknown characters {shown!r}; use only '.', '#' and 'G'"
         )
+    if len(rows) * len(rows[0]) > MAX_CELLS:
+        raise UsageError(f"{source} has {len(rows) * len(rows[0]):,} cells, more than the {MAX_CELLS:,} a run "
+                         "can hold as per-seed tables (beyond, even two seeds take many minutes to set up); "
+                         "use a smaller map")
     cells = np.frombuffer("".join(rows).encode("ascii"), np.uint8).reshape(len(rows), len(rows[0]))
     goal_ys, goal_xs = np.nonzero(cells == ord("G"))
     if goal_ys.size != 1:

@@ -37,6 +37,9 @@ def throw_command(
     if not math.isfinite(noise) or noise < 0:
         raise UsageError(f"noise={noise!r}: need a finite scale >= 0 (0 = deterministic)")
     a = check_angles(np.asarray(angles, dtype=np.float64).reshape(-1), cfg)
+    if noise > 0 and (cfg.noise_angle * noise == 0 or cfg.noise_speed * noise == 0):
+        raise UsageError(f"--noise {noise!r} scales the noise to 0 (it underflows); use 0 for exact throws "
+                         "or a scale from about 1e-30 to a few (1: the noise of SPEC B3)")
     try:
         run_cfg = dataclasses.replace(
             cfg, noise_angle=cfg.noise_angle * noise, noise_speed=cfg.noise_speed * noise
