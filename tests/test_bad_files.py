@@ -50,6 +50,7 @@ DAMAGES = {
     "trials is text": ("summary.json", lambda p, s: p.write_text(json.dumps({**s, "trials": "many"}))),
     "algos missing": ("summary.json", lambda p, s: p.write_text(json.dumps({k: v for k, v in s.items()
                                                                             if k != "algos"}))),
+    "algos repeated": ("summary.json", lambda p, s: p.write_text(json.dumps({**s, "algos": ["ac", "ac", "eac"]}))),
     "summary missing": ("summary.json", lambda p, s: p.unlink()),
     "results truncated": ("results.parquet", lambda p, s: p.write_bytes(p.read_bytes()[:100])),
     "results garbage": ("results.parquet", lambda p, s: p.write_bytes(b"PAR1" + bytes(1000) + b"PAR1")),

@@ -113,8 +113,8 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
     where = path / "summary.json"
     trials = json_field(summary, "trials", int, where, "re-run the experiment")
     algos = json_field(summary, "algos", list, where, "re-run the experiment")
-    if trials < 1 or not all(isinstance(a, str) for a in algos):
-        raise UsageError(f"{where}: trials must be a positive integer and algos a list of names "
+    if trials < 1 or not all(isinstance(a, str) for a in algos) or len(set(algos)) != len(algos):
+        raise UsageError(f"{where}: trials must be a positive integer and algos a list of distinct names "
                          f"(got {trials!r}, {algos!r}); re-run the experiment")
     algos = tuple(algos)
     for algo, flag in ((baseline, "--baseline"), (treatment, "--treatment")):
