@@ -41,17 +41,23 @@ def read_results(folder):
     return (folder / "results.csv").read_text()
 
 
-def test_killed_sweep_resumes_to_identical_results(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_killed_sweep_resumes_to_identical_results(tmp_path, sig):
+    """A sweep killed or interrupted mid-way (Ctrl-C: one line, exit 130) keeps its finished
+    parts, and the rerun completes it with the results of an uninterrupted sweep."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     killed, clean = tmp_path / "killed", tmp_path / "clean"
     cmd = [sys.executable, "-m", "jaxeac", *ARGS]
     proc = subprocess.Popen([*cmd, "--out", str(killed)], env=env, cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 300
     while time.time() < deadline and len(list((killed / "parts").glob("*.npz"))) < 3:
         time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    proc.send_signal(sig)
+    err = proc.communicate(timeout=120)[1].decode()
+    if sig == signal.SIGINT:
+        assert proc.returncode == 130 and "Traceback" not in err, err[-2000:]
+        assert err.rstrip().splitlines()[-1].startswith("error: interrupted"), err[-2000:]
     done_before = len(list((killed / "parts").glob("*.npz")))
     assert 3 <= done_before < 4 * 2 * 8, "the kill should land mid-sweep"
     assert not (killed / "results.csv").exists()
