@@ -302,3 +302,17 @@ def test_memory_jumps_resolve_where_exact_only():
         RunConfig(trials=10, agent=algorithm("eac_learn_on_memory"), jump="on").resolve(env, 64, "cpu")
     with pytest.raises(UsageError, match="unknown jump setting"):
         RunConfig(trials=10, agent=algorithm("eac"), jump="sometimes")
+
+
+def test_memory_jumps_with_the_three_word_dense_memory(monkeypatch):
+    """Where one word per state cannot hold both memories (many trials), the three-word dense
+    layout runs; its pending success action is the path action too, so jumps stay exact."""
+    import jaxeac.algorithm.memory as mem
+
+    monkeypatch.setattr(mem, "packed_fits", lambda n_actions, n_trials: False)
+    agent = algorithm("eac")
+    assert isinstance(mem.init_memory("dense", 4, 4, 8, 10), mem.DenseMemory)
+    runs = [run_seeds(ENV, RunConfig(trials=80, agent=agent, loop=loop, jump=jump), root_key=4, n_seeds=24)
+            for loop, jump in (("flat", "on"), ("trials", "auto"))]
+    for field in ("success", "steps", "policy"):
+        np.testing.assert_array_equal(getattr(runs[0], field), getattr(runs[1], field))
