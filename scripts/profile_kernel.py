@@ -20,6 +20,7 @@ def main() -> None:
     p.add_argument("--algo", default="eac", choices=["ac", "eac"])
     p.add_argument("--seeds", type=int, default=262_144)
     p.add_argument("--jump", default="auto", choices=["auto", "on", "off"])
+    p.add_argument("--lanes", type=int, default=None, help="seeds in flight (default: jaxeac's)")
     args = p.parse_args()
 
     import jax
@@ -32,7 +33,8 @@ def main() -> None:
     from jaxeac.running.config import RunConfig
 
     env = GridWorld(get_map("paper"), 40)
-    cfg = RunConfig(trials=200, agent=algorithm(args.algo), jump=args.jump).resolve(env, args.seeds)
+    cfg = RunConfig(trials=200, agent=algorithm(args.algo), jump=args.jump, lanes=args.lanes).resolve(
+        env, args.seeds)
     run = make_batch_run(env, cfg)
     seeds = jnp.arange(args.seeds, dtype=jnp.int32)
     hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.seeds,)), cfg.hyper())
