@@ -129,7 +129,9 @@ def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
         return "memory jumps skip steps that learn under learn_on_memory_steps"
     if cfg.loop != "flat":
         return "memory jumps run in the flat loop (the trials loop takes every step)"
-    if (cfg.trials + 1) << max(1, (env.n_chances - 1).bit_length()) >= 1 << 31:
+    from jaxeac.running.loops import visit_words_fit
+
+    if not visit_words_fit(cfg.trials, env.n_chances):
         return "memory jumps store (trial, chance) in one int32, too small for this many trials and chances"
     return None
 

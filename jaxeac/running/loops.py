@@ -199,6 +199,11 @@ def _chance_bits(n_chances: int) -> int:
     return max(1, (n_chances - 1).bit_length())
 
 
+def visit_words_fit(n_trials: int, n_chances: int) -> bool:
+    """Whether every `visit_word` of a run of this many trials and chances fits in an int32."""
+    return (n_trials + 1) << _chance_bits(n_chances) < 1 << 31
+
+
 def _shadowed(cfg: RunConfig) -> bool:
     """Whether E6 compares with trial t−1's r̃ (the paper's rule), which a jump leaves unwritten."""
     return cfg.agent.failure_memory and cfg.agent.failure_rule == "previous_trial"
