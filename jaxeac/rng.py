@@ -4,9 +4,11 @@ Seed i of a run has the key ``fold_in(root_key, i)`` (R1), so its results never
 depend on the seeds beside it, the chunk size or the device count. Within a seed,
 every draw of the agent comes from `step_uniform`: a counter-based hash of the
 seed's key words and a counter naming the draw, (trial, chance) for the E1 choice
-and (trial, C) for the start cell (G3). No key is split per step, every loop (the
-literal trials loop, the flat loop, the fused GPU kernel, bowling) draws the same
-numbers, and the same root key gives bit-identical results (R2).
+and (trial, C) for the start cell (G3). A stochastic environment's transitions draw from
+a second stream of counters (`transition_uniform`, X1), SARSA's bootstrap action at a
+trial's last chance from a third (`bootstrap_uniform`). No key is split per step, every
+loop (the literal trials loop, the flat loop, the fused GPU kernel, bowling) draws the
+same numbers, and the same root key gives bit-identical results (R2).
 Bowling's execution noise (B3) comes from ``fold_in(fold_in(seed_key, trial), chance)``.
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
@@ -60,10 +62,43 @@ def action_uniform(words, trial, chance, n_chances: int) -> jax.Array:
     return step_uniform(words, action_counter(trial, chance, n_chances))
 
 
+def start_uniform(words, trial, n_chances: int) -> jax.Array:
+    """G3: the uniform that picks the start of trial `trial` (the counter after its C chances)."""
+    return step_uniform(words, action_counter(trial, n_chances, n_chances))
+
+
+def uniform_index(u, n: int) -> jax.Array:
+    """The index ⌊u·n⌋ in 0…n−1 that a uniform u ∈ [0, 1) picks uniformly."""
+    return jnp.minimum((u * n).astype(jnp.int32), n - 1)
+
+
 def start_index(words, trial, n_chances: int, n_starts: int) -> jax.Array:
     """G3: the start cell (index into the free non-goal cells) of trial `trial`, uniform."""
-    u = step_uniform(words, action_counter(trial, n_chances, n_chances))
-    return jnp.minimum((u * n_starts).astype(jnp.int32), n_starts - 1)
+    return uniform_index(start_uniform(words, trial, n_chances), n_starts)
+
+
+#: Counter streams: the agent's counters stay far below 2^30; other streams set a top bit.
+TRANSITION_STREAM = 1 << 31
+BOOTSTRAP_STREAM = 1 << 30
+
+
+def transition_uniform(words, trial, chance, n_chances: int) -> jax.Array:
+    """X1: the uniform a stochastic environment's move at (trial, chance) draws its outcome with."""
+    return step_uniform(words, action_counter(trial, chance, n_chances) | TRANSITION_STREAM)
+
+
+def bootstrap_uniform(words, trial, chance, n_chances: int) -> jax.Array:
+    """X3: SARSA's next action at (trial, chance): the E1 uniform of that chance while it exists
+    (the agent takes that action next), else one of its own stream (the trial's last chance)."""
+    own = step_uniform(words, action_counter(trial, chance, n_chances) | BOOTSTRAP_STREAM)
+    return jnp.where(chance < n_chances, action_uniform(words, trial, chance, n_chances), own)
+
+
+def chance_key(words, trial, chance, n_chances: int) -> jax.Array:
+    """X1: a JAX key for a keyed environment's draw at (trial, chance) (chance C: the reset),
+    from the transition stream's counter: adapters of `reset(key)`/`step(key, ...)` APIs."""
+    counter = jnp.asarray(action_counter(trial, chance, n_chances)).astype(jnp.uint32) | TRANSITION_STREAM
+    return jax.random.fold_in(jax.random.wrap_key_data(words, impl="threefry2x32"), counter)
 
 
 def throw_key(key: jax.Array, trial, chance) -> jax.Array:

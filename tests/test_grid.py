@@ -52,7 +52,7 @@ def test_moves_g2_g4():
 
     def move(x, y, a):
         s = env.reset_at(0).replace(position=jnp.int32(xy(env, x, y)))
-        return env.step(s, a)
+        return env.transition(s, a)
 
     # G2: 0 right, 1 left, 2 up, 3 down
     assert int(move(1, 1, 0).state.position) == xy(env, 2, 1)
@@ -68,7 +68,24 @@ def test_moves_g2_g4():
     # into the goal: move, r = +1, terminated (not truncated)
     st = move(4, 5, 0)
     assert int(st.state.position) == xy(env, 5, 5)
-    assert (float(st.reward), bool(st.terminated), bool(st.truncated)) == (1.0, True, False)
+    assert (float(st.reward), bool(st.terminated), bool(st.truncated), bool(st.success)) == (1.0, True, False, True)
+
+
+def test_gymnax_api_steps_like_the_loops_x1():
+    env = GridWorld(get_map("paper"), 2)
+    key = jax.random.key(0)
+    obs, state = env.reset(key)
+    assert int(obs) == int(state.position) and int(env.state_index(obs)) == int(obs)
+    state = state.replace(position=jnp.int32(xy(env, 4, 5)))
+    obs, state, reward, terminated, truncated, info = env.step(key, state, 0)  # into the goal
+    assert (int(obs), float(reward), bool(terminated), bool(truncated)) == (xy(env, 5, 5), 1.0, True, False)
+    assert bool(info["success"]) and not bool(info["bumped"])
+    obs, state, *_ = env.step(key, state, 0)  # no automatic reset: the step is the table's
+    assert int(obs) == xy(env, 6, 5)
+    _, state, _, _, truncated, _ = env.step(key, env.reset_at(0), 1)  # chance 1 of C = 2
+    assert not bool(truncated)
+    *_, truncated, _ = env.step(key, state, 1)  # chance 2 of 2: truncated (G5)
+    assert bool(truncated)
 
 
 def test_truncation_after_c_chances_g5():
@@ -76,7 +93,7 @@ def test_truncation_after_c_chances_g5():
     state = env.reset_at(0)
     flags = []
     for _ in range(3):
-        step = env.step(state, 1)  # bump the left edge forever
+        step = env.transition(state, 1)  # bump the left edge forever
         state = step.state
         flags.append((bool(step.terminated), bool(step.truncated)))
     assert flags == [(False, False), (False, False), (False, True)]
@@ -85,19 +102,25 @@ def test_truncation_after_c_chances_g5():
 def test_reset_uniform_over_start_cells_g3():
     env = GridWorld(parse_map("#.G\n.#.\n"), 5)
     keys = jax.random.split(jax.random.key(1), 6000)
-    starts = np.asarray(jax.vmap(lambda k: env.reset(k).position)(keys))
+    starts = np.asarray(jax.vmap(lambda k: env.reset(k)[1].position)(keys))
     assert set(starts.tolist()) == {1, 3, 5}  # never the goal or an obstacle
     np.testing.assert_allclose(np.bincount(starts, minlength=6)[[1, 3, 5]] / 6000, 1 / 3, atol=0.03)
 
 
 def test_shaped_reward_e5():
     env = GridWorld(get_map("paper"), 40)
+
+    def rtilde(cell, bumped, known):
+        moved = env.transition(env.reset_at(0), 0).replace(state=env.reset_at(0).replace(
+            position=jnp.int32(cell)), bumped=jnp.bool_(bumped))
+        return float(env.rtilde(moved, jnp.bool_(known)))
+
     s = xy(env, 5, 6)  # one below the goal: ‖s' − g‖ = 1
-    assert float(env.shaped_reward(s, False, True)) == pytest.approx(0.5)
-    assert float(env.shaped_reward(s, False, False)) == 0.0  # goal not known yet
-    assert float(env.shaped_reward(s, True, True)) == -1.0  # bumped
+    assert rtilde(s, False, True) == pytest.approx(0.5)
+    assert rtilde(s, False, False) == 0.0  # goal not known yet
+    assert rtilde(s, True, True) == -1.0  # bumped
     far = xy(env, 8, 9)  # distance 5
-    assert float(env.shaped_reward(far, False, True)) == pytest.approx(1 / 6)
+    assert rtilde(far, False, True) == pytest.approx(1 / 6)
 
 
 def test_bad_chances():

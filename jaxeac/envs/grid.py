@@ -7,7 +7,8 @@ bumping an obstacle (r = −1), enter the goal with r = +1 and terminate (G4),
 and at most C chances per trial (G5: truncation, kept apart from termination).
 
 Static structure (the map, transition tables) lives on the `GridWorld` object;
-`reset`/`step` are pure functions over the frozen `GridState`, gymnax-style.
+`reset`/`step` are pure functions over the frozen `GridState`, gymnax-style, and the run
+loops' `start`/`move` (`jaxeac.envs.protocol`, X1) are the same moves.
 States are flat cell indices ``s = y * width + x``.
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
@@ -21,8 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxeac.envs.protocol import Transition, UniformEnv
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
+from jaxeac.rng import uniform_index
 
 #: G2 action order and the (dx, dy) each one applies.
 ACTION_NAMES = ("right", "left", "up", "down")
@@ -183,19 +186,9 @@ class GridState:
     chance: jax.Array  # int32 [], steps taken so far in this trial
 
 
-@pytree_dataclass
-class GridStep:
-    """What one move returns (G4); `bumped` feeds the immediate reward r̃ (E5)."""
-
-    state: GridState
-    reward: jax.Array  # float []
-    terminated: jax.Array  # bool [], reached the goal
-    truncated: jax.Array  # bool [], used all C chances without reaching it
-    bumped: jax.Array  # bool [], tried to move into an obstacle
-
-
-class GridWorld:
-    """Functional grid world with precomputed transition tables (G1–G5)."""
+class GridWorld(UniformEnv):
+    """Functional grid world with precomputed transition tables (G1–G5), in the API of
+    `jaxeac.envs.protocol` (gymnax-style ``reset``/``step``, and the run loops' contract)."""
 
     n_actions = 4
     deterministic = True  # G4: a (cell, action) always leads to the same cell
@@ -228,32 +221,34 @@ class GridWorld:
         """(next_state [S, A] int32, reward [S, A] float, bumped [S, A] bool)."""
         return self._next_state, self._reward, self._bumped
 
-    def reset(self, key: jax.Array) -> GridState:
-        """G3: start in a free, non-goal cell drawn uniformly with `key`."""
-        return self.reset_at(jax.random.randint(key, (), 0, self.n_starts))
-
     def reset_at(self, start_index: jax.Array) -> GridState:
         """Start in free non-goal cell number `start_index` (row-major order)."""
         cells = jnp.asarray(self._start_cells)
         return GridState(position=cells[start_index], chance=jnp.int32(0))
 
+    def reset_from(self, u: jax.Array) -> GridState:
+        """G3: start in a free, non-goal cell drawn uniformly with the uniform `u`."""
+        return self.reset_at(uniform_index(u, self.n_starts))
+
     def observation(self, state: GridState) -> jax.Array:
         """The agent's state index: the flat cell index."""
         return state.position
 
-    def step(self, state: GridState, action: jax.Array) -> GridStep:
-        """G4/G5: apply `action`; terminated on reaching the goal, truncated after C chances."""
+    def transition(self, state: GridState, action: jax.Array, u=None) -> Transition:
+        """G4/G5: apply `action` (deterministic: `u` unused); terminated (a success) on reaching
+        the goal, truncated after C chances."""
         s = state.position
         s_next, bumped = decode_move(jnp.asarray(self._moves)[s * self.n_actions + action])
         chance = state.chance + 1
         terminated = s_next == self.map.goal_index
         truncated = (~terminated) & (chance >= self.n_chances)
         reward = move_reward(bumped, terminated)
-        return GridStep(GridState(s_next, chance), reward, terminated, truncated, bumped)
+        return Transition(GridState(s_next, chance), reward, terminated, truncated, terminated, bumped)
 
-    def shaped_reward(self, s_next: jax.Array, bumped: jax.Array, goal_known: jax.Array):
+    def rtilde(self, transition: Transition, goal_known: jax.Array) -> jax.Array:
         """E5 at the cell reached (`shaped_reward`)."""
-        return shaped_reward(jnp.asarray(self.goal_distance)[s_next], bumped, goal_known)
+        distance = jnp.asarray(self.goal_distance)[transition.state.position]
+        return shaped_reward(distance, transition.bumped, goal_known)
 
 
 def decode_move(move) -> tuple[jax.Array, jax.Array]:

@@ -18,7 +18,7 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -36,23 +36,11 @@ from jaxeac.algorithm.agent import (
 )
 from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import action_uniform, seed_words, start_index
+from jaxeac.envs.protocol import LoopEnv as Env
+from jaxeac.rng import action_uniform, seed_words
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import BatchOutput, SeedResult, pack_output
 
-
-class Env(Protocol):
-    """What the loops need from a tabular environment (the grid world satisfies it)."""
-
-    n_states: int
-    n_actions: int
-    n_chances: int
-    n_starts: int
-
-    def reset_at(self, start_index: jax.Array) -> Any: ...
-    def observation(self, state: Any) -> jax.Array: ...
-    def step(self, state: Any, action: jax.Array) -> Any: ...
-    def shaped_reward(self, s_next, bumped, goal_known) -> jax.Array: ...
 
 
 @pytree_dataclass
@@ -94,10 +82,10 @@ def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, h
     """
     s = env.observation(env_state)
     action, learns = choose(cfg, agent, s, words, hyper, env.n_chances, active)
-    step = env.step(env_state, action)
+    step = env.move(env_state, action, words, jnp.minimum(agent.trial, cfg.trials - 1), agent.chance)
     s_next = env.observation(step.state)
-    goal_known = agent.goal_known | (active & step.terminated)  # E5: this step included
-    rtilde = env.shaped_reward(s_next, step.bumped, goal_known)
+    goal_known = agent.goal_known | (active & step.success)  # E5: this step included
+    rtilde = env.rtilde(step, goal_known)
     agent = learn_and_record(cfg, agent.replace(goal_known=goal_known), s, action, learns, step.reward,
                              s_next, step.terminated, rtilde, active, hyper, before)
     return agent, step, s, action, rtilde
@@ -124,9 +112,9 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words):
                                                      live)
         env_state = jax.tree.map(lambda new, old: jnp.where(live, new, old), step.state, carry.env_state)
         done = carry.done | step.terminated | step.truncated
-        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.terminated)
+        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.success)
 
-    start = env.reset_at(start_index(words, trial, n_chances, env.n_starts))
+    start = env.start(words, trial)
     end, (states, actions, rtilde, live, reached) = jax.lax.scan(
         chance, _ChanceCarry(start, agent, jnp.bool_(False)), jnp.arange(n_chances)
     )
@@ -176,7 +164,7 @@ class _FlatCarry:
 
 def flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
-    start = env.reset_at(start_index(words, 0, env.n_chances, env.n_starts))
+    start = env.start(words, 0)
     jumps = None
     if cfg.jump == "on":
         shadow = start if _shadowed(cfg) else None
@@ -231,7 +219,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
     if jumps is None:
         agent, step, _, _, _ = take_chance(env, cfg, agent, carry.env_state, words, hyper, active)
         ends = active & (step.terminated | step.truncated)
-        success = step.terminated
+        success = step.success
     else:
         n_chances, c = env.n_chances, agent.chance
         s = env.observation(carry.env_state)
@@ -248,8 +236,9 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
             path_state = env.observation(jumps.shadow)
             # `path_action` reads no trial log: a read that the log's write does not depend on
             # would make XLA copy the whole log every chance to keep the old values.
-            moved = env.step(jumps.shadow, jnp.maximum(agent.memory.path_action(path_state), 0))
-            path_rtilde = env.shaped_reward(env.observation(moved.state), moved.bumped, jnp.bool_(True))
+            moved = env.move(jumps.shadow, jnp.maximum(agent.memory.path_action(path_state), 0), words,
+                             agent.trial, c)  # deterministic (jumps need it): draws nothing
+            path_rtilde = env.rtilde(moved, jnp.bool_(True))
             before = jnp.where(on_path, path_rtilde, agent.rtilde[failure_slot(cfg.agent.failure_rule, c, n_chances)])
             shadow = jax.tree.map(lambda here, nxt, old: jnp.where(jump, here, jnp.where(on_path, nxt, old)),
                                   carry.env_state, moved.state, jumps.shadow)
@@ -257,7 +246,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         remaining = n_chances - c
         agent = agent.replace(chance=jnp.where(jump, c + jnp.minimum(to_goal, remaining), agent.chance))
         ends = jump | (takes & (step.terminated | step.truncated))
-        success = jnp.where(jump, to_goal <= remaining, step.terminated)
+        success = jnp.where(jump, to_goal <= remaining, step.success)
         row = jnp.where(takes & (remembered >= 0), s, env.n_states)  # a step E1(a) took: h known later
         jumps = _Jumps(
             visits=jumps.visits.at[row].set(visit_word(agent.trial, c, n_chances), mode="drop",
@@ -268,7 +257,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         active = takes
     agent = end_trial(cfg.agent, agent, success, ends)
     nxt = jnp.minimum(agent.trial, cfg.trials - 1)
-    start = env.reset_at(start_index(words, nxt, env.n_chances, env.n_starts))
+    start = env.start(words, nxt)
     env_state = jax.tree.map(
         lambda fresh, moved, old: jnp.where(ends, fresh, jnp.where(active, moved, old)),
         start, step.state, carry.env_state,
