@@ -2,7 +2,9 @@
 
 Written line by line from the paper and SPEC G1–G5, E1–E7, with dicts and lists
 instead of masked arrays, and driven by the same random numbers as the
-vectorised runner (`jaxeac.running.batch.trial_randoms`). Used only by the tests.
+vectorised runner (`jaxeac.rng`). Worlds: the grid of G1–G4 (`GridReference`) or any
+`TabularTask` read outcome by outcome (`TaskReference`, X1/X2). Also the value-based
+baselines of X3 (Q-learning, SARSA) from Sutton & Barto's pseudo-code. Used only by the tests.
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import jax
+
 from jaxeac.algorithm.config import AgentConfig
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap
-from jaxeac.rng import trial_randoms
+from jaxeac.rng import action_uniform, bootstrap_uniform, seed_words, start_uniform, transition_uniform
 
 
 @dataclass
@@ -102,6 +106,73 @@ def move(grid: GridMap, s: int, a: int) -> tuple[int, float, bool]:
     return s2, (1.0 if s2 == grid.goal_index else 0.0), False
 
 
+class GridReference:
+    """The grid of G1–G4 with E5's r̃, literally."""
+
+    def __init__(self, grid: GridMap):
+        self.grid, self.n_states, self.n_actions = grid, grid.n_cells, 4
+
+    def start(self, u: float) -> int:
+        starts = self.grid.start_cells
+        return int(starts[min(int(u * starts.size), starts.size - 1)])
+
+    def move(self, s, a, u):
+        """(s', r, bumped, terminal, success)."""
+        s2, r, bumped = move(self.grid, s, a)
+        return s2, r, bumped, s2 == self.grid.goal_index, s2 == self.grid.goal_index
+
+    def rtilde(self, s2, r, bumped, goal_known) -> float:
+        y2, x2 = divmod(s2, self.grid.width)
+        gx, gy = self.grid.goal
+        if bumped:
+            return -1.0
+        return 1.0 / (1.0 + math.hypot(x2 - gx, y2 - gy)) if goal_known else 0.0
+
+
+class TaskReference:
+    """A `TabularTask`, read outcome by outcome: the outcome of a draw u is the first k whose
+    cumulative probability exceeds u (X1); r̃ by X2's rule."""
+
+    def __init__(self, task, rtilde: str = "shaped"):
+        self.task, self.n_states, self.n_actions = task, task.n_states, task.n_actions
+        self.shaped = rtilde == "shaped" and task.goal is not None and task.shape is not None
+
+    def start(self, u: float) -> int:
+        starts = self.task.start_states
+        return int(starts[min(int(u * starts.size), starts.size - 1)])
+
+    def move(self, s, a, u):
+        probs = self.task.probs[s, a]
+        k = 0
+        if not probs[0] == 1.0:
+            total = 0.0
+            for k in range(len(probs)):
+                total += probs[k]
+                if k == len(probs) - 1 or u < total:
+                    break
+        s2 = int(self.task.next_states[s, a, k])
+        return (s2, float(self.task.rewards[s, a, k]), bool(self.task.bumped[s, a, k]),
+                bool(self.task.terminal[s2]), bool(self.task.success[s2]))
+
+    def rtilde(self, s2, r, bumped, goal_known) -> float:
+        if not self.shaped:
+            return r
+        if bumped:
+            return -1.0
+        width = self.task.shape[1]
+        (y2, x2), (gy, gx) = divmod(s2, width), divmod(self.task.goal, width)
+        return 1.0 / (1.0 + math.hypot(x2 - gx, y2 - gy)) if goal_known else 0.0
+
+
+def epsilon_greedy_choice(q_s, epsilon, u) -> int:
+    """X3: u < ε explores (action ⌊(u/ε)·A⌋), else the ⌊((u−ε)/(1−ε))·m⌋-th of the m greedy actions."""
+    n = len(q_s)
+    if u < epsilon:
+        return min(int(u / epsilon * n), n - 1)
+    best = [a for a in range(n) if q_s[a] == max(q_s)]
+    return best[min(int((u - epsilon) / (1 - epsilon) * len(best)), len(best) - 1)]
+
+
 def softmax_choice(prefs_s, allowed, tau, u) -> int:
     """(1) restricted to `allowed`, sampled by inverse CDF with uniform u."""
     top = max(prefs_s[a] / tau for a in allowed)
@@ -115,59 +186,67 @@ def softmax_choice(prefs_s, allowed, tau, u) -> int:
     return len(prefs_s) - 1
 
 
-def reference_run(grid: GridMap, cfg: AgentConfig, *, trials, chances, alpha, beta, gamma, tau, key):
-    """Algorithm 1 for one seed with key `key` (a `fold_in(root, i)` key)."""
-    n_states, n_actions = grid.n_cells, 4
-    prefs = np.zeros((n_states, n_actions))  # line 1: initialise policy to random
+def reference_run(world, cfg: AgentConfig, *, trials, chances, alpha, beta, gamma, tau, key, epsilon=0.1):
+    """Algorithm 1 (or an X3 baseline) for one seed with key `key` (a `fold_in(root, i)` key) in
+    `world` (a `GridMap`, a `GridReference` or a `TaskReference`)."""
+    if isinstance(world, GridMap):
+        world = GridReference(world)
+    words = seed_words(key)
+
+    def uniform(fn, *args) -> float:
+        return float(jax.device_get(fn(words, *args)))
+
+    n_states, n_actions = world.n_states, world.n_actions
+    prefs = np.zeros((n_states, n_actions))  # line 1: initialise policy to random (X3: Q = 0)
     values = np.zeros(n_states)
     buffer = cfg.memory == "buffer"
     success_mem = FifoSuccess(cfg.capacity) if buffer else DictSuccess()
     failure_mem = FifoFailure(cfg.capacity) if buffer else SetFailure()
-    gx, gy = grid.goal
+    value_based = cfg.learner != "actor_critic"
     goal_known = False
     history: list[ReferenceTrial] = []
-    starts = grid.start_cells
     for t in range(trials):
-        randoms = trial_randoms(key, t, chances, starts.size)
-        s = int(starts[int(randoms.start_index)])
-        uniforms = np.asarray(randoms.action_uniforms)
+        s = world.start(uniform(start_uniform, t, chances))
         trial = ReferenceTrial()
+        pending = None  # SARSA's next action
         for c in range(chances):
+            u = uniform(action_uniform, t, c, chances)
             learn = True
             remembered = success_mem.get(s) if cfg.success_memory else None
             flagged = [a for a in range(n_actions) if cfg.failure_memory and (s, a) in failure_mem]
-            if remembered is not None:  # lines 4-6
+            if value_based:  # X3
+                a = pending if pending is not None else epsilon_greedy_choice(prefs[s], epsilon, u)
+            elif remembered is not None:  # lines 4-6
                 a = remembered
                 learn = False
             elif 0 < len(flagged) < n_actions:  # lines 7-9: avoid the failed actions
                 allowed = [a for a in range(n_actions) if a not in flagged]
-                a = softmax_choice(prefs[s], allowed, tau, uniforms[c])
+                a = softmax_choice(prefs[s], allowed, tau, u)
                 learn = False
             else:  # lines 11-14
-                a = softmax_choice(prefs[s], list(range(n_actions)), tau, uniforms[c])
+                a = softmax_choice(prefs[s], list(range(n_actions)), tau, u)
             if cfg.learn_on_memory_steps:
                 learn = True
-            s2, r, bumped = move(grid, s, a)
-            terminal = s2 == grid.goal_index
-            if learn:
+            s2, r, bumped, terminal, success = world.move(s, a, uniform(transition_uniform, t, c, chances))
+            if cfg.learner == "q_learning":  # Sutton & Barto (2018) §6.5
+                target = r + (0.0 if terminal else gamma * max(prefs[s2]))
+                prefs[s, a] += alpha * (target - prefs[s, a])
+            elif cfg.learner == "sarsa":  # Sutton & Barto (2018) §6.4: choose a' from s', then update
+                pending = epsilon_greedy_choice(prefs[s2], epsilon, uniform(bootstrap_uniform, t, c + 1, chances))
+                target = r + (0.0 if terminal else gamma * prefs[s2, pending])
+                prefs[s, a] += alpha * (target - prefs[s, a])
+            elif learn:
                 delta = r + gamma * (0.0 if terminal else values[s2]) - values[s]
                 values[s] += alpha * delta
                 prefs[s, a] += beta * delta
-            if terminal:
+            if success:
                 goal_known = True
-            y2, x2 = divmod(s2, grid.width)
-            if bumped:
-                rt = -1.0
-            elif goal_known:
-                rt = 1.0 / (1.0 + math.hypot(x2 - gx, y2 - gy))
-            else:
-                rt = 0.0
             trial.states.append(s)
             trial.actions.append(a)
-            trial.rtilde.append(rt)
+            trial.rtilde.append(world.rtilde(s2, r, bumped, goal_known))
             s = s2
             if terminal:  # lines 15-20
-                trial.success = True
+                trial.success = success
                 break
         if trial.success and cfg.success_memory:
             for st, ac in zip(trial.states, trial.actions, strict=True):

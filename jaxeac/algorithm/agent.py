@@ -9,6 +9,10 @@ scalars) and bowling alike. Callers vmap over seeds.
 * (1) π(a|s) ∝ exp(p(s,a)/τ), preferences start at 0 (uniform policy).
 * (3) δ = r + γ·V(s') − V(s), with V(s') = 0 when s' is terminal.
 * critic: V(s) ← V(s) + α·δ;  (4) actor: p(s,a) ← p(s,a) + β·δ.
+
+The value-based baselines (X3) share the tables and the loops: Q(s, a) is kept in the
+preference table (V stays 0), chosen ε-greedily (`epsilon_greedy`) and learnt by
+Q-learning or SARSA (`value_learn_step`).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
@@ -57,6 +61,7 @@ class AgentState:
     log: jax.Array  # int32 [T], per finished trial: chances used, negated if it failed; 0 = not yet
     rtilde: jax.Array  # float [C], the latest r̃ per chance index: trial t−1's until trial t writes it
     prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
+    next_action: jax.Array | None = None  # int32 [], SARSA (X3): the action chosen for the next chance; −1: none
 
     @property
     def preferences(self) -> jax.Array:
@@ -98,6 +103,7 @@ def init_agent(cfg: AgentConfig, n_states: int, n_actions: int, n_chances: int, 
         log=jnp.zeros((n_trials,), jnp.int32),
         rtilde=jnp.zeros((n_chances,), float),
         prev_length=jnp.int32(0),
+        next_action=jnp.int32(-1) if cfg.learner == "sarsa" else None,
     )
 
 
@@ -156,6 +162,11 @@ def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, a
     (a) a success action → take it; (b) some but not all actions flagged failed →
     softmax over the unflagged ones; (c) otherwise plain AC softmax (1).
     """
+    if cfg.learner != "actor_critic":  # X3: ε-greedy on Q; SARSA takes the action it bootstrapped on
+        action = epsilon_greedy(agent.tables.row(state)[0], u, hyper.epsilon)
+        if agent.next_action is not None:
+            action = jnp.where(agent.next_action >= 0, agent.next_action, action)
+        return action, jnp.bool_(True) if active is None else active
     logits = agent.tables.row(state)[0] / hyper.temperature
     n_actions = logits.shape[0]
     allowed = jnp.ones((n_actions,), bool)
@@ -170,6 +181,19 @@ def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, a
     return action, learns(cfg, from_memory, jnp.bool_(True) if active is None else active)
 
 
+def epsilon_greedy(q: jax.Array, u: jax.Array, epsilon) -> jax.Array:
+    """X3: with probability ε a uniformly random action, else a greedy one with ties broken
+    uniformly at random, from the one uniform u ∈ [0, 1): u < ε explores with u/ε, the rest
+    exploits with (u − ε)/(1 − ε)."""
+    explore = u < epsilon
+    v = jnp.where(explore, u / epsilon, (u - epsilon) / (1.0 - epsilon))
+    allowed = explore | (q == jnp.max(q))
+    count = jnp.maximum(allowed.sum(dtype=jnp.int32), 1)
+    k = jnp.minimum((v * count).astype(jnp.int32), count - 1)  # the k-th allowed action, 0-based
+    action = jnp.sum(_prefix_sums(allowed.astype(jnp.int32)) <= k)
+    return jnp.minimum(action, q.shape[0] - 1).astype(jnp.int32)
+
+
 def td_error(reward, value, next_value, gamma, terminated) -> jax.Array:
     """(3): δ = r + γ·V(s') − V(s), with V(s') = 0 at a terminal s'."""
     return reward + gamma * jnp.where(terminated, 0.0, next_value) - value
@@ -180,6 +204,25 @@ def learn_step(agent: AgentState, state, action, reward, next_state, terminated,
     value = agent.tables.row(state)[1]
     delta = td_error(reward, value, agent.tables.value(next_state), gamma, terminated)
     return agent.replace(tables=agent.tables.learn(state, action, delta, alpha, beta, learn))
+
+
+def value_learn_step(cfg: AgentConfig, agent: AgentState, state, action, reward, next_state, terminated, learn,
+                     alpha, gamma, epsilon, next_uniform=None) -> AgentState:
+    """X3, applied when `learn`: Q(s, a) ← Q(s, a) + α·δ with δ = r + γ·Q(s', a') − Q(s, a)
+    (0 for Q(s', a') at a terminal s'): a' greedy for Q-learning (Watkins 1989), for SARSA
+    (Rummery & Niranjan 1994) ε-greedy with `next_uniform`, kept as the next chance's action.
+    Sutton & Barto (2018) §6.4–6.5; Q lives in the preference table and V stays 0."""
+    q_next = agent.tables.row(next_state)[0]
+    q = agent.tables.row(state)[0][action]
+    next_action = agent.next_action
+    if cfg.learner == "q_learning":
+        bootstrap = jnp.max(q_next)
+    else:
+        chosen = epsilon_greedy(q_next, next_uniform, epsilon)
+        bootstrap = q_next[chosen]
+        next_action = jnp.where(learn, chosen, next_action)
+    delta = td_error(reward, q, bootstrap, gamma, terminated)
+    return agent.replace(tables=agent.tables.learn(state, action, delta, 0.0, alpha, learn), next_action=next_action)
 
 
 def failure_slot(rule: FailureRule, chance, n_chances: int):
@@ -241,11 +284,15 @@ def end_trial(cfg: AgentConfig, agent: AgentState, success, ends) -> AgentState:
                                   flag_failures=cfg.failure_memory)
     t = jnp.where(ends, agent.trial, agent.log.shape[0])  # not ending: dropped write
     log = agent.log.at[t].set(log_entry(success, length), mode="drop")
+    next_action = agent.next_action
+    if next_action is not None:  # SARSA: a new trial chooses afresh
+        next_action = jnp.where(ends, -1, next_action)
     return agent.replace(
         memory=memory, log=log,
         prev_length=jnp.where(ends, length, agent.prev_length),
         trial=agent.trial + ends.astype(jnp.int32),
         chance=jnp.where(ends, 0, agent.chance),
+        next_action=next_action,
     )
 
 

@@ -23,6 +23,8 @@ TableLayout = Literal["auto", "split", "rows"]
 TABLE_LAYOUTS = ("auto", "split", "rows")
 MemoryLayout = Literal["dense", "buffer"]
 MEMORY_LAYOUTS = ("dense", "buffer")
+Learner = Literal["actor_critic", "q_learning", "sarsa"]
+LEARNERS = ("actor_critic", "q_learning", "sarsa")
 
 #: A step size: a constant, or an optax schedule over the 0-based trial index.
 Rate = float | Callable[[jax.Array], jax.Array]
@@ -37,6 +39,8 @@ class AgentConfig:
     `failure_rule` the E6 variant. `memory` names the E7 storage layout of the
     memories (`dense` or `buffer` of `capacity` slots) and `tables` that of p and V
     (`split`, `rows`, or `auto`: rows on accelerators); layouts change speed, never results.
+    `learner` is the paper's actor-critic, or a value-based baseline (X3: tabular
+    Q-learning or SARSA, ε-greedy, without memories) run by the same loops.
     """
 
     success_memory: bool = True
@@ -46,8 +50,14 @@ class AgentConfig:
     memory: MemoryLayout = "dense"
     capacity: int = 1024
     tables: TableLayout = "auto"
+    learner: Learner = "actor_critic"
 
     def __post_init__(self):
+        if self.learner not in LEARNERS:
+            raise UsageError(f"unknown learner {self.learner!r}; choose one of {LEARNERS}")
+        if self.learner != "actor_critic" and self.uses_memory:
+            raise UsageError(f"the {self.learner} baseline keeps no success/failure memory; "
+                             "set success_memory=False and failure_memory=False")
         if self.failure_rule not in FAILURE_RULES:
             raise UsageError(
                 f"unknown failure_rule {self.failure_rule!r}; choose one of {FAILURE_RULES}"
@@ -87,12 +97,19 @@ ALGORITHMS: dict[str, AgentConfig] = {
     "eac_within_trial": AgentConfig(failure_rule="within_trial"),  # E6 variant
 }
 
+#: Standard value-based baselines for context (X3): is EAC good at all, not only better than AC?
+BASELINES: dict[str, AgentConfig] = {
+    "q_learning": AgentConfig(success_memory=False, failure_memory=False, learner="q_learning"),
+    "sarsa": AgentConfig(success_memory=False, failure_memory=False, learner="sarsa"),
+}
+
 
 def algorithm(name: str, **overrides) -> AgentConfig:
-    """The `AgentConfig` of a named algorithm, with overrides (e.g. memory layout)."""
-    if name not in ALGORITHMS:
-        raise UsageError(f"unknown algorithm {name!r}; choose from {sorted(ALGORITHMS)}")
-    return dataclasses.replace(ALGORITHMS[name], **overrides)
+    """The `AgentConfig` of a named algorithm (`ALGORITHMS` or `BASELINES`), with overrides."""
+    known = ALGORITHMS | BASELINES
+    if name not in known:
+        raise UsageError(f"unknown algorithm {name!r}; choose from {', '.join(sorted(known))}")
+    return dataclasses.replace(known[name], **overrides)
 
 
 @pytree_dataclass
@@ -103,6 +120,7 @@ class Hyper:
     beta: jax.Array  # actor step size
     gamma: jax.Array  # discount
     temperature: jax.Array  # softmax temperature τ of (1)
+    epsilon: jax.Array | None = None  # X3: exploration rate of the value-based baselines
 
 
 def rate_at(rate: Rate, traced: jax.Array, trial: jax.Array) -> jax.Array:

@@ -42,6 +42,7 @@ class RunConfig:
     beta: Rate = 0.3
     gamma: float = 0.9
     temperature: float = 1.0
+    epsilon: float = 0.1  # X3: exploration rate of the value-based baselines (unused by AC/EAC)
     loop: Loop = "auto"
     lanes: int | None = None  # flat loop: seeds in flight per device; None: `default_lanes`
     kernel: Kernel = "auto"  # flat loop's chances: the fused kernel (GPUs) or XLA ops; `resolved_kernel`
@@ -60,7 +61,8 @@ class RunConfig:
         def const(x):
             return jnp.asarray(0.0 if callable(x) else x, dtype=float)
 
-        return Hyper(const(self.alpha), const(self.beta), const(self.gamma), const(self.temperature))
+        return Hyper(const(self.alpha), const(self.beta), const(self.gamma), const(self.temperature),
+                     const(self.epsilon))
 
     @property
     def resolved_loop(self) -> Literal["flat", "trials"]:
@@ -91,9 +93,12 @@ class RunConfig:
         def rate(x):
             return x if not callable(x) else getattr(x, "__name__", "schedule")
 
-        return {"trials": self.trials, "agent": dataclasses.asdict(self.agent), "alpha": rate(self.alpha),
-                "beta": rate(self.beta), "gamma": self.gamma, "temperature": self.temperature,
-                "loop": self.loop, "lanes": self.lanes, "kernel": self.kernel, "jump": self.jump}
+        out = {"trials": self.trials, "agent": dataclasses.asdict(self.agent), "alpha": rate(self.alpha),
+               "beta": rate(self.beta), "gamma": self.gamma, "temperature": self.temperature,
+               "loop": self.loop, "lanes": self.lanes, "kernel": self.kernel, "jump": self.jump}
+        if self.agent.learner != "actor_critic":
+            out["epsilon"] = self.epsilon
+        return out
 
 
 def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:

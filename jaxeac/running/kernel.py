@@ -57,6 +57,8 @@ def kernel_unsupported(env: Any, cfg: Any) -> str | None:
     agent = cfg.agent
     if not isinstance(env, GridWorld):
         return "the fused kernel runs the grid world only"
+    if agent.learner != "actor_critic":
+        return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
     if agent.tables != "rows":
         return "the fused kernel needs the rows table layout (tables='rows')"
     if agent.uses_memory and not (agent.memory == "dense"

@@ -33,11 +33,12 @@ from jaxeac.algorithm.agent import (
     record_step,
     select_action,
     tables_finite,
+    value_learn_step,
 )
 from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.envs.protocol import LoopEnv as Env
-from jaxeac.rng import action_uniform, seed_words
+from jaxeac.rng import action_uniform, bootstrap_uniform, seed_words
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import BatchOutput, SeedResult, pack_output
 
@@ -62,15 +63,19 @@ def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chan
 
 
 def learn_and_record(cfg: RunConfig, agent: AgentState, state, action, learns, reward, next_state,
-                     terminated, rtilde, active, hyper: Hyper, before=None) -> AgentState:
-    """After a chance: (2)–(4) on the transition where `learns` (E2), then r̃ and the memory
+                     terminated, rtilde, active, hyper: Hyper, before=None, next_uniform=None) -> AgentState:
+    """After a chance: (2)–(4) on the transition where `learns` (E2) (X3's baselines:
+    `value_learn_step`, SARSA's next action drawn with `next_uniform`), then r̃ and the memory
     records (E4–E6) where `active`, with the step sizes of the current trial (`before`:
     `record_step`)."""
     trial = jnp.minimum(agent.trial, cfg.trials - 1)
-    agent = learn_step(
-        agent, state, action, reward, next_state, terminated, learns,
-        rate_at(cfg.alpha, hyper.alpha, trial), rate_at(cfg.beta, hyper.beta, trial), hyper.gamma,
-    )
+    alpha = rate_at(cfg.alpha, hyper.alpha, trial)
+    if cfg.agent.learner == "actor_critic":
+        agent = learn_step(agent, state, action, reward, next_state, terminated, learns, alpha,
+                           rate_at(cfg.beta, hyper.beta, trial), hyper.gamma)
+    else:
+        agent = value_learn_step(cfg.agent, agent, state, action, reward, next_state, terminated, learns, alpha,
+                                 hyper.gamma, hyper.epsilon, next_uniform)
     return record_step(cfg.agent, agent, state, action, rtilde, active, before)
 
 
@@ -86,8 +91,12 @@ def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, h
     s_next = env.observation(step.state)
     goal_known = agent.goal_known | (active & step.success)  # E5: this step included
     rtilde = env.rtilde(step, goal_known)
+    next_uniform = None
+    if cfg.agent.learner == "sarsa":  # X3: the next chance's action, drawn now for the target
+        next_uniform = bootstrap_uniform(words, jnp.minimum(agent.trial, cfg.trials - 1), agent.chance + 1,
+                                         env.n_chances)
     agent = learn_and_record(cfg, agent.replace(goal_known=goal_known), s, action, learns, step.reward,
-                             s_next, step.terminated, rtilde, active, hyper, before)
+                             s_next, step.terminated, rtilde, active, hyper, before, next_uniform)
     return agent, step, s, action, rtilde
 
 
