@@ -51,19 +51,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    g = sub.add_parser("grid", help="run AC and EAC on the grid world over many seeds")
-    add_grid_flags(g)
-    g.add_argument("--out", type=folder_name, default="runs/grid", metavar="DIR",
-                   help="run folder (default runs/grid)")
-    g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
-    g.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_output_flags(g)
-    add_sequential_flags(g)
-    g.add_argument("--num-processes", type=positive_int, default=1, metavar="P",
-                   help="split the seeds over P processes (hosts); each writes DIR/part-I-of-P/")
-    g.add_argument("--process-id", type=nonneg_int, default=0, metavar="I", help="this process, 0..P-1")
-    g.add_argument("--coordinator", type=host_port, metavar="HOST:PORT",
-                   help="call jax.distributed.initialize with this coordinator (multi-host JAX)")
+    for name, text in (("grid", "run AC and EAC on the grid world (or --env NAME) over many seeds"),
+                       ("run", "run AC, EAC and baselines on a registered environment (--env NAME) over many "
+                               "seeds")):
+        g = sub.add_parser(name, help=text)
+        add_grid_flags(g, env_required=name == "run")
+        g.add_argument("--out", type=folder_name, default=f"runs/{name}", metavar="DIR",
+                       help=f"run folder (default runs/{name})")
+        g.add_argument("--no-compare", action="store_true", help="skip the statistics report at the end")
+        g.add_argument("--quiet", action="store_true", help="no progress bar")
+        add_output_flags(g)
+        add_sequential_flags(g)
+        g.add_argument("--num-processes", type=positive_int, default=1, metavar="P",
+                       help="split the seeds over P processes (hosts); each writes DIR/part-I-of-P/")
+        g.add_argument("--process-id", type=nonneg_int, default=0, metavar="I", help="this process, 0..P-1")
+        g.add_argument("--coordinator", type=host_port, metavar="HOST:PORT",
+                       help="call jax.distributed.initialize with this coordinator (multi-host JAX)")
 
     m = sub.add_parser("merge", help="merge the part folders of a multi-process `jaxeac grid` run")
     m.add_argument("dir", type=folder_name, metavar="DIR")
@@ -107,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     w = sub.add_parser("sweep", help="resumable sweep over grid settings, AC and EAC at each point")
     add_grid_flags(w)
     w.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=V1,V2,...",
-                   help="values of one swept key: alpha, beta, gamma, temperature, trials, chances, "
+                   help="values of one swept key: alpha, beta, gamma, temperature, epsilon, trials, chances, slip, "
                         "preset, map (repeat for a product)")
     w.add_argument("--out", type=folder_name, default="runs/sweep", metavar="DIR")
     w.add_argument("--compare", action="store_true", help="also run `jaxeac compare` at every point")
@@ -186,7 +189,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
     from jaxeac.experiments.grid import part_folder, run_grid_to_folder, summary_table
 
     settings = _grid_settings(args).resolved()
-    grid_map = settings.grid_map()  # a bad map fails here, before any compute
+    env = settings.make_env()  # a bad map or environment fails here, before any compute
     if args.process_id >= args.num_processes:
         raise UsageError(f"--process-id {args.process_id} must be below --num-processes {args.num_processes}")
     if args.num_processes > settings.seeds:
@@ -195,7 +198,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         raise UsageError("--coordinator only applies to a multi-process run; add --num-processes P "
                          "--process-id I, or drop --coordinator")
     _init_distributed(args)  # before the size check: JAX's backends must not have started yet
-    settings = fit_grid(args, settings, grid_map)  # sizes that cannot fit or finish fail here
+    settings = fit_grid(args, settings, env)  # sizes that cannot fit or finish fail here
     design = sequential_design(args, settings)  # a bad design fails here too
     part = part_folder(args.out, args.process_id, args.num_processes) if args.num_processes > 1 else None
     out = _claim_out(args, args.out, part)
@@ -460,7 +463,7 @@ def _grid_settings(args: argparse.Namespace):
         preset=args.preset, map_file=args.map_file, trials=args.trials, chances=args.chances,
         alpha=args.alpha, beta=args.beta, gamma=args.gamma, temperature=args.temperature,
         algos=tuple(args.algos), seeds=args.seeds, key=args.key, chunk_size=args.chunk_size,
-        memory=args.memory, capacity=args.capacity,
+        memory=args.memory, capacity=args.capacity, env=args.env, slip=args.slip, epsilon=args.epsilon,
     )
 
 
@@ -493,7 +496,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 COMMANDS = {
     "reproduce": cmd_reproduce,
-    "grid": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
+    "grid": cmd_grid, "run": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
     "compare": cmd_compare, "merge": cmd_merge,
 }
 

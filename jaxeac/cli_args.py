@@ -105,8 +105,8 @@ def map_file_name(text: str) -> str:
     return text
 
 
-def add_grid_flags(p: argparse.ArgumentParser) -> None:
-    """The grid-world flags shared by `grid` and `sweep`; unset flags come from the preset."""
+def add_grid_flags(p: argparse.ArgumentParser, env_required: bool = False) -> None:
+    """The grid-world flags shared by `grid`, `run` and `sweep`; unset flags come from the preset."""
     p.add_argument("--preset", default="paper", help="settings preset (default: paper, SPEC G6)")
     p.add_argument("--map", dest="map_file", type=map_file_name, metavar="FILE",
                    help="ASCII map file (SPEC G1)")
@@ -116,8 +116,16 @@ def add_grid_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beta", type=finite_float, metavar="B", help="actor step size β")
     p.add_argument("--gamma", type=finite_float, metavar="G", help="discount γ in [0, 1]")
     p.add_argument("--temperature", type=finite_float, metavar="TAU", help="softmax temperature τ > 0")
+    p.add_argument("--env", metavar="NAME", required=env_required,
+                   help="a registered environment instead of the preset's map: the classic tabular tasks "
+                        "(FrozenLake-4x4-v1, CliffWalking-v1, …; an unknown name lists them all)")
+    p.add_argument("--slip", type=finite_float, default=0.0, metavar="P",
+                   help="with probability P a move executes a uniformly random action (default 0)")
     p.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO",
-                   help="algorithms: ac, eac, eac_success_only, eac_failure_only (default: ac eac)")
+                   help="algorithms: ac, eac, eac_success_only, eac_failure_only, eac_learn_on_memory, "
+                        "eac_within_trial, and the baselines q_learning, sarsa (default: ac eac)")
+    p.add_argument("--epsilon", type=finite_float, default=0.1, metavar="E",
+                   help="exploration rate of q_learning and sarsa, in [0, 1] (default 0.1)")
     p.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
     p.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
     p.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
@@ -231,7 +239,7 @@ def add_compare_flags(p: argparse.ArgumentParser) -> None:
                               "different seeds)")
 
 
-def fit_grid(args: argparse.Namespace, settings, grid_map):
+def fit_grid(args: argparse.Namespace, settings, env):
     """Refuse sizes that cannot fit in memory or finish (`check_grid_resources`), with the numbers;
     an automatic chunk size that would not fit becomes the largest that does."""
     import dataclasses
@@ -240,7 +248,7 @@ def fit_grid(args: argparse.Namespace, settings, grid_map):
     from jaxeac.experiments.grid import process_share
 
     first, n = process_share(settings.seeds, args.process_id, args.num_processes)
-    chunk = check_grid_resources(settings, grid_map, n_seeds=n, first_seed=first)
+    chunk = check_grid_resources(settings, env, n_seeds=n, first_seed=first)
     return settings if chunk == settings.chunk_size else dataclasses.replace(settings, chunk_size=chunk)
 
 
@@ -335,11 +343,11 @@ def fit_sweep(sweep):
     seen, chunks = set(), []
     for point in sweep.points():
         settings = sweep.settings(point)
-        size = (settings.preset, settings.map_file, settings.trials, settings.chances)
+        size = (settings.preset, settings.map_file, settings.env, settings.slip, settings.trials, settings.chances)
         if size in seen:
             continue
         seen.add(size)
-        chunks.append(check_grid_resources(settings, settings.grid_map()))
+        chunks.append(check_grid_resources(settings, settings.make_env()))
     if sweep.base.chunk_size is None and any(c is not None for c in chunks):
         sweep = dataclasses.replace(sweep, base=dataclasses.replace(
             sweep.base, chunk_size=min(c for c in chunks if c is not None)))

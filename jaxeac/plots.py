@@ -155,11 +155,15 @@ def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
     """Both grid figures of a `GridRun` into `folder`; returns the file names."""
     from jaxeac.experiments.presets import make
 
-    paper = make(run.settings.preset).paper_successes if run.settings.map_file is None else None
+    s = run.settings
+    paper_world = s.map_file is None and s.env is None and not s.slip
+    paper = make(s.preset).paper_successes if paper_world else None  # the paper's curve on its own world only
     cumulative_success_figure({a: r.success for a, r in run.results.items()},
                               folder / "fig3_cumulative_successes.png", paper=paper)
+    if run.grid_map is None:  # a non-grid environment: no map to draw the policies on
+        return ["fig3_cumulative_successes.png"]
     policy_figure(run.grid_map, {a: r.policy_of(seed) for a, r in run.results.items()},
-                  folder / "fig2_policies.png", seed=seed, max_steps=run.settings.chances)
+                  folder / "fig2_policies.png", seed=seed, max_steps=s.chances)
     return ["fig3_cumulative_successes.png", "fig2_policies.png"]
 
 

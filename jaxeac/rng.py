@@ -82,22 +82,27 @@ TRANSITION_STREAM = 1 << 31
 BOOTSTRAP_STREAM = 1 << 30
 
 
+def _stream_counter(trial, chance, n_chances: int, stream: int) -> jax.Array:
+    """uint32: the counter of (trial, chance) in another stream (its top bit set)."""
+    return jnp.asarray(action_counter(trial, chance, n_chances)).astype(jnp.uint32) | jnp.uint32(stream)
+
+
 def transition_uniform(words, trial, chance, n_chances: int) -> jax.Array:
     """X1: the uniform a stochastic environment's move at (trial, chance) draws its outcome with."""
-    return step_uniform(words, action_counter(trial, chance, n_chances) | TRANSITION_STREAM)
+    return step_uniform(words, _stream_counter(trial, chance, n_chances, TRANSITION_STREAM))
 
 
 def bootstrap_uniform(words, trial, chance, n_chances: int) -> jax.Array:
     """X3: SARSA's next action at (trial, chance): the E1 uniform of that chance while it exists
     (the agent takes that action next), else one of its own stream (the trial's last chance)."""
-    own = step_uniform(words, action_counter(trial, chance, n_chances) | BOOTSTRAP_STREAM)
+    own = step_uniform(words, _stream_counter(trial, chance, n_chances, BOOTSTRAP_STREAM))
     return jnp.where(chance < n_chances, action_uniform(words, trial, chance, n_chances), own)
 
 
 def chance_key(words, trial, chance, n_chances: int) -> jax.Array:
     """X1: a JAX key for a keyed environment's draw at (trial, chance) (chance C: the reset),
     from the transition stream's counter: adapters of `reset(key)`/`step(key, ...)` APIs."""
-    counter = jnp.asarray(action_counter(trial, chance, n_chances)).astype(jnp.uint32) | TRANSITION_STREAM
+    counter = _stream_counter(trial, chance, n_chances, TRANSITION_STREAM)
     return jax.random.fold_in(jax.random.wrap_key_data(words, impl="threefry2x32"), counter)
 
 

@@ -182,9 +182,10 @@ def check_work(steps: float, rate: float, what: str, fix: str) -> None:
                          f"days); {fix}")
 
 
-def check_grid_resources(settings, grid_map, *, n_seeds: int | None = None, first_seed: int = 0,
+def check_grid_resources(settings, env, *, n_seeds: int | None = None, first_seed: int = 0,
                          devices=None) -> int | None:
-    """Refuse a grid run (`GridSettings`, resolved) that cannot fit in memory or finish, up front.
+    """Refuse a grid run (`GridSettings`, resolved; `env` its `make_env()`) that cannot fit in
+    memory or finish, up front.
 
     Host memory holds every seed's results (success, steps, policy: about seeds × (5·trials +
     4·cells) bytes per algorithm); each chunk holds, per device, the state of the seeds in
@@ -193,14 +194,13 @@ def check_grid_resources(settings, grid_map, *, n_seeds: int | None = None, firs
     automatic and the automatic one would not fit, the largest that fits (results do not
     depend on it, R1). Raises `UsageError` with the numbers otherwise.
     """
-    from jaxeac.envs.grid import GridWorld
     from jaxeac.running.batch import even_chunk
     from jaxeac.running.config import auto_chunk_size
     from jaxeac.running.loops import state_bytes_per_seed
     from jaxeac.running.outputs import narrow_int
 
     n = settings.seeds if n_seeds is None else int(n_seeds)
-    trials, chances, cells = settings.trials, settings.chances, grid_map.n_cells
+    trials, chances, cells = settings.trials, settings.chances, env.n_states
     check_int32("seed indices", first_seed + n, "--seeds")
     check_int32("trials", trials, "--trials")
     check_int32("chances", chances, "--chances")
@@ -224,7 +224,6 @@ def check_grid_resources(settings, grid_map, *, n_seeds: int | None = None, firs
     check_work(float(algos) * n * trials * chances, nd / step_seconds,
                "agent-steps (algorithms x seeds x trials x chances)", "use fewer seeds, trials or chances")
 
-    env = GridWorld(grid_map, chances)
     out_bytes = trials * narrow_int(chances).itemsize + cells * narrow_int(env.n_actions).itemsize
     device_memory = _device_memory(devices[0])
     budget = device_memory if device_memory is not None else max(0, memory - host - tables)

@@ -1,5 +1,9 @@
 """The grid-world experiment end to end: settings → runs of each algorithm → files on disk.
 
+The same experiment runs any registered environment (``GridSettings.env``, X1: the classic
+tabular tasks, a slippery grid) and the value-based baselines (X3); the paper's grid stays
+the default.
+
 `GridSettings` is what the CLI and notebooks fill in (validated up front, so bad
 input fails before any compute); `run_grid` runs every algorithm over seeds
 0..N−1 (SPEC R1) and `write_grid_outputs` writes the run folder atomically.
@@ -20,6 +24,8 @@ import numpy as np
 
 from jaxeac.algorithm.config import algorithm
 from jaxeac.algorithm.memory import LAYOUTS
+from jaxeac.envs import make as make_env
+from jaxeac.envs import registered
 from jaxeac.envs.grid import GridMap, GridWorld, get_map, load_map
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported from here by older code)
@@ -64,18 +70,21 @@ class GridSettings:
     chunk_size: int | None = None  # None: `auto_chunk_size` for the backend and devices
     memory: str = "dense"
     capacity: int = 1024
+    env: str | None = None  # a registered environment (`jaxeac.registered()`); None: the preset's map or --map
+    slip: float = 0.0  # X1: with this probability a move executes a uniformly random action
+    epsilon: float = 0.1  # X3: exploration rate of q_learning and sarsa
 
     def resolved(self) -> GridSettings:
-        """Fill unset fields from the preset and validate everything (raises `UsageError`)."""
+        """Fill unset fields from the preset (chances of a registered environment: its own) and
+        validate everything (raises `UsageError`)."""
         preset = make_preset(self.preset)
-        filled = dataclasses.replace(
-            self,
-            **{
-                f: getattr(preset, f)
-                for f in ("trials", "chances", "alpha", "beta", "gamma", "temperature")
-                if getattr(self, f) is None
-            },
-        )
+        fields = ("trials", "alpha", "beta", "gamma", "temperature") + (("chances",) if self.env is None else ())
+        filled = dataclasses.replace(self, **{f: getattr(preset, f) for f in fields if getattr(self, f) is None})
+        if filled.env is not None:
+            if filled.map_file is not None:
+                raise UsageError("--env and --map both name the world; give one of them")
+            if filled.chances is None:
+                filled = dataclasses.replace(filled, chances=make_env(filled.env).n_chances)
         filled.validate()
         return filled
 
@@ -90,26 +99,47 @@ class GridSettings:
         check_rate("temperature", self.temperature, positive=True)
         check_key(self.key)
         check_algos(self.algos)
+        check_rate("slip", self.slip, upper=1.0)
+        check_rate("epsilon", self.epsilon, upper=1.0)
         if self.memory not in LAYOUTS:
             raise UsageError(f"unknown memory layout {self.memory!r}; choose one of {', '.join(LAYOUTS)}")
+        if self.env is not None and self.env not in registered():
+            raise UsageError(f"unknown environment {self.env!r}; choose one of {', '.join(registered())}")
 
-    def grid_map(self) -> GridMap:
+    def grid_map(self) -> GridMap | None:
+        """The map of a grid run (G1); None for a registered non-grid environment."""
+        if self.env is not None:
+            return getattr(make_env(self.env), "map", None)
         return load_map(self.map_file) if self.map_file else get_map(make_preset(self.preset).map)
+
+    def make_env(self):
+        """The environment of the run (`jaxeac.envs.protocol`): the grid world of the map (G1–G5),
+        or the registered one, with `slip` (X1) and `chances`."""
+        if self.env is not None:
+            return make_env(self.env, chances=self.chances, slip=self.slip)
+        grid_map = self.grid_map()
+        if self.slip:
+            from jaxeac.envs.tabular import TabularEnv
+            from jaxeac.envs.tasks import grid_task, with_slip
+
+            return TabularEnv(with_slip(grid_task(grid_map, self.chances), self.slip), self.chances)
+        return GridWorld(grid_map, self.chances)
 
     def run_config(self, algo: str) -> RunConfig:
         agent = algorithm(algo, memory=self.memory, capacity=self.capacity)
         return RunConfig(
             trials=self.trials, agent=agent, alpha=self.alpha, beta=self.beta,
-            gamma=self.gamma, temperature=self.temperature,
+            gamma=self.gamma, temperature=self.temperature, epsilon=self.epsilon,
         )
 
 
 @dataclasses.dataclass
 class GridRun:
-    """A finished grid experiment: settings, map and per-algorithm results."""
+    """A finished grid experiment: settings, map (None: a non-grid environment) and per-algorithm
+    results."""
 
     settings: GridSettings
-    grid_map: GridMap
+    grid_map: GridMap | None
     results: dict[str, SeedsResult | CompactSeeds]
 
 
@@ -126,8 +156,7 @@ def run_grid(settings: GridSettings, *, progress: Callable[[int], None] | None =
     Seed i is ``fold_in(root, i)`` whichever process or device runs it (R1), so the seeds of
     a run can be split over processes and merged afterwards (`merge_parts`).
     """
-    grid_map = settings.grid_map()
-    env = GridWorld(grid_map, settings.chances)
+    env = settings.make_env()
     n = settings.seeds if n_seeds is None else n_seeds
     results = {
         algo: run_seeds(
@@ -136,7 +165,7 @@ def run_grid(settings: GridSettings, *, progress: Callable[[int], None] | None =
         )
         for algo in settings.algos
     }
-    return GridRun(settings, grid_map, results)
+    return GridRun(settings, settings.grid_map(), results)
 
 
 PART_PREFIX = "part-"
@@ -174,7 +203,7 @@ def merge_parts(out: str | Path) -> GridRun:
     if any(c != config for c in configs):
         raise UsageError(f"{out}: the parts come from runs with different settings; rerun them together")
     fields = {f.name for f in dataclasses.fields(GridSettings)}
-    if not isinstance(config.get("map"), str) or not set(config) - {"map"} <= fields:
+    if (config.get("env") is None and not isinstance(config.get("map"), str)) or not set(config) - {"map"} <= fields:
         raise UsageError(f"{parts[0] / 'summary.json'}: its config is not a grid run's; {fix}")
     try:
         settings = dataclasses.replace(GridSettings(), **{k: v for k, v in config.items() if k != "map"})
@@ -184,8 +213,11 @@ def merge_parts(out: str | Path) -> GridRun:
                          f"{fix}") from None
     from jaxeac.envs.grid import GridWorld, parse_map
 
-    grid_map = parse_map(config["map"], source=f"{parts[0] / 'summary.json'}: the map of its config")
-    n_actions = GridWorld(grid_map, settings.chances).n_actions
+    grid_map = None
+    if isinstance(config.get("map"), str):
+        grid_map = parse_map(config["map"], source=f"{parts[0] / 'summary.json'}: the map of its config")
+    env = settings.make_env() if grid_map is None else GridWorld(grid_map, settings.chances)
+    n_states, n_actions = env.n_states, env.n_actions
     timings = []
     for s, p in zip(summaries, parts, strict=True):
         per_algo = s.get("per_algo", {})
@@ -202,10 +234,10 @@ def merge_parts(out: str | Path) -> GridRun:
     for algo in settings.algos:
         for part, p in zip(loaded, parts, strict=True):
             x = part[algo]
-            if x.policy is not None and (x.policy.shape[1] != grid_map.n_cells or x.policy.size and (
+            if x.policy is not None and (x.policy.shape[1] != n_states or x.policy.size and (
                     x.policy.min() < 0 or x.policy.max() >= n_actions)):
-                raise UsageError(f"{p / 'results.parquet'}: the policies of {algo} are not actions on the "
-                                 f"map of its summary.json; {fix}")
+                raise UsageError(f"{p / 'results.parquet'}: the policies of {algo} are not actions in the "
+                                 f"world of its summary.json; {fix}")
             if x.trial_steps is not None and x.trial_steps.size and (
                     x.trial_steps.min() < 0 or x.trial_steps.max() > settings.chances):
                 raise UsageError(f"{p / 'results.parquet'}: the per-trial steps of {algo} lie outside "
@@ -236,7 +268,8 @@ def summarize(run: GridRun) -> dict:
     """summary.json content: config, versions, devices, timings, per-algorithm statistics."""
     out = summary_base("grid", "successes", run.settings, run.results,
                        {a: r.successes for a, r in run.results.items()})
-    out["config"]["map"] = run.grid_map.text
+    if run.grid_map is not None:
+        out["config"]["map"] = run.grid_map.text
     for algo, r in run.results.items():
         steps = r.agent_steps
         out["per_algo"][algo] |= {
@@ -308,8 +341,8 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
     summary = summarize(run)
     options = options or OutputOptions.auto(run.settings.seeds)
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
-        write_grid_results(stage / RESULTS_FILE, run.results, run.settings.trials, run.grid_map.n_cells,
-                           options)
+        write_grid_results(stage / RESULTS_FILE, run.results, run.settings.trials,
+                           run.settings.make_env().n_states, options)
         return _finish_folder(run, stage, summary, options, figures)
 
 
@@ -323,13 +356,12 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
     midway leaves it as it was). Returns the run and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
-    grid_map = settings.grid_map()
-    env = GridWorld(grid_map, settings.chances)
+    grid_map, env = settings.grid_map(), settings.make_env()
     seeds = np.arange(settings.seeds, dtype=np.int64)
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
-        with ResultsWriter(stage / RESULTS_FILE, settings.trials, grid_map.n_cells, options) as writer:
+        with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             algos = settings.algos
-            collectors = [CompactCollector(seeds, settings.trials, grid_map.n_cells,
+            collectors = [CompactCollector(seeds, settings.trials, env.n_states,
                                            on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
             runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
                                   n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
@@ -358,17 +390,16 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
     if not {"ac", "eac"} <= set(settings.algos):
         raise UsageError("--sequential compares eac with ac: --algos must include both")
     options = options or OutputOptions.auto(design.sizes[-1])
-    grid_map = settings.grid_map()
-    env = GridWorld(grid_map, settings.chances)
+    grid_map, env = settings.grid_map(), settings.make_env()
     algos = settings.algos
     cfgs = [settings.run_config(a) for a in algos]
     parts: dict[str, list[CompactSeeds]] = {a: [] for a in algos}
     t0 = time.perf_counter()
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
-        with ResultsWriter(stage / RESULTS_FILE, settings.trials, grid_map.n_cells, options) as writer:
+        with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             def measure(first: int, n: int):
                 seeds = np.arange(first, first + n, dtype=np.int64)
-                collectors = [CompactCollector(seeds, settings.trials, grid_map.n_cells,
+                collectors = [CompactCollector(seeds, settings.trials, env.n_states,
                                                on_chunk=writer.chunk_writer(a, seeds)) for a in algos]
                 runs = run_algorithms(env, cfgs, root_key=settings.key, n_seeds=n, first_seed=first,
                                       chunk_size=settings.chunk_size, progress=progress,

@@ -25,7 +25,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.algorithm.config import Hyper
-from jaxeac.envs.grid import GridWorld
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import mean_ci95, welch_diff_ci95
 from jaxeac.experiments.grid import GridSettings
@@ -38,11 +37,11 @@ from jaxeac.io import (
 )
 from jaxeac.running.batch import run_entries
 
-TRACED = ("alpha", "beta", "gamma", "temperature")
+TRACED = ("alpha", "beta", "gamma", "temperature", "epsilon")
 SAVE_UNIT = 1024  # seeds per saved part when no --chunk-size is given
-STATIC = ("trials", "chances", "preset", "map_file")
-KEYS = {"alpha": float, "beta": float, "gamma": float, "temperature": float,
-        "trials": int, "chances": int, "preset": str, "map_file": str}
+STATIC = ("trials", "chances", "preset", "map_file", "slip")
+KEYS = {"alpha": float, "beta": float, "gamma": float, "temperature": float, "epsilon": float,
+        "trials": int, "chances": int, "preset": str, "map_file": str, "slip": float}
 ALIASES = {"map": "map_file"}
 
 
@@ -94,7 +93,7 @@ class Sweep:
         sweep = Sweep(base, tuple((k, tuple(v)) for k, v in grid.items()))
         for point in sweep.points():  # validate every point before any compute
             settings = sweep.settings(point)
-            settings.grid_map()
+            settings.make_env()
         return sweep
 
     @property
@@ -147,11 +146,11 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
     groups: dict[tuple, list[int]] = {}
     for i, point in enumerate(points):
         s = sweep.settings(point)
-        groups.setdefault((s.trials, s.chances, s.preset, s.map_file), []).append(i)
+        groups.setdefault((s.trials, s.chances, s.preset, s.map_file, s.slip), []).append(i)
 
     for ids in groups.values():
         first = sweep.settings(points[ids[0]])
-        env = GridWorld(first.grid_map(), first.chances)
+        env = first.make_env()
         for algo in base.algos:
             cfg = first.run_config(algo)
             for chunk in range(n_chunks):
@@ -178,11 +177,11 @@ def run_sweep(sweep: Sweep, out: str | Path, *, progress: Callable[[int], None] 
 
 
 def _entry_hyper(settings: list[GridSettings], per_point: int) -> Hyper:
-    """Per-entry traced values: each point's α, β, γ, τ repeated for its seeds."""
+    """Per-entry traced values: each point's α, β, γ, τ, ε repeated for its seeds."""
     def column(name):
         return jnp.asarray(np.repeat([getattr(s, name) for s in settings], per_point), dtype=float)
 
-    return Hyper(column("alpha"), column("beta"), column("gamma"), column("temperature"))
+    return Hyper(*(column(name) for name in TRACED))
 
 
 def load_point(out: Path, point_id: int, algo: str, n_chunks: int) -> tuple[np.ndarray, np.ndarray]:
