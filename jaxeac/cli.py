@@ -116,6 +116,21 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--compare", action="store_true", help="also run `jaxeac compare` at every point")
     w.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    st = sub.add_parser("study", help="every task x AC, EAC, its ablations, Q-learning and SARSA, compared "
+                                      "with AC (resumable)")
+    st.add_argument("--tasks", nargs="+", metavar="NAME[:slip=P]",
+                    help="registered environments (default: the paper grid, plain and with slip 0.1, and every "
+                         "classic task)")
+    st.add_argument("--algos", nargs="+", metavar="ALGO", help="algorithms, ac among them (default: all)")
+    st.add_argument("--seeds", type=positive_int, default=10_000, metavar="N", help="seeds per algorithm and task")
+    st.add_argument("--trials", type=positive_int, metavar="T", help="trials per run (default: the preset's 200)")
+    st.add_argument("--epsilon", type=finite_float, default=0.1, metavar="E", help="ε of q_learning and sarsa")
+    st.add_argument("--resamples", type=positive_int, default=10_000, metavar="R", help="bootstrap resamples")
+    st.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    st.add_argument("--chunk-size", type=positive_int, default=None, metavar="M", help="seeds per compiled batch")
+    st.add_argument("--out", type=folder_name, default="runs/study", metavar="DIR")
+    st.add_argument("--quiet", action="store_true", help="no progress lines")
+
     r = sub.add_parser("reproduce", help="re-run both of the paper's experiments at scale, with a verdict")
     r.add_argument("--quick", action="store_true", help="fewer seeds: a few minutes on a laptop CPU")
     r.add_argument("--out", type=folder_name, default="runs/reproduce", metavar="DIR")
@@ -485,6 +500,21 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_study(args: argparse.Namespace) -> int:
+    from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS, StudySettings, run_study
+
+    settings = StudySettings(
+        tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
+        trials=args.trials, key=args.key, epsilon=args.epsilon, resamples=args.resamples,
+        chunk_size=args.chunk_size)
+    settings.validate()  # bad names and settings fail before any compute
+    _claim_out(args, args.out, kind="study")
+    result = run_study(settings, args.out, progress=not args.quiet)
+    print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "
+          f"{result['comparisons_in_family']} comparisons with ac; report in {args.out}/report.md")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from jaxeac.experiments.reproduce import reproduce
 
@@ -497,7 +527,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 COMMANDS = {
     "reproduce": cmd_reproduce,
     "grid": cmd_grid, "run": cmd_grid, "sweep": cmd_sweep, "bowling": cmd_bowling, "throw": cmd_throw,
-    "compare": cmd_compare, "merge": cmd_merge,
+    "compare": cmd_compare, "merge": cmd_merge, "study": cmd_study,
 }
 
 

@@ -116,19 +116,21 @@ RUN_FOLDER_FILES = ("summary.json", "results.parquet", "per_seed.csv", "curves.n
                     "bowling.npz", "table1.md", "fig*.png", "stats.json", "report.md", "compare_*.png")
 
 
-FOLDER_KINDS = {"run": "a grid or bowling run", "sweep": "a sweep", "reproduce": "a reproduction"}
+FOLDER_KINDS = {"run": "a grid or bowling run", "sweep": "a sweep", "reproduce": "a reproduction",
+                "study": "a study"}
 
 
 def folder_kind(path: str | os.PathLike) -> tuple[str, Path] | None:
     """(kind, the file that says so) of what an existing output folder holds, or None: a
-    reproduction (``reproduce.json`` in it or in a step folder), a sweep (``sweep.json``) or a
-    run (``summary.json``)."""
+    reproduction (``reproduce.json`` in it or in a step folder), a study (``study.json``, or
+    task folders under ``tasks/``), a sweep (``sweep.json``) or a run (``summary.json``)."""
     path = Path(path)
     try:
         if not path.is_dir():
             return None
-        markers = [("reproduce", path / "reproduce.json"), ("sweep", path / "sweep.json"),
-                   ("run", path / "summary.json")]
+        markers = [("reproduce", path / "reproduce.json"), ("study", path / "study.json"),
+                   ("sweep", path / "sweep.json"), ("run", path / "summary.json")]
+        markers[2:2] = [("study", task) for task in sorted(path.glob("tasks/*/summary.json"))[:1]]
         markers[1:1] = [("reproduce", step) for step in sorted(path.glob("*/reproduce.json"))]
         return next(((kind, marker) for kind, marker in markers if marker.is_file()), None)
     except OSError:  # a name too long, a folder that cannot be listed: `check_writable_dir` says so

@@ -395,3 +395,32 @@ def summary_base(experiment: str, primary: str, settings, results: dict, measure
         diff, lo, hi = welch_diff_ci95(measures["ac"], measures["eac"])
         out["eac_minus_ac"] = {"diff": diff, "ci95": [lo, hi], "method": "Welch t interval"}
     return out
+
+
+def plain_json(obj):
+    """Plain JSON types (tuples → lists, numpy → Python, NaN → None), as a JSON round trip gives."""
+    import json
+
+    from jaxeac.io import to_jsonable
+
+    return json.loads(json.dumps(to_jsonable(obj)))
+
+
+def finished_run(folder, expect: dict) -> bool:
+    """A run folder whose summary.json exists and whose config has every `expect` item. A
+    damaged summary.json (not JSON, not an object, no config) is not finished: the step runs
+    again and replaces the folder as a whole."""
+    from pathlib import Path
+
+    from jaxeac.io import read_json_object
+
+    path = Path(folder) / "summary.json"
+    if not path.is_file():
+        return False
+    try:
+        config = read_json_object(path).get("config")
+    except UsageError:
+        return False
+    if not isinstance(config, dict):
+        return False
+    return all(plain_json(config.get(k)) == plain_json(v) for k, v in expect.items())

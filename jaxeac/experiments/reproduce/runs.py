@@ -13,7 +13,7 @@ exists with the same fingerprint; a rerun with the same settings skips finished 
 
 Longer than the package's ~400-line aim (about 480 lines): the four steps and `reproduce`,
 which runs and resumes them, share one convention for run folders and step markers
-(`_finished`, `_marker`, `_fingerprint`); a separate driver module would split it in two.
+(`finished_run`, `_marker`, `_fingerprint`); a separate driver module would split it in two.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ import numpy as np
 from jaxeac import __version__, paper
 from jaxeac.algorithm.agent import ALGORITHMS
 from jaxeac.errors import UsageError
-from jaxeac.experiments.common import check_key, versions
+from jaxeac.experiments.common import check_key, finished_run, plain_json, versions
 from jaxeac.experiments.reproduce.claims import judge_claims
 from jaxeac.experiments.reproduce.measures import (
     angle_measures,
@@ -94,27 +94,6 @@ QUICK = Sizes(grid_seeds=2_000, bowling_seeds=150, calibration_seeds=64, calibra
 
 
 # ------------------------------------------------------------------ folders
-def _normal(obj):
-    """Plain JSON types (tuples → lists, numpy → Python, NaN → None), as a JSON round trip gives."""
-    return json.loads(json.dumps(to_jsonable(obj)))
-
-
-def _finished(folder: Path, expect: dict) -> bool:
-    """A run folder whose summary.json exists and whose config has every `expect` item. A
-    damaged summary.json (not JSON, not an object, no config) is not finished: the step runs
-    again and replaces the folder as a whole."""
-    path = folder / "summary.json"
-    if not path.is_file():
-        return False
-    try:
-        config = read_json_object(path).get("config")
-    except UsageError:
-        return False
-    if not isinstance(config, dict):
-        return False
-    return all(_normal(config.get(k)) == _normal(v) for k, v in expect.items())
-
-
 @contextlib.contextmanager
 def _bar(progress: bool, total: int, desc: str) -> Iterator[Callable[[int], None] | None]:
     from tqdm import tqdm
@@ -136,7 +115,7 @@ def _grid_run(folder: Path, settings, progress: bool, *, figures: bool, label: s
 
     expect = {k: getattr(settings, k) for k in ("preset", "seeds", "key", "algos", "trials", "chances",
                                                 "alpha", "beta", "gamma", "temperature")}
-    if _finished(folder, expect) and (folder / RESULTS_FILE).is_file():
+    if finished_run(folder, expect) and (folder / RESULTS_FILE).is_file():
         return
     with _bar(progress, settings.seeds * len(settings.algos), label) as update:
         run = run_grid(settings, progress=update)
@@ -148,7 +127,7 @@ def _bowling_run(folder: Path, settings, progress: bool, *, figures: bool, label
     from jaxeac.experiments.bowling import run_bowling, write_bowling_outputs
 
     settings.validate()
-    if _finished(folder, dataclasses.asdict(settings)) and (folder / "curves.npz").is_file():
+    if finished_run(folder, dataclasses.asdict(settings)) and (folder / "curves.npz").is_file():
         return
     with _bar(progress, settings.seeds * len(settings.algos), label) as update:
         run = run_bowling(settings, progress=update)
@@ -221,7 +200,7 @@ def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
                                          ("middle", slice(T // 10, T - T // 10)),
                                          ("last 10%", slice(T - max(1, T // 10), T)))}
     return {
-        "seeds": settings.seeds, "trials": T, "settings": _normal(dataclasses.asdict(settings)),
+        "seeds": settings.seeds, "trials": T, "settings": plain_json(dataclasses.asdict(settings)),
         "successes": {a: mean_ci(x) for a, x in successes.items()},
         "paper_position": {a: paper_position(successes[a], paper.GRID_SUCCESSES[a]) for a in ("ac", "eac")},
         "paper_diff": paper.GRID_SUCCESSES["eac"] - paper.GRID_SUCCESSES["ac"],
@@ -275,7 +254,7 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     ang["contrast_sd_theta1"] = contrast(*both("sd_theta1"), sub_key(key, "bowling/sd_theta1"),
                                          resamples=sizes.resamples, higher_is_better=False)
     return {
-        "seeds": settings.seeds, "trials": settings.trials, "settings": _normal(dataclasses.asdict(settings)),
+        "seeds": settings.seeds, "trials": settings.trials, "settings": plain_json(dataclasses.asdict(settings)),
         "returns": {a: mean_ci(x) for a, x in totals.items()},
         "paper_position": {a: paper_position(totals[a], paper.BOWLING_PINS[a]) for a in ("ac", "eac")},
         "paper_diff": paper.BOWLING_PINS["eac"] - paper.BOWLING_PINS["ac"],
@@ -425,7 +404,7 @@ def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
         "ablations": ("ablation_grid_seeds", "ablation_bowling_seeds", "ablation_algos", "temperatures",
                       "noise_scales", "resamples", "bowling_seeds"),
     }[step]
-    return _normal({"step": step, "key": key, "jaxeac": __version__,
+    return plain_json({"step": step, "key": key, "jaxeac": __version__,
                     **{k: getattr(sizes, k) for k in relevant}})
 
 
@@ -499,7 +478,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
 
     rec = {
         "schema": "jaxeac.experiments.reproduce/1", "mode": mode, "key": int(key), "command": command,
-        "argv": " ".join(["jaxeac", *sys.argv[1:]]), "sizes": _normal(dataclasses.asdict(sizes)),
+        "argv": " ".join(["jaxeac", *sys.argv[1:]]), "sizes": plain_json(dataclasses.asdict(sizes)),
         "resamples": sizes.resamples,
         "finished": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "total_seconds": time.perf_counter() - t_start, "timings": timings,
@@ -510,7 +489,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
         "ablation_answer": ablation_answer(records["ablations"]),
         **{step: records[step] for step in STEPS},
     }
-    rec = _normal(rec)
+    rec = plain_json(rec)
     text = render_report(rec, out)
     atomic_write_json(out / "reproduce.json", rec)
     atomic_write_text(out / "report.md", text)
