@@ -4,6 +4,7 @@ A `TabularTask` is a finite MDP written out as NumPy tables: for every (state, a
 K possible next states with their probabilities, rewards and E5 "bump" flags, which states
 end an episode and which of those count as a success (E3). `jaxeac.envs.tabular.TabularEnv`
 runs any of them under AC, EAC, Q-learning and SARSA. Nothing here imports JAX.
+Builders: `frozen_lake`, `cliff_walking`.
 SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 """
 
@@ -103,3 +104,137 @@ def check_task(task: TabularTask) -> None:
         raise UsageError(f"task {task.name}: goal {task.goal} must be a success state")
     if isinstance(task.max_steps, bool) or not isinstance(task.max_steps, int) or task.max_steps < 1:
         raise UsageError(f"task {task.name}: max_steps must be a positive integer")
+
+
+# ---------------------------------------------------------------- moves on an ASCII map (shared)
+
+def _cells(text: str) -> np.ndarray:
+    """An ASCII map as a [H, W] array of its characters; cell (y, x) is state y·W + x."""
+    return np.array([list(row) for row in text.split()])
+
+
+def _moves(cells: np.ndarray, deltas, *, lift=None, wall: str = "#") -> tuple[np.ndarray, np.ndarray]:
+    """One step from every cell with every action: next cell (int32 [S, A]) and hit (bool [S, A]).
+
+    Action a adds ``deltas[a] = (dx, dy)`` and, if given, the upward push ``lift[x]`` of the column x
+    the move starts in; each coordinate is then clipped to the grid, so a step off the grid stays put.
+    A step into a `wall` cell stays put with hit = True.
+    """
+    height, width = cells.shape
+    states = np.arange(height * width)
+    ys, xs = np.divmod(states, width)
+    dx, dy = np.asarray(deltas).T
+    up = np.zeros(width, int) if lift is None else np.asarray(lift)
+    nx = np.clip(xs[:, None] + dx, 0, width - 1)
+    ny = np.clip(ys[:, None] + dy - up[xs][:, None], 0, height - 1)
+    target = ny * width + nx
+    hit = cells.ravel()[target] == wall
+    return np.where(hit, states[:, None], target).astype(np.int32), hit
+
+
+def _map_task(name: str, cells: np.ndarray, next_states, probs, rewards, bumped, **fields) -> TabularTask:
+    """A `TabularTask` on a map: the G cell is the goal (terminal, the only success), the shape is the
+    map's, and `probs` broadcasts over next_states; `fields` give the rest (`terminal` defaults to G)."""
+    flat = cells.ravel()
+    goal = int(np.flatnonzero(flat == "G")[0])
+    next_states = np.asarray(next_states, np.int32)
+    return TabularTask(
+        name=name,
+        next_states=next_states,
+        probs=np.broadcast_to(np.asarray(probs, np.float64), next_states.shape).copy(),
+        rewards=np.asarray(rewards, np.float64),
+        bumped=np.asarray(bumped, bool),
+        terminal=fields.pop("terminal", flat == "G"),
+        success=flat == "G",
+        start_states=np.asarray(fields.pop("start_states", np.flatnonzero(flat == "S")), np.int32),
+        shape=cells.shape,
+        goal=goal,
+        **fields,
+    )
+
+
+# ---------------------------------------------------------------- the classic tasks
+
+#: Gymnasium's FrozenLake-v1 maps (S start, F frozen, H hole, G goal).
+FROZEN_LAKE_MAPS = {
+    "4x4": """\
+SFFF
+FHFH
+FFFH
+HFFG
+""",
+    "8x8": """\
+SFFFFFFF
+FFFFFFFF
+FFFHFFFF
+FFFFFHFF
+FFFHFFFF
+FHHFFFHF
+FHFFHFHF
+FFFHFFFG
+""",
+}
+
+def frozen_lake(map_name: str, slippery: bool) -> TabularTask:
+    """Gymnasium's FrozenLake-v1 (Towers et al., 2024, arXiv:2407.17032; toy_text/frozen_lake.py).
+
+    Its maps, its actions (0 left, 1 down, 2 right, 3 up), and with `slippery` its three outcomes
+    (a − 1) mod 4, a, (a + 1) mod 4 with 1/3 each. A step off the grid stays put. Entering the goal
+    gives 1, anything else 0; holes and the goal end the episode, the goal as the only success; from
+    either every action stays put with reward 0, as in Gymnasium. `bumped` marks falling into a hole.
+    One start (S); max_steps 100 (4x4) or 200 (8x8), Gymnasium's registered time limits.
+    """
+    if map_name not in FROZEN_LAKE_MAPS:
+        raise UsageError(f"unknown FrozenLake map {map_name!r}; choose one of {sorted(FROZEN_LAKE_MAPS)}")
+    cells = _cells(FROZEN_LAKE_MAPS[map_name])
+    flat = cells.ravel()
+    deltas = ((-1, 0), (0, 1), (1, 0), (0, -1))
+    moves, _ = _moves(cells, deltas)
+    mix = [[(a - 1) % 4, a, (a + 1) % 4] if slippery else [a] for a in range(4)]
+    next_states = moves[:, mix]
+    ends = np.isin(flat, ["G", "H"])
+    next_states[ends] = np.flatnonzero(ends)[:, None, None]  # absorbing, as Gymnasium writes them
+    moving = ~ends[:, None, None]
+    return _map_task(
+        f"FrozenLake-{map_name}{'-slippery' if slippery else ''}-v1", cells, next_states,
+        1.0 / len(mix[0]), (flat[next_states] == "G") & moving, (flat[next_states] == "H") & moving,
+        terminal=ends, max_steps={"4x4": 100, "8x8": 200}[map_name],
+        source="Gymnasium FrozenLake-v1 (gymnasium/envs/toy_text/frozen_lake.py); M. Towers et al., "
+               "Gymnasium: A Standard Interface for Reinforcement Learning Environments, arXiv:2407.17032",
+        action_names=("left", "down", "right", "up"), action_deltas=deltas,
+    )
+
+
+#: Sutton & Barto's cliff world (C: the cliff).
+CLIFF_MAP = """\
+............
+............
+............
+SCCCCCCCCCCG
+"""
+
+
+def cliff_walking() -> TabularTask:
+    """Cliff walking: Sutton & Barto, Reinforcement Learning: An Introduction, 2nd ed. (MIT Press, 2018),
+    Example 6.6, as Gymnasium's CliffWalking-v1 (not slippery; toy_text/cliffwalking.py).
+
+    4×12, start at (row 3, col 0), goal at (3, 11), the cliff between them; actions 0 up, 1 right,
+    2 down, 3 left. Every step gives −1, entering the goal too (Gymnasium's v1); stepping into the
+    cliff gives −100 and returns to the start without ending the episode (`bumped`). A step off the
+    grid stays put. The goal ends the episode as a success. Gymnasium registers no time limit; we cut
+    at max_steps = 100, the limit Gymnasium registers for the 4x4 FrozenLake-v1: ample for the 13-step
+    shortest path and the 17-step safe one.
+    """
+    cells = _cells(CLIFF_MAP)
+    flat = cells.ravel()
+    deltas = ((0, -1), (1, 0), (0, 1), (-1, 0))
+    moves, _ = _moves(cells, deltas)
+    falls = flat[moves] == "C"
+    start = int(np.flatnonzero(flat == "S")[0])
+    return _map_task(
+        "CliffWalking-v1", cells, np.where(falls, start, moves)[..., None], 1.0,
+        np.where(falls, -100.0, -1.0)[..., None], falls[..., None], max_steps=100,
+        source="Sutton & Barto, Reinforcement Learning: An Introduction, 2nd ed. (2018), Example 6.6; "
+               "as Gymnasium CliffWalking-v1 (gymnasium/envs/toy_text/cliffwalking.py)",
+        action_names=("up", "right", "down", "left"), action_deltas=deltas,
+    )
