@@ -61,6 +61,10 @@ ALL = {
     "FrozenLake-8x8-v1": lambda: tasks.frozen_lake("8x8", slippery=False),
     "FrozenLake-8x8-slippery-v1": lambda: tasks.frozen_lake("8x8", slippery=True),
     "CliffWalking-v1": tasks.cliff_walking,
+    "WindyGridworld-v0": lambda: tasks.windy_gridworld(stochastic=False),
+    "WindyGridworld-stochastic-v0": lambda: tasks.windy_gridworld(stochastic=True),
+    "FourRooms-v0": lambda: tasks.four_rooms(stochastic=False),
+    "FourRooms-stochastic-v0": lambda: tasks.four_rooms(stochastic=True),
 }
 
 
@@ -158,6 +162,70 @@ def test_cliff_walking_by_hand():
     assert outcomes(task, cell(task, 2, 5), 2) == {(start, -100.0, True): 1.0}
     cliff = np.array([c == "C" for c in tasks.CLIFF_MAP if c != "\n"])
     assert not task.terminal[start] and task.bumped[~cliff].sum() == 12  # 10 from above, 1 each from S, G
+
+
+def test_windy_gridworld_by_hand():
+    task = tasks.windy_gridworld()
+    up, down, left, right = range(4)
+    assert task.action_names == ("up", "down", "left", "right")
+    assert task.start_states.tolist() == [cell(task, 3, 0)] and task.goal == cell(task, 3, 7)
+    path = shortest_path(task)
+    assert len(path) == 15 and path_return(task, path) == -15.0  # the book's Fig. for Example 6.5
+    # (3, 6), wind 2, right: (1, 7); the book's example: one right of the goal, left: just above it
+    assert outcomes(task, cell(task, 3, 6), right) == {(cell(task, 1, 7), -1.0, False): 1.0}
+    assert outcomes(task, cell(task, 3, 8), left) == {(cell(task, 2, 7), -1.0, False): 1.0}
+    # the wind of the column the move starts in: (3, 2) has none, moving right into column 3 stays in row 3
+    assert outcomes(task, cell(task, 3, 2), right) == {(cell(task, 3, 3), -1.0, False): 1.0}
+    # clipped at the top: (0, 6) up stays in row 0; (1, 7) right with wind 2 ends at (0, 8)
+    assert outcomes(task, cell(task, 0, 6), up) == {(cell(task, 0, 6), -1.0, False): 1.0}
+    assert outcomes(task, cell(task, 1, 7), right) == {(cell(task, 0, 8), -1.0, False): 1.0}
+    assert outcomes(task, cell(task, 6, 5), down) == {(cell(task, 6, 5), -1.0, False): 1.0}  # wind 1 - 1 down
+    assert not task.bumped.any() and (task.rewards == -1.0).all()
+
+
+def test_windy_gridworld_stochastic_by_hand():
+    task = tasks.windy_gridworld(stochastic=True)
+    left, right = 2, 3
+    third = pytest.approx(1 / 3, abs=1e-15)
+    assert (task.probs == 1 / 3).all() and task.n_outcomes == 3
+    # Exercise 6.10's example: one right of the goal, left: above it, two above, or the goal, 1/3 each
+    s = cell(task, 3, 8)
+    assert task.next_states[s, left].tolist() == [cell(task, 2, 7), cell(task, 1, 7), cell(task, 3, 7)]
+    assert outcomes(task, s, left) == {(cell(task, r, 7), -1.0, False): third for r in (2, 1, 3)}
+    s = cell(task, 3, 6)  # wind 2: pushed up 2, 3 or 1
+    assert task.next_states[s, right].tolist() == [cell(task, 1, 7), cell(task, 0, 7), cell(task, 2, 7)]
+    assert outcomes(task, cell(task, 3, 0), right) == {(cell(task, 3, 1), -1.0, False): 1.0}  # no wind
+    assert outcomes(task, cell(task, 0, 4), left) == {  # wind 1 at the top: 1, 2 clip to row 0; 0 stays
+        (cell(task, 0, 3), -1.0, False): pytest.approx(1.0, abs=1e-15)}
+
+
+def test_four_rooms_by_hand():
+    task = tasks.four_rooms()
+    up, down, left, right = range(4)
+    walls = np.array([c == "#" for c in tasks.FOUR_ROOMS_MAP if c != "\n"])
+    assert task.shape == (13, 13) and walls.sum() == 169 - 104  # 104 free cells, as in the paper
+    assert task.goal == cell(task, 7, 9)
+    assert sorted(task.start_states.tolist()) == sorted(set(np.flatnonzero(~walls)) - {task.goal})
+    hall = cell(task, 3, 6)  # the hallway between the two upper rooms
+    assert outcomes(task, hall, right) == {(cell(task, 3, 7), 0.0, False): 1.0}
+    assert outcomes(task, hall, up) == {(hall, 0.0, True): 1.0}  # a wall: stay, bumped
+    assert outcomes(task, cell(task, 6, 9), down) == {(task.goal, 1.0, False): 1.0}
+    assert outcomes(task, cell(task, 1, 1), left) == {(cell(task, 1, 1), 0.0, True): 1.0}
+    assert len(shortest_path(task)) == 14  # from the first start, the upper-left corner (1, 1)
+
+
+def test_four_rooms_stochastic_by_hand():
+    task = tasks.four_rooms(stochastic=True)
+    up = 0
+    np.testing.assert_array_equal(task.probs[0, 0], [2 / 3, 1 / 9, 1 / 9, 1 / 9])
+    assert (task.probs == task.probs[0, 0]).all()
+    hall = cell(task, 3, 6)  # up (2/3) and down (1/9) hit walls; left, right 1/9 each
+    assert task.next_states[hall, up].tolist() == [hall, hall, cell(task, 3, 5), cell(task, 3, 7)]
+    assert outcomes(task, hall, up) == {
+        (hall, 0.0, True): pytest.approx(7 / 9, abs=1e-15),
+        (cell(task, 3, 5), 0.0, False): pytest.approx(1 / 9, abs=1e-15),
+        (cell(task, 3, 7), 0.0, False): pytest.approx(1 / 9, abs=1e-15),
+    }
 
 
 @pytest.mark.parametrize("name", sorted(ALL))

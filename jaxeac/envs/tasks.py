@@ -4,7 +4,7 @@ A `TabularTask` is a finite MDP written out as NumPy tables: for every (state, a
 K possible next states with their probabilities, rewards and E5 "bump" flags, which states
 end an episode and which of those count as a success (E3). `jaxeac.envs.tabular.TabularEnv`
 runs any of them under AC, EAC, Q-learning and SARSA. Nothing here imports JAX.
-Builders: `frozen_lake`, `cliff_walking`.
+Builders: `frozen_lake`, `cliff_walking`, `windy_gridworld`, `four_rooms`.
 SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 """
 
@@ -237,4 +237,97 @@ def cliff_walking() -> TabularTask:
         source="Sutton & Barto, Reinforcement Learning: An Introduction, 2nd ed. (2018), Example 6.6; "
                "as Gymnasium CliffWalking-v1 (gymnasium/envs/toy_text/cliffwalking.py)",
         action_names=("up", "right", "down", "left"), action_deltas=deltas,
+    )
+
+
+#: The compass moves as (dx, dy), y growing downwards, in the order FourRooms and WindyGridworld use.
+COMPASS_NAMES = ("up", "down", "left", "right")
+COMPASS_DELTAS = ((0, -1), (0, 1), (-1, 0), (1, 0))
+
+
+#: Sutton & Barto's windy gridworld and the upward wind of each column.
+WINDY_MAP = """\
+..........
+..........
+..........
+S......G..
+..........
+..........
+..........
+"""
+WIND = (0, 0, 0, 1, 1, 1, 2, 2, 1, 0)
+
+
+def windy_gridworld(stochastic: bool = False) -> TabularTask:
+    """The windy gridworld: Sutton & Barto, Reinforcement Learning: An Introduction, 2nd ed. (MIT
+    Press, 2018), Example 6.5; `stochastic`: Exercise 6.10's stochastic wind.
+
+    7×10, start at (row 3, col 0), goal at (3, 7); actions 0 up, 1 down, 2 left, 3 right. A move
+    is shifted upwards by the wind 0 0 0 1 1 1 2 2 1 0 of the column it starts in (the book's
+    example: one cell right of the goal, left leads to the cell just above it), then each coordinate
+    is clipped to the grid. −1 per step, entering the goal too; the goal ends the episode. With
+    `stochastic`, where a column has wind, the push is its value, one more, or one less, with 1/3 each
+    (in that order; a windless column repeats its one outcome three times). Nothing is `bumped`. The
+    book sets no time limit; max_steps = 200, about 13× the 15-step shortest episode.
+    """
+    cells = _cells(WINDY_MAP)
+    wind = np.asarray(WIND)
+    gusts = (0, 1, -1) if stochastic else (0,)
+    next_states = np.stack([_moves(cells, COMPASS_DELTAS, lift=wind + g * (wind > 0))[0] for g in gusts], -1)
+    return _map_task(
+        f"WindyGridworld{'-stochastic' if stochastic else ''}-v0", cells, next_states,
+        1.0 / len(gusts), np.full(next_states.shape, -1.0), np.zeros(next_states.shape, bool),
+        max_steps=200,
+        source="Sutton & Barto, Reinforcement Learning: An Introduction, 2nd ed. (2018), Example 6.5"
+               + (" with the stochastic wind of Exercise 6.10" if stochastic else ""),
+        action_names=COMPASS_NAMES, action_deltas=COMPASS_DELTAS,
+    )
+
+
+#: Sutton, Precup & Singh's rooms: 11×11 inside a border of walls, four hallways; G in the east one.
+FOUR_ROOMS_MAP = """\
+#############
+#.....#.....#
+#.....#.....#
+#...........#
+#.....#.....#
+#.....#.....#
+##.####.....#
+#.....###G###
+#.....#.....#
+#.....#.....#
+#...........#
+#.....#.....#
+#############
+"""
+
+
+def four_rooms(stochastic: bool = False) -> TabularTask:
+    """The rooms example of Sutton, Precup & Singh, 'Between MDPs and semi-MDPs: A framework for
+    temporal abstraction in reinforcement learning', Artificial Intelligence 112 (1999) 181–211, Fig. 2.
+
+    The 11×11 rooms inside a border of walls (`FOUR_ROOMS_MAP`, 13×13 cells; walls are states never
+    entered); actions 0 up, 1 down, 2 left, 3 right. With `stochastic`, as in the paper, the chosen
+    direction with 2/3 and each other one with 1/9 (chosen first, then the others in action order).
+    A move into a wall stays put and is `bumped`. The goal: the figure's hallway goal, which we read
+    as the east hallway (row 7, col 9), between the two right-hand rooms; it is also the "east
+    doorway" goal of the option-critic's four rooms (Bacon, Harb & Precup, AAAI 2017). Entering it
+    gives +1 and ends the episode, anything else 0. Starts: uniform over the free non-goal cells.
+    The paper sets no time limit; max_steps = 500, about the mean time a uniformly random policy
+    takes to reach the goal (502 steps; it does within 500 in 64 % of episodes).
+    """
+    cells = _cells(FOUR_ROOMS_MAP)
+    flat = cells.ravel()
+    moves, hit = _moves(cells, COMPASS_DELTAS)
+    if stochastic:
+        mix, probs = [[a] + [b for b in range(4) if b != a] for a in range(4)], (2 / 3, 1 / 9, 1 / 9, 1 / 9)
+    else:
+        mix, probs = [[a] for a in range(4)], 1.0
+    next_states = moves[:, mix]
+    return _map_task(
+        f"FourRooms{'-stochastic' if stochastic else ''}-v0", cells, next_states, probs,
+        flat[next_states] == "G", hit[:, mix], start_states=np.flatnonzero(flat == "."), max_steps=500,
+        source="Sutton, Precup & Singh, Between MDPs and semi-MDPs, Artificial Intelligence 112 (1999) "
+               "181-211, Fig. 2 (the rooms example)",
+        action_names=COMPASS_NAMES, action_deltas=COMPASS_DELTAS,
     )
