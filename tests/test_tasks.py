@@ -4,12 +4,15 @@ transitions, the stochastic variants, slip, the paper's grid as a task, and chec
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 from collections import Counter, deque
 
 import numpy as np
 import pytest
 
 from jaxeac.envs import tasks
+from jaxeac.envs.grid import get_map, transition_tables
 from jaxeac.errors import UsageError
 
 
@@ -248,6 +251,73 @@ def test_unknown_frozen_lake_map():
         tasks.frozen_lake("5x5", slippery=False)
 
 
+# ---------------------------------------------------------------- slip
+def test_slip_zero_is_identity_and_name():
+    task = tasks.cliff_walking()
+    assert tasks.with_slip(task, 0) is task and tasks.with_slip(task, 0.0) is task
+    slipped = tasks.with_slip(task, 0.25)
+    assert slipped.name == "CliffWalking-v1-slip0.25" and slipped.n_outcomes == 4
+    assert (slipped.goal, slipped.shape, slipped.max_steps) == (task.goal, task.shape, task.max_steps)
+    np.testing.assert_array_equal(slipped.start_states, task.start_states)
+
+
+@pytest.mark.parametrize("name", ["FrozenLake-4x4-slippery-v1", "FourRooms-v0",
+                                  "WindyGridworld-stochastic-v0"])
+def test_slip_one_makes_actions_alike(name):
+    task = tasks.with_slip(ALL[name](), 1.0)
+    assert task.n_outcomes == 4 * ALL[name]().n_outcomes
+    for s in range(task.n_states):
+        first = outcomes(task, s, 0)
+        for a in range(1, 4):
+            other = outcomes(task, s, a)
+            assert other.keys() == first.keys()
+            for key, prob in first.items():
+                assert other[key] == pytest.approx(prob, abs=1e-12)
+
+
+def test_slip_on_the_paper_grid_by_hand():
+    task = tasks.with_slip(tasks.grid_task(get_map("paper"), 40), 0.2)
+    right, left, up, down = range(4)  # G2
+    s = 5 * 11 + 2  # (x 2, y 5): the obstacle column x = 3 is to its right
+    assert task.next_states[s, up].tolist() == [4 * 11 + 2, s, 5 * 11 + 1, 6 * 11 + 2]  # up, then 0, 1, 3
+    np.testing.assert_allclose(task.probs[s, up], [0.85, 0.05, 0.05, 0.05], rtol=0, atol=1e-15)
+    assert task.rewards[s, up].tolist() == [0.0, -1.0, 0.0, 0.0]
+    assert task.bumped[s, up].tolist() == [False, True, False, False]
+    assert task.next_states[s, right].tolist() == [s, 5 * 11 + 1, 4 * 11 + 2, 6 * 11 + 2]  # right first
+    np.testing.assert_allclose(task.probs[s, right], [0.85, 0.05, 0.05, 0.05], rtol=0, atol=1e-15)
+    assert task.name == "grid-11x11-slip0.2"
+
+
+@pytest.mark.parametrize("p", [-0.1, 1.5, float("nan"), "a lot", None, True])
+def test_slip_bad_probability(p):
+    message = r"^slip probability must be a number in \[0, 1\] \(got .*\); pass e\.g\. 0\.1 "
+    with pytest.raises(UsageError, match=message):
+        tasks.with_slip(tasks.cliff_walking(), p)
+
+
+# ---------------------------------------------------------------- the paper's grid as a task
+def test_grid_task_is_the_paper_grid():
+    grid = get_map("paper")
+    task = tasks.grid_task(grid, 40, name="grid-paper-v0")
+    next_state, reward, bumped = transition_tables(grid)
+    np.testing.assert_array_equal(task.next_states[..., 0], next_state)
+    np.testing.assert_array_equal(task.rewards[..., 0], reward)
+    np.testing.assert_array_equal(task.bumped[..., 0], bumped)
+    assert task.n_outcomes == 1 and (task.probs == 1.0).all()
+    np.testing.assert_array_equal(task.start_states, grid.start_cells)
+    assert np.flatnonzero(task.terminal).tolist() == [grid.goal_index]
+    np.testing.assert_array_equal(task.success, task.terminal)
+    assert (task.name, task.goal, task.shape, task.max_steps) == ("grid-paper-v0", 60, (11, 11), 40)
+    assert task.action_names == ("right", "left", "up", "down")
+    assert task.goal_distance[grid.goal_index] == 0.0
+    assert tasks.grid_task(grid, np.int64(25)).max_steps == 25
+
+
+def test_grid_task_bad_chances():
+    with pytest.raises(UsageError, match="max_steps must be a positive integer"):
+        tasks.grid_task(get_map("paper"), 0)
+
+
 # ---------------------------------------------------------------- check_task
 def broken(task, **changes):
     return lambda: dataclasses.replace(task, **changes)
@@ -273,3 +343,9 @@ def test_check_task_rejects_inconsistent_tables():
         with pytest.raises(UsageError, match=f"^task FrozenLake-4x4-slippery-v1: .*{message}"):
             build()
     dataclasses.replace(task)  # the unbroken task passes
+
+
+def test_tasks_module_does_not_import_jax():
+    code = ("import sys, jaxeac.envs.tasks as t; t.four_rooms(True); t.with_slip(t.cliff_walking(), 0.1); "
+            "sys.exit('jax' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

@@ -4,13 +4,16 @@ A `TabularTask` is a finite MDP written out as NumPy tables: for every (state, a
 K possible next states with their probabilities, rewards and E5 "bump" flags, which states
 end an episode and which of those count as a success (E3). `jaxeac.envs.tabular.TabularEnv`
 runs any of them under AC, EAC, Q-learning and SARSA. Nothing here imports JAX.
-Builders: `frozen_lake`, `cliff_walking`, `windy_gridworld`, `four_rooms`.
+Builders: `frozen_lake`, `cliff_walking`, `windy_gridworld`, `four_rooms`, `grid_task`; `with_slip`
+adds random-action noise to any task.
 SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 
 import numpy as np
 
@@ -330,4 +333,70 @@ def four_rooms(stochastic: bool = False) -> TabularTask:
         source="Sutton, Precup & Singh, Between MDPs and semi-MDPs, Artificial Intelligence 112 (1999) "
                "181-211, Fig. 2 (the rooms example)",
         action_names=COMPASS_NAMES, action_deltas=COMPASS_DELTAS,
+    )
+
+
+def grid_task(grid_map, n_chances: int, name: str | None = None) -> TabularTask:
+    """The paper's grid world (Debnath & Nassour, 'Extending Cortical-Basal Inspired Reinforcement
+    Learning Model with Success-Failure Experience', ICDL-EpiRob 2014, §V-A; SPEC G1–G5) on
+    `grid_map` (a `jaxeac.envs.grid.GridMap`) as a task with one outcome per move: its tables, its
+    actions, the goal cell as the terminal success, the free non-goal cells as starts, `n_chances`
+    (C) as max_steps. `name` defaults to ``grid-<height>x<width>``.
+    """
+    from jaxeac.envs.grid import ACTION_DELTAS, ACTION_NAMES, transition_tables  # grid.py imports JAX
+
+    next_state, reward, bumped = transition_tables(grid_map)
+    goal = grid_map.goal_index
+    is_goal = np.arange(grid_map.n_cells) == goal
+    return TabularTask(
+        name=name or f"grid-{grid_map.height}x{grid_map.width}",
+        next_states=next_state[..., None],
+        probs=np.ones(next_state.shape + (1,)),
+        rewards=reward[..., None],
+        bumped=bumped[..., None],
+        terminal=is_goal,
+        success=is_goal.copy(),
+        start_states=grid_map.start_cells,
+        max_steps=int(n_chances) if isinstance(n_chances, numbers.Integral) else n_chances,
+        source="Debnath & Nassour, Extending Cortical-Basal Inspired Reinforcement Learning Model with "
+               "Success-Failure Experience, ICDL-EpiRob 2014, Sec. V-A (SPEC G1-G5)",
+        action_names=ACTION_NAMES,
+        shape=(grid_map.height, grid_map.width),
+        action_deltas=ACTION_DELTAS,
+        goal=goal,
+    )
+
+
+def with_slip(task: TabularTask, p: float) -> TabularTask:
+    """`task` where, with probability `p`, the executed action is drawn uniformly from all A actions
+    instead of the chosen one: the chosen action's outcomes get weight 1 − p + p/A, every other
+    action's p/A. Outcome lists are concatenated, not merged (K' = A·K): the chosen action's first,
+    then those of actions 0 … A−1 without it. ``p = 0`` returns `task` itself; the name gets
+    ``-slip<p>``. A p outside [0, 1] is a `UsageError`.
+    """
+    try:
+        value = float(p)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(p, bool) or not 0.0 <= value <= 1.0:  # NaN fails the comparison too
+        raise UsageError(f"slip probability must be a number in [0, 1] (got {p!r}); "
+                         "pass e.g. 0.1 for a random action one time in ten")
+    if value == 0.0:
+        return task
+    n_states, n_actions, n_outcomes = task.next_states.shape
+    order = np.array([[a] + [b for b in range(n_actions) if b != a] for a in range(n_actions)])  # [A, A]
+    weight = np.full(order.shape, value / n_actions)
+    weight[:, 0] += 1.0 - value
+
+    def spread(table):  # [S, A, K] -> [S, A, A·K] in `order`
+        return np.asarray(table)[:, order, :].reshape(n_states, n_actions, n_actions * n_outcomes)
+
+    return dataclasses.replace(
+        task,
+        name=f"{task.name}-slip{value:g}",
+        next_states=spread(task.next_states),
+        probs=spread(task.probs) * np.repeat(weight, n_outcomes, axis=1),
+        rewards=spread(task.rewards),
+        bumped=spread(task.bumped),
+        source=f"{task.source}; with a uniformly random action with probability {value:g}",
     )
