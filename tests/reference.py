@@ -12,9 +12,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
-
 import jax
+import numpy as np
 
 from jaxeac.algorithm.config import AgentConfig
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap

@@ -433,3 +433,25 @@ def test_policy_figure_of_a_large_map_draws_no_arrow_per_cell(tmp_path, monkeypa
     plots.policy_figure(small, {"ac": np.zeros(small.n_cells, int)}, tmp_path / "small.png", seed=0,
                         max_steps=5)
     assert calls == [1]
+
+
+# --- environments, baselines and the study (X1–X4) ---------------------------------------------
+
+@pytest.mark.parametrize("argv, match", [
+    (["run", "--env", "Nowhere-v9"], r"unknown environment 'Nowhere-v9'; choose one of .*CliffWalking-v1.*"
+                                     r"FrozenLake-4x4-v1"),
+    (["grid", "--env", "FrozenLake-4x4-v1", "--map", "m.txt"], "--env and --map both name the world"),
+    (["run", "--env", "FrozenLake-4x4-v1", "--slip", "1.5"], r"slip must lie in \[0, 1\]"),
+    (["run", "--env", "FrozenLake-4x4-v1", "--slip", "-0.1"], "slip must be non-negative"),
+    (["run", "--env", "FrozenLake-4x4-v1", "--epsilon", "2"], r"epsilon must lie in \[0, 1\]"),
+    (["run", "--env", "FrozenLake-4x4-v1", "--algos", "ac", "dqn"], "unknown algorithm 'dqn'; choose from .*sarsa"),
+    (["run"], "the following arguments are required: --env"),
+    (["study", "--tasks", "Nowhere-v9"], "unknown environment 'Nowhere-v9'"),
+    (["study", "--tasks", "FrozenLake-4x4-v1:slip=2"], r"slip must lie in \[0, 1\]"),
+    (["study", "--tasks", "FrozenLake-4x4-v1:wind=2"], "write NAME or NAME:slip=P"),
+    (["study", "--algos", "eac", "sarsa"], "--algos must include ac"),
+])
+def test_bad_environment_input_is_refused(capsys, tmp_path, monkeypatch, argv, match):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m.txt").write_text("G.\n..\n")
+    refused(capsys, [*argv, "--out", str(tmp_path / "out")], tmp_path, match)

@@ -20,15 +20,15 @@ THIS = Path(__file__).resolve()
 
 # An id is a group letter and one digit, standing alone as a word: "E6", "(E4)", "G3:".
 # Word boundaries keep out hex and numbers ("0xE5", "1E5") and longer names ("B12", "GRID-1").
-ID = r"\b([GEBR])([1-9])\b"
+ID = r"\b([GEBRX])([1-9])\b"
 # A range cites every id in it: "B1–B7", "B2-B4", "E1..E7".
-RANGE = re.compile(r"\b([GEBR])([1-9])\s*(?:–|—|-|\.\.|…)\s*\1?([1-9])\b")
+RANGE = re.compile(r"\b([GEBRX])([1-9])\s*(?:–|—|-|\.\.|…)\s*\1?([1-9])\b")
 ID_RE = re.compile(ID)
 # A string literal that is nothing but an id ("G1") is data (e.g. a report's claim key), not a
 # citation of the SPEC.
-LITERAL_RE = re.compile(r"""(["'])[GEBR][1-9]\1""")
+LITERAL_RE = re.compile(r"""(["'])[GEBRX][1-9]\1""")
 # Where docs/SPEC.md defines an id: a bold label or a heading that starts with it.
-DEFINED_RE = re.compile(r"^(?:\*\*|#{1,6}\s+)([GEBR][1-9])\b", re.MULTILINE)
+DEFINED_RE = re.compile(r"^(?:\*\*|#{1,6}\s+)([GEBRX][1-9])\b", re.MULTILINE)
 # A module path in backticks: no spaces, ending in ".py" or "/".
 PATH_RE = re.compile(r"`([^`\s]+(?:\.py|/))`")
 FENCE_RE = re.compile(r"^```.*?^```", re.MULTILINE | re.DOTALL)

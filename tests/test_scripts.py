@@ -52,3 +52,19 @@ def test_check_kernel_compares_every_seed_and_renders(tmp_path):
     assert "| eac | 40 | 6 | 40 |" in table.stdout
     bad = _script("scripts/check_kernel.py", "--seeds", "0")
     assert bad.returncode == 2 and "--seeds and --trials must be ≥ 1" in bad.stderr
+
+
+def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
+    out = tmp_path / "tasks.json"
+    proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1",
+                   "grid-paper-v0:slip=0.1", "--algos", "ac", "sarsa", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert [t["task"] for t in rec["tasks"]] == ["FrozenLake-4x4-v1", "grid-paper-v0:slip=0.1"]
+    for t in rec["tasks"]:
+        assert [r["algo"] for r in t["rows"]] == ["ac", "sarsa"]
+        assert t["wall_s"] == sum(r["compile_s"] + r["run_s"] for r in t["rows"])
+        assert all(r["agent_steps"] > 0 and r["kernel"] == "xla" for r in t["rows"])
+    assert [t["deterministic"] for t in rec["tasks"]] == [True, False]
+    table = _script("scripts/bench_tasks.py", "--render", str(out))
+    assert "| FrozenLake-4x4-v1 | 100 |" in table.stdout and "| grid-paper-v0:slip=0.1 | 40 |" in table.stdout

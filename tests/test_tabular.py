@@ -74,9 +74,9 @@ def test_reward_rtilde_variant_matches_reference(name):
 
 @pytest.mark.parametrize("name", ["q_learning", "sarsa"])
 def test_baselines_on_the_paper_grid_match_reference(name):
-    from tests.reference import GridReference
     from jaxeac.envs.grid import GridWorld
     from jaxeac.running.loops import trace_run as run
+    from tests.reference import GridReference
 
     grid = get_map("paper7")
     rates = {"alpha": 0.5, "beta": 0.3, "gamma": 0.9, "temperature": 1.0, "epsilon": 0.3}
@@ -133,3 +133,60 @@ def test_bad_options():
         TabularEnv(corridor(), rtilde="pins")
     with pytest.raises(UsageError, match="keeps no success/failure memory"):
         algorithm("q_learning", success_memory=True)
+
+
+def _same_runs(env_a, env_b, name, **cfg):
+    from jaxeac.running.batch import run_seeds
+
+    cfg = RunConfig(trials=60, agent=algorithm(name), **cfg)
+    a = run_seeds(env_a, cfg, root_key=4, n_seeds=24)
+    b = run_seeds(env_b, cfg, root_key=4, n_seeds=24)
+    np.testing.assert_array_equal(a.success, b.success)
+    np.testing.assert_array_equal(a.steps, b.steps)
+    np.testing.assert_array_equal(a.policy, b.policy)
+    return a
+
+
+@pytest.mark.parametrize("name", ["ac", "eac", "q_learning"])
+def test_paper_grid_as_a_table_is_the_grid_world(name):
+    """X1: the paper's grid written as a TabularTask runs exactly as the GridWorld (memory jumps
+    resolve on both)."""
+    from jaxeac.envs.grid import GridWorld
+    from jaxeac.envs.tasks import grid_task
+
+    grid = get_map("paper")
+    table = TabularEnv(grid_task(grid, 40), 40)
+    assert table.deterministic and table.n_states == 121
+    run = _same_runs(GridWorld(grid, 40), table, name)
+    assert run.success.mean() > 0.1  # both worlds see successes (AC: ~0.19 in 60 trials)
+
+
+@pytest.mark.parametrize("task", ["CliffWalking-v1", "FourRooms-v0", "FrozenLake-8x8-v1"])
+def test_memory_jumps_are_exact_on_deterministic_tasks(task):
+    import jaxeac
+
+    env = jaxeac.make(task, chances=60)
+    assert RunConfig(trials=60, agent=algorithm("eac")).resolve(env, 24).jump == "on"
+    a = _same_runs(env, env, "eac", jump="on")
+    from jaxeac.running.batch import run_seeds
+
+    b = run_seeds(env, RunConfig(trials=60, agent=algorithm("eac"), jump="off"), root_key=4, n_seeds=24)
+    np.testing.assert_array_equal(a.success, b.success)
+    np.testing.assert_array_equal(a.steps, b.steps)
+    np.testing.assert_array_equal(a.policy, b.policy)
+
+
+def test_registry_names_the_classic_tasks():
+    import jaxeac
+    from jaxeac.envs import CLASSIC
+
+    for name in CLASSIC:
+        env = jaxeac.make(name)
+        assert env.name == name and env.n_chances == env.task.max_steps
+        assert env.deterministic == ("slippery" not in name and "stochastic" not in name)
+    slippery = jaxeac.make("grid-paper-v0", slip=0.1)
+    assert isinstance(slippery, TabularEnv) and not slippery.deterministic and slippery.n_chances == 40
+    assert slippery.name == "grid-paper-v0-slip0.1"
+    assert jaxeac.make("CliffWalking-v1", rtilde="reward").rtilde_rule == "reward"
+    with pytest.raises(UsageError, match="'grid-paper-v0' has no option 'rtilde'; its options are chances, slip"):
+        jaxeac.make("grid-paper-v0", rtilde="reward")

@@ -30,7 +30,8 @@ def _grid(map_name: str) -> Callable[..., Any]:
         chances = 40 if chances is None else chances
         if not slip:
             return GridWorld(get_map(map_name), chances)
-        return _tabular(lambda: _tasks().grid_task(get_map(map_name), chances))(chances=chances, slip=slip)
+        return _tabular(lambda: _tasks().grid_task(get_map(map_name), chances, name=f"grid-{map_name}-v0"))(
+            chances=chances, slip=slip)
 
     build.__doc__ = f"The grid world on map {map_name!r} (G1–G5), `chances` per trial (G5), `slip` (X1)."
     return build

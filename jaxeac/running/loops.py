@@ -36,12 +36,11 @@ from jaxeac.algorithm.agent import (
     value_learn_step,
 )
 from jaxeac.algorithm.config import Hyper, rate_at
-from jaxeac.pytree import pytree_dataclass
 from jaxeac.envs.protocol import LoopEnv as Env
+from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import action_uniform, bootstrap_uniform, seed_words
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import BatchOutput, SeedResult, pack_output
-
 
 
 @pytree_dataclass

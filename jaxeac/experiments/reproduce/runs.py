@@ -56,7 +56,6 @@ from jaxeac.io import (
     check_writable_dir,
     read_json_object,
     staged_dir,
-    to_jsonable,
 )
 
 #: Calibration: a sweep point "matches" the paper's AC when |AC mean − `paper.GRID_SUCCESSES['ac']`| ≤ this.

@@ -1,0 +1,61 @@
+"""`jaxeac study` (X4): every task × algorithm against AC, Holm across the family, resumable."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxeac.cli import main
+from jaxeac.experiments.study import StudySettings, parse_task, run_study
+from jaxeac.stats import holm
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1", "grid-paper7-v0:slip=0.2"), algos=("ac", "eac", "sarsa"),
+                             seeds=40, trials=30, resamples=300)
+    return out, settings, run_study(settings, out, progress=False)
+
+
+def test_study_compares_every_algorithm_with_ac_and_holm_spans_the_family(study):
+    out, settings, result = study
+    rows = result["comparisons"]
+    assert [(r["task"], r["x"], r["y"]) for r in rows] == [
+        (t, a, "ac") for t in settings.tasks for a in ("eac", "sarsa")]
+    np.testing.assert_allclose([r["p_holm"] for r in rows], holm([r["p_welch"] for r in rows]))
+    assert result["comparisons_in_family"] == 4
+    # the per-task numbers are those of the task's own run folder
+    from jaxeac.experiments.results import load_grid_results
+
+    loaded = load_grid_results(out / "tasks" / "FrozenLake-4x4-v1", ("ac", "eac"), 30)
+    means = {a: float(loaded[a].successes.mean()) for a in ("ac", "eac")}
+    assert result["tasks"]["FrozenLake-4x4-v1"]["algorithms"]["eac"]["mean"] == pytest.approx(means["eac"])
+    assert rows[0]["diff"] == pytest.approx(means["eac"] - means["ac"])
+    summary = json.loads((out / "tasks" / "grid-paper7-v0-slip0.2" / "summary.json").read_text())
+    assert (summary["config"]["env"], summary["config"]["slip"], summary["config"]["chances"]) == (
+        "grid-paper7-v0", 0.2, 40)
+    report = (out / "report.md").read_text()
+    assert "## FrozenLake-4x4-v1" in report and "| sarsa |" in report and "(4 comparisons)" in report
+    assert (out / "fig_grid-paper7-v0-slip0.2.png").stat().st_size > 1000
+
+
+def test_study_rerun_reuses_the_task_folders(study):
+    out, settings, result = study
+    stamp = (out / "tasks" / "FrozenLake-4x4-v1" / "results.parquet").stat().st_mtime_ns
+    again = run_study(settings, out, progress=False)
+    assert (out / "tasks" / "FrozenLake-4x4-v1" / "results.parquet").stat().st_mtime_ns == stamp
+    assert json.dumps(again, sort_keys=True) == json.dumps(result, sort_keys=True)
+
+
+def test_parse_task():
+    assert parse_task("grid-paper-v0:slip=0.25") == ("grid-paper-v0", 0.25)
+    assert parse_task("CliffWalking-v1") == ("CliffWalking-v1", 0.0)
+
+
+def test_study_command_refuses_another_kind_of_folder(tmp_path, capsys):
+    (tmp_path / "summary.json").write_text("{}")
+    assert main(["study", "--tasks", "FrozenLake-4x4-v1", "--out", str(tmp_path), "--quiet"]) == 2
+    assert "holds a grid or bowling run" in capsys.readouterr().err
