@@ -245,8 +245,8 @@ def test_agent_config_rejects_bad_values(kw, msg):
 
 
 def test_unknown_algorithm():
-    with pytest.raises(UsageError, match="unknown algorithm 'sarsa'"):
-        algorithm("sarsa")
+    with pytest.raises(UsageError, match="unknown algorithm 'dqn'"):
+        algorithm("dqn")
 
 
 def test_row_tables_layout():

@@ -43,7 +43,7 @@ BAD = {
     "gamma below 0": (["--gamma", "-0.5"], "gamma must be non-negative"),
     "zero temperature": (["--temperature", "0"], "temperature must be positive"),
     "unknown preset": (["--preset", "huge"], "unknown preset 'huge'"),
-    "unknown algorithm": (["--algos", "ac", "sarsa"], "unknown algorithm 'sarsa'"),
+    "unknown algorithm": (["--algos", "ac", "dqn"], "unknown algorithm 'dqn'"),
     "unknown memory": (["--memory", "sparse"], "unknown memory layout 'sparse'"),
     "zero capacity": (["--capacity", "0"], "must be a positive integer"),
     "zero chunk": (["--chunk-size", "0"], "must be a positive integer"),
