@@ -88,12 +88,11 @@ def main() -> None:
         t = rec["tasks"][-1]
         print(f"{task}: {t['wall_s']:.1f} s; " + ", ".join(f"{r['algo']} {r['steps_per_s']:.3g}/s"
                                                           for r in t["rows"]), flush=True)
-    text = json.dumps(rec, indent=1)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-    else:
-        print(text)
+        if args.out:  # after every task: a run cut short keeps the tasks it finished
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(rec, indent=1))
+    if not args.out:
+        print(json.dumps(rec, indent=1))
 
 
 if __name__ == "__main__":

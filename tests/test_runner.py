@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import optax
 import pytest
 
 from jaxeac.algorithm.config import algorithm
-from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.envs.grid import GridWorld, get_map, parse_map
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key
 from jaxeac.running.batch import run_seeds
@@ -316,3 +318,22 @@ def test_memory_jumps_with_the_three_word_dense_memory(monkeypatch):
             for loop, jump in (("flat", "on"), ("trials", "auto"))]
     for field in ("success", "steps", "policy"):
         np.testing.assert_array_equal(getattr(runs[0], field), getattr(runs[1], field))
+
+
+@pytest.mark.parametrize("algo", ["eac", "eac_failure_only", "ac"])
+def test_tail_on_fewer_lanes_keeps_every_result(algo, monkeypatch):
+    """The flat loop's tail phase (the last seeds moved to 1/16 of the lanes) changes no result,
+    with a queue (lanes < seeds) and without one (a lane per seed, memories only)."""
+    from jaxeac.running import loops
+
+    env = GridWorld(parse_map("....\n.#..\n...G\n"), 12)
+    cfg = RunConfig(trials=25, agent=algorithm(algo), lanes=64)
+    plain = run_seeds(env, cfg, root_key=2, n_seeds=80)
+    monkeypatch.setattr(loops, "TAIL_MIN_LANES", 2)
+    assert loops.tail_lanes(64, "xla") == [4] and loops.tail_lanes(4000, "pallas") == [128]
+    for lanes in (64, 80):
+        fresh = GridWorld(env.map, 12)  # programs are cached per env object: compile anew
+        tail = run_seeds(fresh, dataclasses.replace(cfg, lanes=lanes), root_key=2, n_seeds=80)
+        np.testing.assert_array_equal(tail.success, plain.success)
+        np.testing.assert_array_equal(tail.steps, plain.steps)
+        np.testing.assert_array_equal(tail.policy, plain.policy)

@@ -291,6 +291,8 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     With fewer lanes, every C iterations lanes whose seed has run T trials (up to
     `harvest` of them) write its result and take the next waiting seed, so lanes stay
     busy until the queue is empty (a seed's result does not depend on its lane, R1).
+    On wide lane counts (`tail_lanes`) the busy lanes then move to a narrower batch for
+    the tail, where a few slow seeds would otherwise keep every lane iterating.
     """
     m = words.shape[0]
     cfg = cfg.resolve(env, m)  # a no-op for a config resolved before tracing
@@ -315,7 +317,10 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
         w, h = words[i], jax.tree.map(lambda x: x[i], hyper)
         return _Lane(flat_init(env, cfg, w), w, h, entry)
 
-    if n_lanes >= m:  # every entry has a lane from the start: no queue, read results out once
+    # Every entry has a lane from the start: no queue, results read out once. Seeds of an
+    # algorithm with memories end far apart, so where a tail phase exists they go through the
+    # queue path (with an empty queue) to reach it.
+    if n_lanes >= m and not (cfg.agent.uses_memory and tail_lanes(n_lanes, cfg.kernel)):
         pad = jnp.minimum(jnp.arange(n_lanes), m - 1)  # lanes past M rerun the last entry, dropped
         lane_words, lane_hyper = words[pad], jax.tree.map(lambda x: x[pad], hyper)
 
@@ -333,33 +338,67 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     out = pack_output(env, jnp.zeros((m, cfg.trials), jnp.int32), jnp.zeros((m, env.n_states), jnp.int32),
                       jnp.ones((m,), bool))
 
-    # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
-    # greedy policies, fresh lanes) stays small next to the block's C chances.
-    harvest = max(1, n_lanes // 8)
+    def blocks(lanes, out, queued, width: int, until: int):
+        """Blocks of C chances on `width` lanes while any lane is busy and either seeds wait in
+        the queue or more than `until` lanes are busy."""
+        # Lanes harvested per block: a bounded number, so per-block work (the finished lanes'
+        # greedy policies, fresh lanes) stays small next to the block's C chances.
+        harvest = max(1, width // 8)
 
-    def block(carry):
-        lanes, out, queued = carry
-        run = advance(lanes.run, lanes.words, lanes.hyper)
-        done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
-        (idx,) = jnp.nonzero(done, size=harvest, fill_value=n_lanes)  # the first finished lanes
-        got = idx < n_lanes
-        lane = jnp.minimum(idx, n_lanes - 1)
-        finished = jax.tree.map(lambda x: x[lane], run)
-        row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
-        done_out = pack_output(env, finished.agent.log, policies(finished.agent),
-                               finite(finished.agent))
-        out = jax.tree.map(lambda a, new: a.at[row].set(new, mode="drop"), out, done_out)
-        nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
-        take = got & (nxt < m)
-        fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
-        target = jnp.where(take, idx, n_lanes)
-        lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
-        idle = jnp.where(got & ~take, idx, n_lanes)
-        lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
-        return lanes, out, queued + take.sum(dtype=jnp.int32)
+        def block(carry):
+            lanes, out, queued = carry
+            run = advance(lanes.run, lanes.words, lanes.hyper)
+            done = (run.agent.trial >= cfg.trials) & (lanes.entry < m)
+            (idx,) = jnp.nonzero(done, size=harvest, fill_value=width)  # the first finished lanes
+            got = idx < width
+            lane = jnp.minimum(idx, width - 1)
+            finished = jax.tree.map(lambda x: x[lane], run)
+            row = jnp.where(got, lanes.entry[lane], m)  # rows ≥ M are dropped
+            done_out = pack_output(env, finished.agent.log, policies(finished.agent),
+                                   finite(finished.agent))
+            out = jax.tree.map(lambda a, new: a.at[row].set(new, mode="drop"), out, done_out)
+            nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
+            take = got & (nxt < m)
+            fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
+            target = jnp.where(take, idx, width)
+            lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
+            idle = jnp.where(got & ~take, idx, width)
+            lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
+            return lanes, out, queued + take.sum(dtype=jnp.int32)
 
-    _, out, _ = jax.lax.while_loop(lambda c: (c[0].entry < m).any(), block, (lanes, out, jnp.int32(n_lanes)))
+        def going(carry):
+            busy = (carry[0].entry < m).sum()
+            return (busy > 0) & ((carry[2] < m) | (busy > until))
+
+        return jax.lax.while_loop(going, block, (lanes, out, queued))
+
+    # The tail: once the queue is empty, the last seeds run on fewer lanes (`tail_lanes`), so
+    # the slowest seeds' many chances are not paid for by every idle lane.
+    width, queued = n_lanes, jnp.int32(n_lanes)
+    for narrow in [*tail_lanes(n_lanes, cfg.kernel), 0]:
+        lanes, out, queued = blocks(lanes, out, queued, width, narrow)
+        if narrow:
+            (busy,) = jnp.nonzero(lanes.entry < m, size=narrow, fill_value=width)
+            lanes = jax.tree.map(lambda x: x[jnp.minimum(busy, width - 1)], lanes)
+            lanes = lanes.replace(entry=jnp.where(busy < width, lanes.entry, m))  # fill: idle lanes
+            width = narrow
     return out
+
+
+#: The tail of a queue-fed chunk runs on 1/`TAIL_SHRINK` of the lanes, where that leaves at
+#: least `TAIL_MIN_LANES` (accelerators' wide lane counts; BENCHMARKS.md, "Tabular tasks").
+TAIL_SHRINK = 16
+TAIL_MIN_LANES = 2048
+
+
+def tail_lanes(n_lanes: int, kernel: str) -> list[int]:
+    """Lane counts of the flat loop's tail phases after the first (none for narrow lane counts)."""
+    narrow = n_lanes // TAIL_SHRINK
+    if kernel == "pallas":
+        from jaxeac.running.kernel import LANES_PER_PROGRAM
+
+        narrow -= narrow % LANES_PER_PROGRAM
+    return [narrow] if narrow >= TAIL_MIN_LANES else []
 
 
 def trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
