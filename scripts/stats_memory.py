@@ -154,8 +154,9 @@ def main() -> int:
             tl.mark(f"chunk {start} collected and written")
 
     outputs.CompactCollector.add = add_marked
-    for name in ("per_seed_measures", "_analyse", "calibrate", "write_figures"):
-        tl.wrap(stats_run, name)
+    for name in ("per_seed_measures", "per_seed_codes", "_analyse", "calibrate", "write_figures"):
+        if hasattr(stats_run, name):
+            tl.wrap(stats_run, name)
     tl.wrap(grid, "_finish_folder", "summary and figures")
     reset_peak()
     baseline = tl.memory()["VmRSS"]

@@ -65,7 +65,9 @@ in one module, next to the docstring that justifies them.)
 
 from __future__ import annotations
 
+import contextlib
 import math
+import threading
 from functools import partial
 
 import jax
@@ -77,6 +79,7 @@ from scipy import special
 from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import mulhi32, random_words
+from jaxeac.stats.rundir import Coded, as_values, joint_counts
 
 #: Above this many seeds in either method the large-N path is used.
 LARGE_N = 20_000
@@ -100,6 +103,40 @@ REFERENCES = {
 }
 
 
+class HostBudget:
+    """Bytes of host temporaries that jobs on threads may hold at once: a job waits until its
+    share is free (one larger than the whole budget runs alone), so the analyses of the
+    measures run side by side while they are small and one at a time when each needs hundreds
+    of MB. Each job draws from its own keys, so its results do not depend on the order."""
+
+    def __init__(self, total: int):
+        self.total = self.free = int(total)
+        self._cond = threading.Condition()
+
+    @contextlib.contextmanager
+    def hold(self, nbytes: int):
+        need = min(int(nbytes), self.total)
+        with self._cond:
+            self._cond.wait_for(lambda: self.free >= need)
+            self.free -= need
+        try:
+            yield
+        finally:
+            with self._cond:
+                self.free += need
+                self._cond.notify_all()
+
+
+#: Host temporaries the comparison's jobs on threads may hold at once.
+HOST_BUDGET = HostBudget(512 << 20)
+
+
+def job_bytes(*n: int) -> int:
+    """Temporaries of one measure's analysis of samples of n seeds: the pooled float64 values
+    and two more per-seed columns (centred values, squares, an interval's influence values)."""
+    return 8 * 4 * sum(int(k) for k in n)
+
+
 def is_large(*n: int) -> bool:
     """Whether a comparison with these seeds per method takes the large-N path."""
     return max(int(k) for k in n) > LARGE_N
@@ -113,9 +150,14 @@ def host_rng(key) -> np.random.Generator:
 
 # ---------------------------------------------------------------- per-value tables
 class ValueTable:
-    """Distinct values of a pooled sample and the counts of each group (ascending values)."""
+    """Distinct values of a pooled sample and the counts of each group (ascending values).
+    Samples given as `Coded` are counted from their codes (O(N), no float64 copies)."""
 
-    def __init__(self, x_baseline: np.ndarray, x_treatment: np.ndarray):
+    def __init__(self, x_baseline, x_treatment):
+        if isinstance(x_baseline, Coded) and isinstance(x_treatment, Coded):
+            self.nb, self.nt = x_baseline.size, x_treatment.size
+            self.values, self.kb, self.kt = joint_counts(x_baseline, x_treatment)
+            return
         xb, xt = np.asarray(x_baseline, np.float64), np.asarray(x_treatment, np.float64)
         self.nb, self.nt = int(xb.size), int(xt.size)
         pooled = np.concatenate([xb, xt])
@@ -141,6 +183,20 @@ class ValueTable:
     @property
     def exact(self) -> bool:
         return self.distinct <= MAX_DISTINCT
+
+
+def stacked_means(columns, n: int, block: int = 1 << 16) -> np.ndarray:
+    """``np.stack([c[:n] for c in columns], 1).mean(0)`` (float64 values of arrays or `Coded`) bit
+    for bit, without the [n, M] copy: NumPy sums a C-ordered [n, M > 1] array down its rows, one
+    row after another, so blocks of rows continue the same running sums. (One column is summed
+    pairwise: it is taken whole.)"""
+    if len(columns) == 1:
+        return np.stack([as_values(columns[0], 0, n)], 1).mean(0)
+    run = None
+    for i in range(0, n, block):
+        rows = np.stack([as_values(c, i, min(n, i + block)) for c in columns], 1)
+        run = np.add.reduce(rows if run is None else np.vstack([run, rows]), axis=0, keepdims=True)
+    return run[0] / n
 
 
 def multinomial_counts(rng: np.random.Generator, counts: np.ndarray, resamples: int) -> np.ndarray:
