@@ -283,32 +283,39 @@ def abc_two_sample(statistic: str, x: np.ndarray, y: np.ndarray, alpha: float = 
 
     The statistic is a smooth function f of the group means of (x, x²); the empirical
     influence values, the acceleration, the bias and curvature corrections and the
-    endpoints f(θ̂ + λδ) are all closed-form sums over the units (O(n)).
+    endpoints f(θ̂ + λδ) are all closed-form sums over the units (O(n)), taken one sample
+    at a time so only one sample's per-unit temporaries exist at once.
     """
     nb, nt = x.size, y.size
     f = _two_sample_f(statistic, nb, nt)
-    ub = np.stack([x, x * x], 1)
-    ut = np.stack([y, y * y], 1)
-    theta = np.r_[ub.mean(0), ut.mean(0)]
-    sd = np.r_[ub.std(0), ut.std(0)]
+
+    def units(z):  # [n, 2]: a sample's values and squares, made one side at a time
+        return np.stack([z, z * z], 1)
+
+    moments = [(u.mean(0), u.std(0)) for u in map(units, (x, y))]
+    theta = np.r_[moments[0][0], moments[1][0]]
+    sd = np.r_[moments[0][1], moments[1][1]]
     h = 1e-3 * np.where(sd > 0, sd, np.maximum(1e-8 * np.abs(theta), 1e-12))
     t0, grad, hess = _grad_hess(f, theta, h)
     if not np.isfinite(t0):
         return cf.Estimate(t0, t0, t0, 1 - alpha)
-    parts = []
-    for k, (u, n) in enumerate(((ub, nb), (ut, nt))):
+    parts = []  # per side: sums of L², L³ and Q, and du^T L (the direction before its scale)
+    for k, z in enumerate((x, y)):
+        n, u = z.size, units(z)
         du = u - u.mean(0)
+        del u
         g_k, h_k = grad[2 * k : 2 * k + 2], hess[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
         L = du @ g_k
         Q = np.einsum("ij,jk,ik->i", du, h_k, du)
-        parts.append((du, L, Q, n))
-    var = sum((L**2).sum() / n**2 for _, L, _, n in parts)
+        parts.append(((L**2).sum(), (L**3).sum(), Q.sum(), du.T @ L, n))
+        del du, L, Q
+    var = sum(l2 / n**2 for l2, _, _, _, n in parts)
     if not var > 0:
         return cf.Estimate(t0, t0, t0, 1 - alpha)
     sig = math.sqrt(var)
-    a = sum((L**3).sum() / n**3 for _, L, _, n in parts) / (6 * sig**3)
-    direction = np.concatenate([du.T @ L / (n**2 * sig) for du, L, _, n in parts])  # δ in θ-space
-    bhat = sum(Q.sum() / (2 * n**2) for _, _, Q, n in parts)
+    a = sum(l3 / n**3 for _, l3, _, _, n in parts) / (6 * sig**3)
+    direction = np.concatenate([dl / (n**2 * sig) for _, _, _, dl, n in parts])  # δ in θ-space
+    bhat = sum(q / (2 * n**2) for _, _, q, _, n in parts)
     cq = direction @ hess @ direction / (2 * sig)
     curv = bhat / sig - cq
     z0 = special.ndtri(2 * special.ndtr(a) * special.ndtr(-curv))
