@@ -512,7 +512,9 @@ def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
 
     coded = analyse(codes)
     same(coded, analyse(floats))
-    assert "ABC" in coded[1]["auc_cumulative"]["bootstrap"] and coded[1]["successes"]["bootstrap"].startswith("exact")
+    methods = coded[1]
+    assert "ABC" in methods["auc_cumulative"]["bootstrap"]
+    assert methods["successes"]["bootstrap"].startswith("exact")
 
     def calibration(m):
         return compare.calibrate({k: m[k] for k in names}, None, 4, splits=40, resamples=50,
@@ -528,3 +530,17 @@ def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
     for cols in ([codes[0][k] for k in names], [floats[0][k] for k in names], [codes[0]["successes"]]):
         direct = np.stack([rundir.as_values(c)[:1000] for c in cols], 1).mean(0)
         np.testing.assert_array_equal(large.stacked_means(cols, 1000, block=64), direct)
+
+
+@pytest.mark.parametrize("n", [3, 64, 65, 1000])
+def test_running_column_sums_are_the_whole_arrays(n):
+    """ABC's moments of [z, z²] and the calibration's means, a block of rows at a time, are those
+    NumPy gives for the whole [n, M] array, bit for bit."""
+    z = np.random.default_rng(n).normal(size=n) * 7
+    u = np.stack([z, z * z], 1)
+    mean, sd = large._units_moments(z, block=16)
+    np.testing.assert_array_equal(mean, u.mean(0))
+    np.testing.assert_array_equal(sd, u.std(0))
+    cols = [z, z * 3, np.cos(z)]
+    direct = np.stack(cols, 1)[: n - 1].mean(0)
+    np.testing.assert_array_equal(large.stacked_means(cols, n - 1, block=16), direct)

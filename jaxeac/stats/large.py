@@ -185,18 +185,34 @@ class ValueTable:
         return self.distinct <= MAX_DISTINCT
 
 
+def _column_sums(blocks) -> np.ndarray:
+    """Column sums of consecutive blocks of rows [k, M > 1] as NumPy sums one C-ordered [n, M]
+    array down its rows, one row after another: the blocks continue the same running sums, so
+    the result is that of the whole array bit for bit, without it."""
+    run = None
+    for rows in blocks:
+        run = np.add.reduce(rows if run is None else np.vstack([run, rows]), axis=0, keepdims=True)
+    return run[0]
+
+
 def stacked_means(columns, n: int, block: int = 1 << 16) -> np.ndarray:
     """``np.stack([c[:n] for c in columns], 1).mean(0)`` (float64 values of arrays or `Coded`) bit
-    for bit, without the [n, M] copy: NumPy sums a C-ordered [n, M > 1] array down its rows, one
-    row after another, so blocks of rows continue the same running sums. (One column is summed
-    pairwise: it is taken whole.)"""
+    for bit, without the [n, M] copy (`_column_sums`; one column is summed pairwise: whole)."""
     if len(columns) == 1:
         return np.stack([as_values(columns[0], 0, n)], 1).mean(0)
-    run = None
-    for i in range(0, n, block):
-        rows = np.stack([as_values(c, i, min(n, i + block)) for c in columns], 1)
-        run = np.add.reduce(rows if run is None else np.vstack([run, rows]), axis=0, keepdims=True)
-    return run[0] / n
+    return _column_sums(np.stack([as_values(c, i, min(n, i + block)) for c in columns], 1)
+                        for i in range(0, n, block)) / n
+
+
+def _units_moments(z: np.ndarray, block: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+    """``u.mean(0), u.std(0)`` of u = [z, z²] [n, 2] bit for bit, a block of rows at a time."""
+    def units(i):
+        zb = z[i : i + block]
+        return np.stack([zb, zb * zb], 1)
+
+    n = z.size
+    mean = _column_sums(units(i) for i in range(0, n, block)) / n
+    return mean, np.sqrt(_column_sums(np.square(units(i) - mean) for i in range(0, n, block)) / n)
 
 
 def multinomial_counts(rng: np.random.Generator, counts: np.ndarray, resamples: int) -> np.ndarray:
@@ -288,11 +304,7 @@ def abc_two_sample(statistic: str, x: np.ndarray, y: np.ndarray, alpha: float = 
     """
     nb, nt = x.size, y.size
     f = _two_sample_f(statistic, nb, nt)
-
-    def units(z):  # [n, 2]: a sample's values and squares, made one side at a time
-        return np.stack([z, z * z], 1)
-
-    moments = [(u.mean(0), u.std(0)) for u in map(units, (x, y))]
+    moments = [_units_moments(z) for z in (x, y)]
     theta = np.r_[moments[0][0], moments[1][0]]
     sd = np.r_[moments[0][1], moments[1][1]]
     h = 1e-3 * np.where(sd > 0, sd, np.maximum(1e-8 * np.abs(theta), 1e-12))
@@ -300,15 +312,17 @@ def abc_two_sample(statistic: str, x: np.ndarray, y: np.ndarray, alpha: float = 
     if not np.isfinite(t0):
         return cf.Estimate(t0, t0, t0, 1 - alpha)
     parts = []  # per side: sums of L², L³ and Q, and du^T L (the direction before its scale)
-    for k, z in enumerate((x, y)):
-        n, u = z.size, units(z)
-        du = u - u.mean(0)
-        del u
+    for k, (z, (mean, _)) in enumerate(zip((x, y), moments, strict=True)):
+        du = np.empty((z.size, 2))  # [z, z²] less their means, made in place
+        np.subtract(z, mean[0], out=du[:, 0])
+        np.multiply(z, z, out=du[:, 1])
+        du[:, 1] -= mean[1]
         g_k, h_k = grad[2 * k : 2 * k + 2], hess[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
         L = du @ g_k
-        Q = np.einsum("ij,jk,ik->i", du, h_k, du)
-        parts.append(((L**2).sum(), (L**3).sum(), Q.sum(), du.T @ L, n))
-        del du, L, Q
+        l2, l3, dl = (L**2).sum(), (L**3).sum(), du.T @ L
+        del L
+        parts.append((l2, l3, np.einsum("ij,jk,ik->i", du, h_k, du).sum(), dl, z.size))
+        del du
     var = sum(l2 / n**2 for l2, _, _, _, n in parts)
     if not var > 0:
         return cf.Estimate(t0, t0, t0, 1 - alpha)

@@ -66,10 +66,14 @@ def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
 def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05) -> dict:
     """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i."""
     xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
+    del baseline, treatment  # arrays made for the call go with xb and xt below
     if xb.shape != xt.shape or xb.ndim != 1 or xb.size < 2:
         raise ValueError(f"a paired comparison needs two samples of the same seeds, got {xb.shape} and "
                          f"{xt.shape}")
+    # the correlation first: its [2, N] copies come and go before the differences exist
+    r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
     d = xt - xb
+    del xb, xt
     n = d.size
     mean = float(d.mean())
     sd = float(d.std(ddof=1))
@@ -77,7 +81,6 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
     p_t = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
     dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
-    r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
     k_boot, k_flip = jax.random.split(as_key(key))
     values, counts = np.unique(d, return_counts=True)
     out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,

@@ -19,6 +19,7 @@ import numpy as np
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.running.batch import trim_host_memory
 from jaxeac.running.outputs import SuccessBits, as_bool
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
@@ -352,7 +353,9 @@ def compare_run_dir(
     starter = _start_device()  # a GPU's context starts while the host reads the folder
     try:
         t_load = time.perf_counter()
-        data = load_run_dir(run_dir, baseline, treatment) if data is None else data
+        if data is None:
+            data = load_run_dir(run_dir, baseline, treatment)
+            trim_host_memory()  # what reading the file freed
         t_load = time.perf_counter() - t_load
         bowling = data.experiment == "bowling"
         expected = "return" if bowling else "successes"

@@ -50,7 +50,7 @@ class RunData:
     trials: int
     success: dict  # algo -> bool [N, T] or `SuccessBits`
     returns: dict  # algo -> int [N, T] (bowling) or empty
-    per_seed: dict  # algo -> {column: np.ndarray}
+    per_seed: dict  # algo -> {column: np.ndarray} (results.parquet: the seed ids alone)
     sequential: dict | None = None  # a sequential run's design, looks and decision (summary.json)
 
 
@@ -198,9 +198,7 @@ def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunD
             raise UsageError(f"{algo} has {r.success.shape[0]} seed(s); at least 2 seeds per method "
                              "are needed")
         success[algo] = r.success
-        per_seed[algo] = {"seed": r.seeds.astype(float), "successes": r.successes.astype(float),
-                          "steps": r.steps_total.astype(float),
-                          "first_success": r.first_success.astype(float)}
+        per_seed[algo] = {"seed": r.seeds}  # what the comparison reads (are the seeds paired?)
     return RunData(path, experiment, primary, algos, trials, success, {}, per_seed)
 
 
