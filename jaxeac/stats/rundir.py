@@ -260,10 +260,6 @@ class Coded:
     def size(self) -> int:
         return self.codes.size
 
-    @property
-    def shape(self) -> tuple[int]:
-        return self.codes.shape
-
     def values(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         codes = self.codes[start:stop]
         return fill_values(Coded(codes, self.scale), np.empty(codes.size))
