@@ -291,7 +291,9 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool, options=None) -> int:
 
 
 def _compare_grid(run, out, *, compare: bool, quiet: bool, sequential: dict | None = None) -> int:
-    """The statistics report of a grid run just written, from its results in memory."""
+    """The statistics report of a grid run just written, from its results in memory. The folder
+    is written, so all but the success curves are dropped from `run` first: the statistics get
+    the memory of the other per-seed columns."""
     if not (compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2):
         return 0
     from pathlib import Path
@@ -299,9 +301,10 @@ def _compare_grid(run, out, *, compare: bool, quiet: bool, sequential: dict | No
     from jaxeac.running.batch import trim_host_memory
     from jaxeac.stats.rundir import RunData
 
-    trim_host_memory()  # what the run and its figures freed, before the statistics start
     data = RunData(Path(out), "grid", "successes", tuple(run.settings.algos), run.settings.trials,
                    {a: r.success for a, r in run.results.items()}, {}, {}, sequential)
+    run.results = {}
+    trim_host_memory()  # what the run and its figures freed, before the statistics start
     return run_compare(out, quiet=quiet, data=data)
 
 

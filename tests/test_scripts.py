@@ -68,3 +68,16 @@ def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
     assert [t["deterministic"] for t in rec["tasks"]] == [True, False]
     table = _script("scripts/bench_tasks.py", "--render", str(out))
     assert "| FrozenLake-4x4-v1 | 100 |" in table.stdout and "| grid-paper-v0:slip=0.1 | 40 |" in table.stdout
+
+
+def test_stats_memory_runs_the_grid_data_path_and_reports_its_peak(tmp_path):
+    out = tmp_path / "run"
+    proc = _script("scripts/stats_memory.py", "--seeds", "2500", "--base", "50", "--chunk", "1000",
+                   "--out", str(out), "--reload")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert rec["seeds_per_method"] == 2500 and rec["peak_gib"] >= rec["baseline_gib"] > 0
+    assert rec["compare_dir"]["peak_gib"] >= rec["compare_dir"]["start_gib"] > 0
+    assert "'summary and figures end'" in proc.stdout and "'calibrate end'" in proc.stdout
+    for name in ("results.parquet", "summary.json", "stats.json", "report.md"):
+        assert (out / name).is_file()

@@ -361,7 +361,7 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             algos = settings.algos
-            collectors = [CompactCollector(seeds, settings.trials, env.n_states,
+            collectors = [CompactCollector(seeds, settings.trials, env.n_states, n_chances=env.n_chances,
                                            on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
             runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
                                   n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
@@ -399,8 +399,9 @@ def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             def measure(first: int, n: int):
                 seeds = np.arange(first, first + n, dtype=np.int64)
-                collectors = [CompactCollector(seeds, settings.trials, env.n_states,
-                                               on_chunk=writer.chunk_writer(a, seeds)) for a in algos]
+                chunk_writers = [writer.chunk_writer(a, seeds) for a in algos]
+                collectors = [CompactCollector(seeds, settings.trials, env.n_states, on_chunk=w,
+                                               n_chances=env.n_chances) for w in chunk_writers]
                 runs = run_algorithms(env, cfgs, root_key=settings.key, n_seeds=n, first_seed=first,
                                       chunk_size=settings.chunk_size, progress=progress,
                                       collectors=collectors)

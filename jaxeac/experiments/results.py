@@ -274,13 +274,19 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
             if np.any(np.diff(out[algo].seeds) <= 0) or np.any(out[algo].seeds[:1] < 0):
                 raise UsageError(f"{path}: the seeds of {algo} are not distinct, non-negative and in order, "
                                  "as a run writes them; re-run the experiment")
-            counted = np.bitwise_count(bits.bits).sum(axis=1, dtype=np.int64)  # padding bits are zero
-            if bits.shape[0] != out[algo].seeds.shape[0] or not np.array_equal(out[algo].successes, counted):
+            if bits.shape[0] != out[algo].seeds.shape[0] or not _counts_match(bits, out[algo].successes):
                 raise UsageError(f"{path}: successes for {algo} do not match its success curves; "
                                  "re-run the experiment")
     except (pa.ArrowException, ValueError) as exc:
         raise UsageError(f"{path} has malformed columns ({exc}); re-run the experiment") from None
     return out
+
+
+def _counts_match(bits: SuccessBits, successes: np.ndarray) -> bool:
+    """Whether each row's set bits number its successes (padding bits are zero), a row group at a time."""
+    return all(np.array_equal(successes[i : i + ROW_GROUP],
+                              np.bitwise_count(bits.bits[i : i + ROW_GROUP]).sum(axis=1, dtype=np.int64))
+               for i in range(0, len(bits), ROW_GROUP))
 
 
 def _load_legacy(folder: Path, algos, trials: int) -> dict[str, AlgoResults]:

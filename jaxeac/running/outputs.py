@@ -230,9 +230,9 @@ class CompactSeeds:
 
     seeds: np.ndarray  # int64 [N]
     success: SuccessBits
-    successes: np.ndarray  # int32 [N]
-    first_success: np.ndarray  # int32 [N], 1-based, −1 if none
-    steps_total: np.ndarray  # int64 [N]: agent-steps over all trials
+    successes: np.ndarray  # int [N] (`narrow_int` of T)
+    first_success: np.ndarray  # int [N] (`narrow_int` of T), 1-based, −1 if none
+    steps_total: np.ndarray  # int [N] (`narrow_int` of T × C; int64 if C is not given): agent-steps
     finite: np.ndarray  # bool [N]
     first_policies: np.ndarray  # int32 [k, S]: the policies of the first k seeds (for figures)
     compile_seconds: float = 0.0
@@ -284,16 +284,21 @@ class CompactCollector:
     to `on_chunk(start, chunk, measures)` (a file writer, say) before dropping it.
 
     ``measures`` holds numpy arrays of the chunk's rows: ``bits`` (uint8 [M, ⌈T/8⌉]),
-    ``successes``, ``first_success``, ``steps_total``, ``finite``.
+    ``successes``, ``first_success``, ``steps_total``, ``finite``. The per-seed counts are
+    kept in the narrowest types that hold them (given the chances per trial, `n_chances`, the
+    steps too): a few bytes a seed beside the 25 of the bits at T = 200.
     """
 
     def __init__(self, seeds: np.ndarray, n_trials: int, n_states: int,
-                 on_chunk: Callable[[int, BatchOutput, dict], None] | None = None):
+                 on_chunk: Callable[[int, BatchOutput, dict], None] | None = None, *,
+                 n_chances: int | None = None):
         n = seeds.shape[0]
+        counts = narrow_int(n_trials)
         self.out = CompactSeeds(
             seeds=seeds, success=SuccessBits(np.empty((n, -(-n_trials // 8)), np.uint8), n_trials),
-            successes=np.empty(n, np.int32), first_success=np.empty(n, np.int32),
-            steps_total=np.empty(n, np.int64), finite=np.ones(n, bool),
+            successes=np.empty(n, counts), first_success=np.empty(n, counts),
+            steps_total=np.empty(n, np.int64 if n_chances is None else narrow_int(n_trials * n_chances)),
+            finite=np.ones(n, bool),
             first_policies=np.zeros((min(n, KEEP_POLICIES), n_states), np.int32),
         )
         self.on_chunk = on_chunk

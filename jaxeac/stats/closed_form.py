@@ -250,6 +250,26 @@ def logrank_counts(time_c, event_c, total_c, treat_c):
     return chi2, stats.chi2.sf(chi2, 1), o, e
 
 
+def event_table(time, event) -> tuple[np.ndarray, np.ndarray]:
+    """A sample's log-rank categories: (distinct times ascending [J]; counts int64 [2J], category
+    2j + e holding time j with event flag e)."""
+    times, inv = np.unique(np.asarray(time), return_inverse=True)
+    return times, np.bincount(2 * inv.reshape(-1) + np.asarray(event, bool), minlength=2 * times.size)
+
+
+def logrank_tables(baseline, treatment) -> TestResult:
+    """Two-sample log-rank from each group's `event_table` (O(J) after the tables)."""
+    (tb, kb), (tt, kt) = baseline, treatment
+    times = np.union1d(tb, tt).astype(np.float64)
+    total, treat = np.zeros((times.size, 2)), np.zeros((times.size, 2))
+    total[np.searchsorted(times, tb)] += kb.reshape(-1, 2)
+    total[np.searchsorted(times, tt)] += kt.reshape(-1, 2)
+    treat[np.searchsorted(times, tt)] = kt.reshape(-1, 2)
+    chi2, p, _, _ = logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), total.reshape(-1),
+                                   treat.reshape(1, -1))
+    return TestResult(float(chi2[0]), float(p[0]), 1.0)
+
+
 def logrank(time_baseline, event_baseline, time_treatment, event_treatment) -> TestResult:
     """Log-rank test for time to first success; censored units have event=False.
 
@@ -259,11 +279,7 @@ def logrank(time_baseline, event_baseline, time_treatment, event_treatment) -> T
     eb, et = np.asarray(event_baseline, bool), np.asarray(event_treatment, bool)
     if eb.shape != tb.shape or et.shape != tt.shape:
         raise UsageError("event and time arrays have different shapes; pass one entry per seed in each")
-    time = np.concatenate([tb, tt])
-    event = np.concatenate([eb, et])
-    mask = np.concatenate([np.zeros(tb.size, bool), np.ones(tt.size, bool)])[None]
-    chi2, p, _, _ = logrank_masks(time, event, mask)
-    return TestResult(float(chi2[0]), float(p[0]), 1.0)
+    return logrank_tables(event_table(tb, eb), event_table(tt, et))
 
 
 # ---------------------------------------------------------------- proportions

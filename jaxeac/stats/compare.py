@@ -42,6 +42,7 @@ from jaxeac.stats.bootstrap import (
 )
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary, welch_t_stat
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
+from jaxeac.stats.rundir import Coded, as_values, event_counts, fill_values, value_counts
 
 POWER_DS = (0.2, 0.5, 0.8)
 
@@ -142,6 +143,7 @@ def _analyse(
         return _analyse_large(
             mb, mt, key, curves=curves, resamples=resamples, alpha=alpha, higher_is_better=higher_is_better
         )
+    mb, mt = ({k: as_values(v) for k, v in m.items()} for m in (mb, mt))
     xb = np.stack([mb[k] for k in names], 1)
     xt = np.stack([mt[k] for k in names], 1)
     centre = np.concatenate([xb, xt]).mean(0)
@@ -243,25 +245,29 @@ def _analyse(
 
 
 def _measure_large(
-    x, y, key, *, resamples, alpha, bootstrap=True, permutation=True, iqm=False, centre=None, table=None
+    x, y, key, *, resamples, alpha, bootstrap=True, permutation=True, iqm=False, centre=None, table=None,
+    centred=False,
 ) -> dict:
     """Resampled results of one measure above `large.LARGE_N` seeds (see `jaxeac.stats.large`).
 
     key: (bootstrap baseline, bootstrap treatment, permutation) keys, or one key to split.
     x, y: raw per-seed values; the sums use them less `centre` (default: the pooled mean).
-    Returns the t statistic, p_permutation (permutation=True), diff and Hedges' g intervals
-    (bootstrap=True), the IQM intervals (iqm=True) and the methods used.
+    centred: x and y are already less `centre` (then `table`, of the raw values, is needed).
+    Returns the t statistic and the sums it comes from (of the centred values and their
+    squares), p_permutation (permutation=True), diff and Hedges' g intervals (bootstrap=True),
+    the IQM intervals (iqm=True) and the methods used.
     """
     if not isinstance(key, tuple):
         key = tuple(jax.random.split(as_key(key), 3))
     k_b, k_t, k_p = key
     c = np.concatenate([x, y]).mean() if centre is None else centre
-    xc, yc = x - c, y - c
+    xc, yc = (x, y) if centred else (x - c, y - c)
     nb, nt = x.size, y.size
-    t_obs = float(welch_t_stat(nb, xc.sum(), (xc**2).sum(), nt, yc.sum(), (yc**2).sum()))
+    sums = (xc.sum(), (xc**2).sum(), yc.sum(), (yc**2).sum())
+    t_obs = float(welch_t_stat(nb, *sums[:2], nt, *sums[2:]))
     table = large.ValueTable(x, y) if table is None else table
     v = table.values - c
-    out = {"t_welch": t_obs, "distinct_values": table.distinct}
+    out = {"t_welch": t_obs, "sums": sums, "distinct_values": table.distinct}
     if table.exact:
         out["methods"] = {
             "bootstrap": large.REFERENCES["bootstrap_per_value"],
@@ -326,42 +332,49 @@ def _analyse_large(
         moments = [large.curve_moments(c) for c in curves]
     pieces["dispatch_curve_sums"] = time.perf_counter() - t0
     def one(j: int, name: str):  # a measure's closed forms and resampling (on a host thread)
-        t1 = time.perf_counter()
-        xr, yr = mb[name], mt[name]
-        c = np.concatenate([xr, yr]).mean()
-        x, y = xr - c, yr - c
-        hib = True if higher_is_better is None else bool(higher_is_better.get(name, True))
-        t, df, p = cf.welch_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
-        table = large.ValueTable(xr, yr)
+        with large.HOST_BUDGET.hold(large.job_bytes(nb, nt)):
+            t1 = time.perf_counter()
+            pooled = np.empty(nb + nt)  # both methods' values, then less their mean, in place
+            xr, yr = fill_values(mb[name], pooled[:nb]), fill_values(mt[name], pooled[nb:])
+            c = pooled.mean()
+            hib = True if higher_is_better is None else bool(higher_is_better.get(name, True))
+            fields = {
+                "measure": name,
+                "higher_is_better": hib,
+                "n_baseline": nb,
+                "n_treatment": nt,
+                "mean_baseline": float(xr.mean()),
+                "mean_treatment": float(yr.mean()),
+                "sd_baseline": float(xr.std(ddof=1)),
+                "sd_treatment": float(yr.std(ddof=1)),
+                "diff": float(yr.mean() - xr.mean()),
+            }
+            table = large.ValueTable(mb[name], mt[name])
+            pooled -= c
+            t2 = time.perf_counter()
+            res = _measure_large(
+                xr,
+                yr,
+                tuple(jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)),
+                resamples=resamples,
+                alpha=alpha,
+                bootstrap=True,
+                iqm=j == 0,
+                centre=c,
+                table=table,
+                centred=True,
+            )
+            del pooled, xr, yr
+            t3 = time.perf_counter()
+        sx, sxx, sy, syy = res["sums"]
+        t, df, p = cf.welch_from_moments(nb, sx, sxx, nt, sy, syy)
         a, w, bm_df, bm_p, a_lo, a_hi = (
             float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)
         )
-        g = float(cf.hedges_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum()))
+        g = float(cf.hedges_from_moments(nb, sx, sxx, nt, sy, syy))
         pw = _power(g, alpha)
-        t2 = time.perf_counter()
-        res = _measure_large(
-            xr,
-            yr,
-            tuple(jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)),
-            resamples=resamples,
-            alpha=alpha,
-            bootstrap=True,
-            iqm=j == 0,
-            centre=c,
-            table=table,
-        )
-        t3 = time.perf_counter()
         diff, hg = res["diff"], res["hedges_g"]
-        fields = {
-            "measure": name,
-            "higher_is_better": hib,
-            "n_baseline": nb,
-            "n_treatment": nt,
-            "mean_baseline": float(xr.mean()),
-            "mean_treatment": float(yr.mean()),
-            "sd_baseline": float(xr.std(ddof=1)),
-            "sd_treatment": float(yr.std(ddof=1)),
-            "diff": float(yr.mean() - xr.mean()),
+        fields |= {
             "diff_ci95": [diff.low, diff.high],
             "t_welch": float(t),
             "df_welch": float(df),
@@ -378,8 +391,9 @@ def _analyse_large(
                 fields[f"iqm_{side}_ci95"] = [lo, hi]
         return fields, {"distinct_values": res["distinct_values"], **res["methods"]}, t2 - t1, t3 - t2
 
-    # the measures side by side: NumPy's samplers and array work free the GIL, and each
-    # measure draws from its own keys, so the results do not depend on the threads
+    # the measures side by side while their temporaries fit `large.HOST_BUDGET`: NumPy's samplers
+    # and array work free the GIL, and each measure draws from its own keys, so the results do
+    # not depend on the threads
     with ThreadPoolExecutor(max_workers=len(names)) as pool:
         done = list(pool.map(one, range(len(names)), names))
     out, scale = {}, {}
@@ -466,8 +480,8 @@ def calibrate(
 ) -> dict:
     """False-positive rates of each test on random disjoint halves of one method's seeds.
 
-    measures: {name: [n]} of a single method; curves [n, T] or None; time_event:
-    (time, event) for the log-rank test. Each split is a uniform random half; the
+    measures: {name: [n] or `Coded`} of a single method; curves [n, T] or None; time_event:
+    (time, event) for the log-rank test (time: integers or `Coded`). Each split is a uniform random half; the
     permutation reference set (`resamples` relabellings) is shared by all splits.
     labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
     already started (the draws then overlap other work). Above `large.LARGE_N` seeds
@@ -491,6 +505,7 @@ def calibrate(
             moments=moments,
         )
     N = 2 * h
+    measures = {k: as_values(v) for k, v in measures.items()}
     x = np.stack([measures[k][:N] for k in names], 1)
     x = x - x.mean(0)
     M = len(names)
@@ -532,6 +547,7 @@ def calibrate(
         rates["brunner_munzel"][name] = _rate(p_bm, alpha)
     if time_event is not None:
         tm, ev = time_event
+        tm = tm.codes.astype(np.int64) if isinstance(tm, Coded) else tm
         rates["logrank"] = {"first_success": _rate(cf.logrank_masks(tm[:N], ev[:N], masks)[1], alpha)}
     if curves is not None:
         T = curves.shape[1]
@@ -577,8 +593,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
     h = n // 2
     N = 2 * h
     M = len(names)
-    x = np.stack([measures[k][:N] for k in names], 1)
-    x = x - x.mean(0)
+    means = large.stacked_means([measures[k] for k in names], N)  # the first N seeds' means
     wait_curve = None
     if curves is not None:
         packed = isinstance(curves, SuccessBits)
@@ -590,8 +605,9 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
     methods: dict = {}
 
     def one(j: int):  # a measure's halves and tests (on a host thread; its own key)
-        vals, inv = np.unique(x[:, j], return_inverse=True)
-        K = np.bincount(inv.reshape(-1), minlength=vals.size)
+        raw, counts = value_counts(measures[names[j]], N)
+        vals, inv = np.unique(raw - means[j], return_inverse=True)  # the centred values of the seeds
+        K = np.bincount(inv.reshape(-1), weights=counts, minlength=vals.size).astype(np.int64)
         exact = vals.size <= large.MAX_DISTINCT
         rng = large.host_rng(jax.random.fold_in(key, j))
         H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
@@ -619,10 +635,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         rates["brunner_munzel"][name] = _rate(p_bm, alpha)
         methods[name] = method
     if time_event is not None:
-        tm, ev = (np.asarray(a)[:N] for a in time_event)
-        times, inv = np.unique(tm, return_inverse=True)
-        code = 2 * inv.reshape(-1) + np.asarray(ev, bool)
-        K = np.bincount(code, minlength=2 * times.size)
+        times, K = event_counts(*time_event, N)
         H = large.hypergeometric_counts(large.host_rng(jax.random.fold_in(key, M)), K, h, splits)
         p_lr = cf.logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), K, H)[1]
         rates["logrank"] = {"first_success": _rate(p_lr, alpha)}

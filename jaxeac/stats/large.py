@@ -65,7 +65,9 @@ in one module, next to the docstring that justifies them.)
 
 from __future__ import annotations
 
+import contextlib
 import math
+import threading
 from functools import partial
 
 import jax
@@ -77,6 +79,7 @@ from scipy import special
 from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import mulhi32, random_words
+from jaxeac.stats.rundir import Coded, as_values, joint_counts
 
 #: Above this many seeds in either method the large-N path is used.
 LARGE_N = 20_000
@@ -100,6 +103,40 @@ REFERENCES = {
 }
 
 
+class HostBudget:
+    """Bytes of host temporaries that jobs on threads may hold at once: a job waits until its
+    share is free (one larger than the whole budget runs alone), so the analyses of the
+    measures run side by side while they are small and one at a time when each needs hundreds
+    of MB. Each job draws from its own keys, so its results do not depend on the order."""
+
+    def __init__(self, total: int):
+        self.total = self.free = int(total)
+        self._cond = threading.Condition()
+
+    @contextlib.contextmanager
+    def hold(self, nbytes: int):
+        need = min(int(nbytes), self.total)
+        with self._cond:
+            self._cond.wait_for(lambda: self.free >= need)
+            self.free -= need
+        try:
+            yield
+        finally:
+            with self._cond:
+                self.free += need
+                self._cond.notify_all()
+
+
+#: Host temporaries the comparison's jobs on threads may hold at once.
+HOST_BUDGET = HostBudget(512 << 20)
+
+
+def job_bytes(*n: int) -> int:
+    """Temporaries of one measure's analysis of samples of n seeds: the pooled float64 values
+    and two more per-seed columns (centred values, squares, an interval's influence values)."""
+    return 8 * 4 * sum(int(k) for k in n)
+
+
 def is_large(*n: int) -> bool:
     """Whether a comparison with these seeds per method takes the large-N path."""
     return max(int(k) for k in n) > LARGE_N
@@ -113,9 +150,14 @@ def host_rng(key) -> np.random.Generator:
 
 # ---------------------------------------------------------------- per-value tables
 class ValueTable:
-    """Distinct values of a pooled sample and the counts of each group (ascending values)."""
+    """Distinct values of a pooled sample and the counts of each group (ascending values).
+    Samples given as `Coded` are counted from their codes (O(N), no float64 copies)."""
 
-    def __init__(self, x_baseline: np.ndarray, x_treatment: np.ndarray):
+    def __init__(self, x_baseline, x_treatment):
+        if isinstance(x_baseline, Coded) and isinstance(x_treatment, Coded):
+            self.nb, self.nt = x_baseline.size, x_treatment.size
+            self.values, self.kb, self.kt = joint_counts(x_baseline, x_treatment)
+            return
         xb, xt = np.asarray(x_baseline, np.float64), np.asarray(x_treatment, np.float64)
         self.nb, self.nt = int(xb.size), int(xt.size)
         pooled = np.concatenate([xb, xt])
@@ -141,6 +183,36 @@ class ValueTable:
     @property
     def exact(self) -> bool:
         return self.distinct <= MAX_DISTINCT
+
+
+def _column_sums(blocks) -> np.ndarray:
+    """Column sums of consecutive blocks of rows [k, M > 1] as NumPy sums one C-ordered [n, M]
+    array down its rows, one row after another: the blocks continue the same running sums, so
+    the result is that of the whole array bit for bit, without it."""
+    run = None
+    for rows in blocks:
+        run = np.add.reduce(rows if run is None else np.vstack([run, rows]), axis=0, keepdims=True)
+    return run[0]
+
+
+def stacked_means(columns, n: int, block: int = 1 << 16) -> np.ndarray:
+    """``np.stack([c[:n] for c in columns], 1).mean(0)`` (float64 values of arrays or `Coded`) bit
+    for bit, without the [n, M] copy (`_column_sums`; one column is summed pairwise: whole)."""
+    if len(columns) == 1:
+        return np.stack([as_values(columns[0], 0, n)], 1).mean(0)
+    return _column_sums(np.stack([as_values(c, i, min(n, i + block)) for c in columns], 1)
+                        for i in range(0, n, block)) / n
+
+
+def _units_moments(z: np.ndarray, block: int = 1 << 16) -> tuple[np.ndarray, np.ndarray]:
+    """``u.mean(0), u.std(0)`` of u = [z, z²] [n, 2] bit for bit, a block of rows at a time."""
+    def units(i):
+        zb = z[i : i + block]
+        return np.stack([zb, zb * zb], 1)
+
+    n = z.size
+    mean = _column_sums(units(i) for i in range(0, n, block)) / n
+    return mean, np.sqrt(_column_sums(np.square(units(i) - mean) for i in range(0, n, block)) / n)
 
 
 def multinomial_counts(rng: np.random.Generator, counts: np.ndarray, resamples: int) -> np.ndarray:
@@ -227,32 +299,37 @@ def abc_two_sample(statistic: str, x: np.ndarray, y: np.ndarray, alpha: float = 
 
     The statistic is a smooth function f of the group means of (x, x²); the empirical
     influence values, the acceleration, the bias and curvature corrections and the
-    endpoints f(θ̂ + λδ) are all closed-form sums over the units (O(n)).
+    endpoints f(θ̂ + λδ) are all closed-form sums over the units (O(n)), taken one sample
+    at a time so only one sample's per-unit temporaries exist at once.
     """
     nb, nt = x.size, y.size
     f = _two_sample_f(statistic, nb, nt)
-    ub = np.stack([x, x * x], 1)
-    ut = np.stack([y, y * y], 1)
-    theta = np.r_[ub.mean(0), ut.mean(0)]
-    sd = np.r_[ub.std(0), ut.std(0)]
+    moments = [_units_moments(z) for z in (x, y)]
+    theta = np.r_[moments[0][0], moments[1][0]]
+    sd = np.r_[moments[0][1], moments[1][1]]
     h = 1e-3 * np.where(sd > 0, sd, np.maximum(1e-8 * np.abs(theta), 1e-12))
     t0, grad, hess = _grad_hess(f, theta, h)
     if not np.isfinite(t0):
         return cf.Estimate(t0, t0, t0, 1 - alpha)
-    parts = []
-    for k, (u, n) in enumerate(((ub, nb), (ut, nt))):
-        du = u - u.mean(0)
+    parts = []  # per side: sums of L², L³ and Q, and du^T L (the direction before its scale)
+    for k, (z, (mean, _)) in enumerate(zip((x, y), moments, strict=True)):
+        du = np.empty((z.size, 2))  # [z, z²] less their means, made in place
+        np.subtract(z, mean[0], out=du[:, 0])
+        np.multiply(z, z, out=du[:, 1])
+        du[:, 1] -= mean[1]
         g_k, h_k = grad[2 * k : 2 * k + 2], hess[2 * k : 2 * k + 2, 2 * k : 2 * k + 2]
         L = du @ g_k
-        Q = np.einsum("ij,jk,ik->i", du, h_k, du)
-        parts.append((du, L, Q, n))
-    var = sum((L**2).sum() / n**2 for _, L, _, n in parts)
+        l2, l3, dl = (L**2).sum(), (L**3).sum(), du.T @ L
+        del L
+        parts.append((l2, l3, np.einsum("ij,jk,ik->i", du, h_k, du).sum(), dl, z.size))
+        del du
+    var = sum(l2 / n**2 for l2, _, _, _, n in parts)
     if not var > 0:
         return cf.Estimate(t0, t0, t0, 1 - alpha)
     sig = math.sqrt(var)
-    a = sum((L**3).sum() / n**3 for _, L, _, n in parts) / (6 * sig**3)
-    direction = np.concatenate([du.T @ L / (n**2 * sig) for du, L, _, n in parts])  # δ in θ-space
-    bhat = sum(Q.sum() / (2 * n**2) for _, _, Q, n in parts)
+    a = sum(l3 / n**3 for _, l3, _, _, n in parts) / (6 * sig**3)
+    direction = np.concatenate([dl / (n**2 * sig) for _, _, _, dl, n in parts])  # δ in θ-space
+    bhat = sum(q / (2 * n**2) for _, _, q, _, n in parts)
     cq = direction @ hess @ direction / (2 * sig)
     curv = bhat / sig - cq
     z0 = special.ndtri(2 * special.ndtr(a) * special.ndtr(-curv))

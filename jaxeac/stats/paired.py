@@ -44,22 +44,36 @@ DESIGN = ("paired: seed i of both methods starts from the same key fold_in(root,
 
 def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
     """d_z = mean / sd from the mean and the mean square of the differences (undefined, NaN, for
-    fewer than two: a jackknife sample of a two-seed run)."""
+    fewer than two: a jackknife sample of a two-seed run). In place where it can: the jackknife
+    passes one value per seed."""
     if n < 2:
         return np.full(np.shape(mean), np.nan)
-    var = np.maximum(square - mean * mean, 0.0) * n / (n - 1)
-    sd = np.sqrt(var)
+    mean = np.asarray(mean, np.float64)
+    sd = np.array(square - mean * mean, np.float64)
+    np.maximum(sd, 0.0, out=sd)
+    sd *= n
+    sd /= n - 1
+    np.sqrt(sd, out=sd)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(sd > 0, mean / sd, np.where(mean == 0, 0.0, np.copysign(np.inf, mean)))
+        out = np.array(mean / sd)
+    bad = ~(sd > 0)
+    if bad.any():
+        m = np.broadcast_to(mean, out.shape)[bad]
+        out[bad] = np.where(m == 0, 0.0, np.copysign(np.inf, m))
+    return out
 
 
 def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05) -> dict:
     """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i."""
     xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
+    del baseline, treatment  # arrays made for the call go with xb and xt below
     if xb.shape != xt.shape or xb.ndim != 1 or xb.size < 2:
         raise ValueError(f"a paired comparison needs two samples of the same seeds, got {xb.shape} and "
                          f"{xt.shape}")
+    # the correlation first: its [2, N] copies come and go before the differences exist
+    r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
     d = xt - xb
+    del xb, xt
     n = d.size
     mean = float(d.mean())
     sd = float(d.std(ddof=1))
@@ -67,7 +81,6 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
     p_t = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
     dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
-    r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
     k_boot, k_flip = jax.random.split(as_key(key))
     values, counts = np.unique(d, return_counts=True)
     out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
@@ -95,11 +108,16 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
         jk_sq = ((d * d).sum() - d * d) / (n - 1)
         jk, jk_dz = [jk_mean], [_dz(jk_mean, jk_sq, n - 1)]
         out["bootstrap"] = "pairs resampled one by one"
-    else:  # the bootstrap's normal limit
-        jk_mean = (n * mean - d) / (n - 1)
-        jk_sq = ((d * d).sum() - d * d) / (n - 1)
+    else:  # the bootstrap's normal limit (one value per seed: the jackknife made in place)
+        jk_mean = n * mean - d
+        jk_mean /= n - 1
         lo, hi = large.normal_bca(mean, jk_mean, alpha)
-        dlo, dhi = large.normal_bca(dz, _dz(jk_mean, jk_sq, n - 1), alpha)
+        jk_sq = d * d
+        np.subtract(jk_sq.sum(), jk_sq, out=jk_sq)
+        jk_sq /= n - 1
+        jk_dz = _dz(jk_mean, jk_sq, n - 1)
+        del jk_mean, jk_sq
+        dlo, dhi = large.normal_bca(dz, jk_dz, alpha)
         out |= {"mean_diff_ci95": [lo, hi], "d_z_ci95": [dlo, dhi],
                 "bootstrap": large.REFERENCES["normal_bca"]}
         boot_mean = None

@@ -19,6 +19,7 @@ import numpy as np
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.running.batch import trim_host_memory
 from jaxeac.running.outputs import SuccessBits, as_bool
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
@@ -27,7 +28,18 @@ from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
 from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
 from jaxeac.stats.paired import paired_analysis
 from jaxeac.stats.report import FIGURES, render_markdown, write_figures
-from jaxeac.stats.rundir import MEASURES, RunData, describe, load_run_dir, per_seed_measures
+from jaxeac.stats.rundir import (
+    MEASURES,
+    RunData,
+    as_values,
+    check_measure,
+    describe,
+    event_counts,
+    load_run_dir,
+    per_seed_codes,
+    per_seed_measures,
+    value_counts,
+)
 
 SCHEMA = "jaxeac.stats/1"
 #: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).
@@ -126,14 +138,16 @@ def compare_experiment(
     T = sb.shape[1]
     bowling = returns_baseline is not None
     t_measures = time.perf_counter()
-    mb = per_seed_measures(sb, returns_baseline)
-    mt = per_seed_measures(st, returns_treatment)
+    # large: the measures as integer codes, each analysis making its float64 copies in turn
+    measures = per_seed_codes if large.is_large(sb.shape[0], st.shape[0]) else per_seed_measures
+    mb = measures(sb, returns_baseline)
+    mt = measures(st, returns_treatment)
     t_measures = time.perf_counter() - t_measures
     names = [k for k in mb if not k.startswith("_")]
     vb = {k: mb[k] for k in names}
     vt = {k: mt[k] for k in names}
     for name, v in (*vb.items(), *vt.items()):
-        cf.check_sample(v, name)
+        check_measure(v, name)
     curves = (np.asarray(returns_baseline), np.asarray(returns_treatment)) if bowling else (sb, st)
     k_main, k_cal = jax.random.split(as_key(key))
     # start the calibration draws now so they overlap the main comparison's host work
@@ -148,9 +162,13 @@ def compare_experiment(
                              f"and {st.shape[0]}; compare them unpaired (--unpaired)")
         k_pair = jax.random.fold_in(as_key(key), PAIRED_STREAM)
         pair_keys = [jax.random.fold_in(k_pair, j) for j in range(len(names))]
-        pool = ThreadPoolExecutor(max_workers=1)  # one thread: beside the rest, little extra memory
-        paired_jobs = [pool.submit(paired_analysis, vb[k], vt[k], pair_keys[j], resamples=resamples,
-                                   alpha=alpha) for j, k in enumerate(names)]
+        def pair(j: int, k: str) -> dict:  # within the host budget, as the unpaired measures are
+            with large.HOST_BUDGET.hold(large.job_bytes(vb[k].size, vt[k].size)):
+                return paired_analysis(as_values(vb[k]), as_values(vt[k]), pair_keys[j], resamples=resamples,
+                                       alpha=alpha)
+
+        pool = ThreadPoolExecutor(max_workers=1)  # one thread beside the rest
+        paired_jobs = [pool.submit(pair, j, k) for j, k in enumerate(names)]
         pool.shutdown(wait=False)  # the threads end with their jobs
     hib = {k: MEASURES[k][0] for k in names}
     res = _analyse(
@@ -168,7 +186,7 @@ def compare_experiment(
     for k in names:
         measures[k]["description"] = describe(k, T)
     t_lr = time.perf_counter()
-    lr = cf.logrank(mb["_time"], mb["_event"], mt["_time"], mt["_event"])
+    lr = cf.logrank_tables(event_counts(mb["_time"], mb["_event"]), event_counts(mt["_time"], mt["_event"]))
     measures["first_success"]["logrank"] = {"chi2": lr.statistic, "p": lr.pvalue}
     tests = {k: DECLARED_TESTS.get(k, "Welch t") for k in names}
     p_raw = [lr.pvalue if tests[k] == "log-rank" else measures[k]["p_welch"] for k in names]
@@ -277,7 +295,8 @@ def compare_experiment(
     else:
         stats["analysis"] = "unpaired"
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
-    plot = {"measures": {k: {"baseline": vb[k], "treatment": vt[k]} for k in names}}
+    plot = {"measures": {k: {"baseline": value_counts(vb[k]), "treatment": value_counts(vt[k])}
+                         for k in names}}
     return stats, plot
 
 
@@ -334,7 +353,9 @@ def compare_run_dir(
     starter = _start_device()  # a GPU's context starts while the host reads the folder
     try:
         t_load = time.perf_counter()
-        data = load_run_dir(run_dir, baseline, treatment) if data is None else data
+        if data is None:
+            data = load_run_dir(run_dir, baseline, treatment)
+            trim_host_memory()  # what reading the file freed
         t_load = time.perf_counter() - t_load
         bowling = data.experiment == "bowling"
         expected = "return" if bowling else "successes"

@@ -27,6 +27,7 @@ from jaxeac.running.outputs import SuccessBits
 
 LATE_FRACTION = 0.2
 _BLOCK = 16_384  # seeds per block of the area sums
+_COUNT_BLOCK = 1 << 20  # codes per block of the counts per value
 
 # name -> (higher_is_better, description template)
 MEASURES = {
@@ -49,7 +50,7 @@ class RunData:
     trials: int
     success: dict  # algo -> bool [N, T] or `SuccessBits`
     returns: dict  # algo -> int [N, T] (bowling) or empty
-    per_seed: dict  # algo -> {column: np.ndarray}
+    per_seed: dict  # algo -> {column: np.ndarray} (results.parquet: the seed ids alone)
     sequential: dict | None = None  # a sequential run's design, looks and decision (summary.json)
 
 
@@ -197,9 +198,7 @@ def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunD
             raise UsageError(f"{algo} has {r.success.shape[0]} seed(s); at least 2 seeds per method "
                              "are needed")
         success[algo] = r.success
-        per_seed[algo] = {"seed": r.seeds.astype(float), "successes": r.successes.astype(float),
-                          "steps": r.steps_total.astype(float),
-                          "first_success": r.first_success.astype(float)}
+        per_seed[algo] = {"seed": r.seeds}  # what the comparison reads (are the seeds paired?)
     return RunData(path, experiment, primary, algos, trials, success, {}, per_seed)
 
 
@@ -246,13 +245,119 @@ def late_window(trials: int) -> int:
     return max(1, math.ceil(LATE_FRACTION * trials))
 
 
-def per_seed_measures(success, returns: np.ndarray | None = None) -> dict:
-    """Per-seed measures from success [N, T] (bool, or `SuccessBits`) and pins [N, T] for
-    bowling; primary first.
+@dataclass(frozen=True)
+class Coded:
+    """A per-seed measure held as small integers: seed i's value is ``codes[i] / scale`` in
+    float64 (no scale: the integer itself), the codes in the narrowest unsigned type (1 or 2
+    bytes a seed instead of 8). `values` gives the float64 numbers the statistics read, seeds
+    start … stop − 1 at a time if asked; `counts` the distinct values and their counts without
+    a sort. Distinct codes give distinct values (integers below 2^24 over one scale)."""
 
-    Returns {name: float array [N]} plus the log-rank inputs under
-    "_time" (first success, T + 1 if none) and "_event" (bool). Computed in blocks of
-    `_BLOCK` seeds on host threads, so temporaries stay bounded whatever N.
+    codes: np.ndarray
+    scale: float | None = None
+
+    @property
+    def size(self) -> int:
+        return self.codes.size
+
+    def values(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        codes = self.codes[start:stop]
+        return fill_values(Coded(codes, self.scale), np.empty(codes.size))
+
+    def value_of(self, codes: np.ndarray) -> np.ndarray:
+        return Coded(codes, self.scale).values()
+
+    def counts(self, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(distinct values of seeds 0 … stop − 1, ascending, float64; their counts, int64)."""
+        k = code_counts(self.codes[:stop], int(self.codes.max(initial=0)) + 1)
+        present = np.flatnonzero(k)
+        return self.value_of(present), k[present]
+
+
+def code_counts(codes: np.ndarray, size: int) -> np.ndarray:
+    """int64 [size]: how many of `codes` (integers in 0 … size − 1) equal each, counted a block
+    at a time so the temporaries stay small."""
+    k = np.zeros(size, np.int64)
+    for i in range(0, codes.size, _COUNT_BLOCK):
+        k += np.bincount(codes[i : i + _COUNT_BLOCK], minlength=size)
+    return k
+
+
+def fill_values(m, out: np.ndarray) -> np.ndarray:
+    """Write the float64 values of a per-seed measure (an array or `Coded`) into `out`; returns it."""
+    if isinstance(m, Coded):
+        out[:] = m.codes
+        if m.scale is not None:
+            out /= m.scale
+    else:
+        out[:] = m
+    return out
+
+
+def as_values(m, start: int = 0, stop: int | None = None) -> np.ndarray:
+    """float64 values of seeds start … stop − 1 of a per-seed measure: an array or `Coded`."""
+    if isinstance(m, Coded):
+        return m.values(start, stop)
+    return np.asarray(np.asarray(m)[start:stop], np.float64)
+
+
+def check_measure(m, name: str) -> None:
+    """`closed_form.check_sample` for an array or `Coded` (whose values are finite by construction,
+    so only its size is checked)."""
+    from jaxeac.stats.closed_form import check_sample
+
+    check_sample(m.values(0, 2) if isinstance(m, Coded) else m, name)
+
+
+def value_counts(m, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct values of seeds 0 … stop − 1, ascending; their counts, int64): of an array or `Coded`."""
+    if isinstance(m, Coded):
+        return m.counts(stop)
+    values, counts = np.unique(np.asarray(m, np.float64)[:stop], return_counts=True)
+    return values, counts.astype(np.int64)
+
+
+def joint_counts(a: Coded, b: Coded) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct values of both (ascending, float64) and the counts of each in a and in b."""
+    if a.scale != b.scale:
+        raise ValueError(f"coded measures of different scales {a.scale} and {b.scale}")
+    size = int(max(a.codes.max(initial=0), b.codes.max(initial=0))) + 1
+    ka, kb = code_counts(a.codes, size), code_counts(b.codes, size)
+    present = np.flatnonzero(ka + kb)
+    return a.value_of(present), ka[present], kb[present]
+
+
+def event_counts(time, event, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Log-rank categories of seeds 0 … stop − 1: (distinct times ascending [J], int64 [J]; counts
+    int64 [2J], category 2j + e holding time j with event flag e). `time`: integers, or `Coded`."""
+    event = np.asarray(event, bool)[:stop]
+    if not isinstance(time, Coded):
+        from jaxeac.stats.closed_form import event_table
+
+        return event_table(np.asarray(time)[:stop], event)
+    codes = time.codes[:stop]
+    k = np.zeros(2 * (int(codes.max(initial=0)) + 1), np.int64)
+    for i in range(0, codes.size, _COUNT_BLOCK):
+        k += np.bincount(2 * codes[i : i + _COUNT_BLOCK].astype(np.int64) + event[i : i + _COUNT_BLOCK],
+                         minlength=k.size)
+    pairs = k.reshape(-1, 2)
+    present = np.flatnonzero(pairs.sum(1))
+    return present, pairs[present].reshape(-1)
+
+
+def _narrow_uint(largest: int) -> np.dtype:
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if largest <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.int64)
+
+
+def per_seed_codes(success, returns: np.ndarray | None = None) -> dict:
+    """Per-seed measures from success [N, T] (bool, or `SuccessBits`) and pins [N, T] for
+    bowling, primary first: {name: `Coded`} (bowling's return: float64 [N]), plus the log-rank
+    inputs "_time" (first success, T + 1 if none: the codes of first_success) and "_event" (bool).
+
+    Computed in blocks of `_BLOCK` seeds on host threads, so temporaries stay bounded whatever N.
     """
     packed = isinstance(success, SuccessBits)
     s = success if packed else np.asarray(success, bool)
@@ -262,14 +367,14 @@ def per_seed_measures(success, returns: np.ndarray | None = None) -> dict:
     late = late_window(T)
     weights = np.arange(T, 0, -1)
     exact32 = T * (T + 1) // 2 < 2**24
-    count = np.empty(n, np.int64)
-    late_count = np.empty(n, np.int64)
-    first = np.empty(n, np.int64)
-    area = np.empty(n, np.int64)
+    small = _narrow_uint(T + 1)
+    count, late_count, first = (np.empty(n, small) for _ in range(3))
+    area = np.empty(n, _narrow_uint(T * (T + 1) // 2))
+
     def block(i: int) -> None:  # numpy frees the GIL: blocks on host threads
         blk = s.rows(i, i + _BLOCK) if packed else s[i : i + _BLOCK]
         at = slice(i, i + blk.shape[0])
-        count[at] = np.count_nonzero(blk, axis=1)  # integer counts: no int64 temporaries
+        count[at] = np.count_nonzero(blk, axis=1)
         late_count[at] = np.count_nonzero(blk[:, T - late :], axis=1)
         first[at] = np.where(blk.any(1), np.argmax(blk, 1) + 1, T + 1)
         # sum_t cumsum_t = sum_s success_s (T - s + 1), normalised by its maximum T(T+1)/2
@@ -280,14 +385,28 @@ def per_seed_measures(success, returns: np.ndarray | None = None) -> dict:
         list(pool.map(block, range(0, n, _BLOCK)))
     out = {}
     if returns is None:
-        out["successes"] = count.astype(np.float64)
+        out["successes"] = Coded(count)
     else:
         out["return"] = np.asarray(returns).sum(1).astype(np.float64)
-    out["late_success_rate"] = late_count / late
-    out["first_success"] = first.astype(np.float64)
-    out["auc_cumulative"] = area / (T * (T + 1) / 2)
-    out["_time"] = first
+    out["late_success_rate"] = Coded(late_count, float(late))
+    out["first_success"] = Coded(first)
+    out["auc_cumulative"] = Coded(area, T * (T + 1) / 2)
+    out["_time"] = out["first_success"]
     out["_event"] = first <= T
+    return out
+
+
+def per_seed_measures(success, returns: np.ndarray | None = None) -> dict:
+    """Per-seed measures from success [N, T] (bool, or `SuccessBits`) and pins [N, T] for
+    bowling; primary first.
+
+    Returns {name: float array [N]} plus the log-rank inputs under
+    "_time" (first success, T + 1 if none) and "_event" (bool): `per_seed_codes` as numbers.
+    """
+    codes = per_seed_codes(success, returns)
+    out = {k: as_values(v) for k, v in codes.items() if not k.startswith("_")}
+    out["_time"] = codes["_time"].codes.astype(np.int64)
+    out["_event"] = codes["_event"]
     return out
 
 
