@@ -190,3 +190,20 @@ def test_registry_names_the_classic_tasks():
     assert jaxeac.make("CliffWalking-v1", rtilde="reward").rtilde_rule == "reward"
     with pytest.raises(UsageError, match="'grid-paper-v0' has no option 'rtilde'; its options are chances, slip"):
         jaxeac.make("grid-paper-v0", rtilde="reward")
+
+
+@pytest.mark.parametrize("name", ["eac", "q_learning", "sarsa"])
+def test_flat_loop_equals_trials_loop_on_a_stochastic_task(name):
+    """R1/R2 on a stochastic task: the flat loop fed from a queue gives the trials loop's results."""
+    import jaxeac
+    from jaxeac.running.batch import run_seeds
+
+    env = jaxeac.make("FrozenLake-4x4-slippery-v1", chances=30)
+    runs = [run_seeds(env, RunConfig(trials=40, agent=algorithm(name), loop=loop, lanes=lanes), root_key=6,
+                      n_seeds=20, chunk_size=chunk)
+            for loop, lanes, chunk in (("trials", None, 20), ("flat", 3, 7), ("flat", 64, 20))]
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other.success, runs[0].success)
+        np.testing.assert_array_equal(other.steps, runs[0].steps)
+        np.testing.assert_array_equal(other.policy, runs[0].policy)
+    assert runs[0].success.any()
