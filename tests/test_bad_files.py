@@ -181,14 +181,15 @@ def test_reproduce_treats_a_damaged_step_record_as_unfinished(tmp_path, damage):
     """`jaxeac reproduce` resumes finished steps from their records; a damaged record or run
     summary means "run that step again" (its folder is then replaced whole), never a traceback;
     a damaged results file of a finished step is one error naming it."""
-    from jaxeac.experiments.reproduce.runs import _finished, _marker, _npz_arrays
+    from jaxeac.experiments.common import finished_run
+    from jaxeac.experiments.reproduce.runs import _marker, _npz_arrays
 
     content = {"binary": bytes(range(256)), "list": b"[1, 2]", "truncated": b'{"fingerprint": {"st',
                "no result": b'{"fingerprint": {}, "seconds": 3}', "empty": b""}[damage]
     (tmp_path / "reproduce.json").write_bytes(content)
     (tmp_path / "summary.json").write_bytes(content)
     assert _marker(tmp_path) is None
-    assert _finished(tmp_path, {"seeds": 10}) is False
+    assert finished_run(tmp_path, {"seeds": 10}) is False
     (tmp_path / "curves.npz").write_bytes(content[:40])
     with pytest.raises(UsageError, match="curves.npz is not a readable .npz file"):
         _npz_arrays(tmp_path / "curves.npz", ["ac_return"], ["ac"])
