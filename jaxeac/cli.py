@@ -511,6 +511,11 @@ def cmd_study(args: argparse.Namespace) -> int:
         trials=args.trials, key=args.key, epsilon=args.epsilon, resamples=args.resamples,
         chunk_size=args.chunk_size)
     settings.validate()  # bad names and settings fail before any compute
+    from jaxeac.experiments.common import check_grid_resources
+
+    for task in settings.tasks:  # sizes that cannot fit or finish fail here, for every task
+        grid = settings.task_settings(task)
+        check_grid_resources(grid, grid.make_env())
     _claim_out(args, args.out, kind="study")
     result = run_study(settings, args.out, progress=not args.quiet)
     print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "

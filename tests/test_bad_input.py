@@ -450,6 +450,7 @@ def test_policy_figure_of_a_large_map_draws_no_arrow_per_cell(tmp_path, monkeypa
     (["study", "--tasks", "FrozenLake-4x4-v1:slip=2"], r"slip must lie in \[0, 1\]"),
     (["study", "--tasks", "FrozenLake-4x4-v1:wind=2"], "write NAME or NAME:slip=P"),
     (["study", "--algos", "eac", "sarsa"], "--algos must include ac"),
+    (["study", "--tasks", "FourRooms-v0", "--seeds", "2000000000"], "this run (cannot fit in memory|could take far too long)"),
 ])
 def test_bad_environment_input_is_refused(capsys, tmp_path, monkeypatch, argv, match):
     monkeypatch.chdir(tmp_path)
