@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference import TaskReference, epsilon_greedy_choice, reference_run
 
 from jaxeac.algorithm.agent import epsilon_greedy
 from jaxeac.algorithm.config import algorithm
@@ -17,7 +18,6 @@ from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key
 from jaxeac.running.config import RunConfig
 from jaxeac.running.loops import trace_run
-from reference import TaskReference, epsilon_greedy_choice, reference_run
 
 
 def corridor(slip: float = 0.2) -> TabularTask:
@@ -74,9 +74,10 @@ def test_reward_rtilde_variant_matches_reference(name):
 
 @pytest.mark.parametrize("name", ["q_learning", "sarsa"])
 def test_baselines_on_the_paper_grid_match_reference(name):
+    from reference import GridReference
+
     from jaxeac.envs.grid import GridWorld
     from jaxeac.running.loops import trace_run as run
-    from reference import GridReference
 
     grid = get_map("paper7")
     rates = {"alpha": 0.5, "beta": 0.3, "gamma": 0.9, "temperature": 1.0, "epsilon": 0.3}

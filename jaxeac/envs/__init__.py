@@ -25,13 +25,11 @@ from jaxeac.errors import UsageError
 
 def _grid(map_name: str) -> Callable[..., Any]:
     def build(chances: int | None = None, slip: float = 0.0):
-        from jaxeac.envs.grid import GridWorld, get_map
+        from jaxeac.envs.grid import get_map
+        from jaxeac.envs.tabular import grid_world
 
         chances = 40 if chances is None else chances
-        if not slip:
-            return GridWorld(get_map(map_name), chances)
-        return _tabular(lambda: _tasks().grid_task(get_map(map_name), chances, name=f"grid-{map_name}-v0"))(
-            chances=chances, slip=slip)
+        return grid_world(get_map(map_name), chances, slip, name=f"grid-{map_name}-v0")
 
     build.__doc__ = f"The grid world on map {map_name!r} (G1–G5), `chances` per trial (G5), `slip` (X1)."
     return build

@@ -18,9 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.envs.grid import shaped_reward
+from jaxeac.envs.grid import GridMap, GridWorld, shaped_reward
 from jaxeac.envs.protocol import Transition, UniformEnv
-from jaxeac.envs.tasks import TabularTask
+from jaxeac.envs.tasks import TabularTask, grid_task, with_slip
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import uniform_index
@@ -106,3 +106,11 @@ class TabularEnv(UniformEnv):
             return transition.reward
         distance = jnp.asarray(self.goal_distance)[transition.state.position]
         return shaped_reward(distance, transition.bumped, goal_known)
+
+
+def grid_world(grid_map: GridMap, n_chances: int, slip: float = 0.0, name: str | None = None):
+    """The paper's grid world on `grid_map` (G1–G5): the `GridWorld` itself, or, with `slip` > 0
+    (X1), its table whose moves execute a uniformly random action with probability `slip`."""
+    if not slip:
+        return GridWorld(grid_map, n_chances)
+    return TabularEnv(with_slip(grid_task(grid_map, n_chances, name=name), slip), n_chances)

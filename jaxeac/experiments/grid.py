@@ -117,13 +117,9 @@ class GridSettings:
         or the registered one, with `slip` (X1) and `chances`."""
         if self.env is not None:
             return make_env(self.env, chances=self.chances, slip=self.slip)
-        grid_map = self.grid_map()
-        if self.slip:
-            from jaxeac.envs.tabular import TabularEnv
-            from jaxeac.envs.tasks import grid_task, with_slip
+        from jaxeac.envs.tabular import grid_world
 
-            return TabularEnv(with_slip(grid_task(grid_map, self.chances), self.slip), self.chances)
-        return GridWorld(grid_map, self.chances)
+        return grid_world(self.grid_map(), self.chances, self.slip)
 
     def run_config(self, algo: str) -> RunConfig:
         agent = algorithm(algo, memory=self.memory, capacity=self.capacity)
@@ -211,7 +207,7 @@ def merge_parts(out: str | Path) -> GridRun:
     except (TypeError, UsageError) as exc:
         raise UsageError(f"{parts[0] / 'summary.json'}: its config does not describe a run ({exc}); "
                          f"{fix}") from None
-    from jaxeac.envs.grid import GridWorld, parse_map
+    from jaxeac.envs.grid import parse_map
 
     grid_map = None
     if isinstance(config.get("map"), str):

@@ -17,6 +17,7 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -379,7 +380,8 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
         lanes, out, queued = blocks(lanes, out, queued, width, narrow)
         if narrow:
             (busy,) = jnp.nonzero(lanes.entry < m, size=narrow, fill_value=width)
-            lanes = jax.tree.map(lambda x: x[jnp.minimum(busy, width - 1)], lanes)
+            pick = functools.partial(jnp.take, indices=jnp.minimum(busy, width - 1), axis=0)
+            lanes = jax.tree.map(pick, lanes)
             lanes = lanes.replace(entry=jnp.where(busy < width, lanes.entry, m))  # fill: idle lanes
             width = narrow
     return out
