@@ -196,6 +196,9 @@ def add_solver_flags(p: argparse.ArgumentParser) -> None:
                    help="MJX: contacts kept per condim group (keep >= 30: the pins' 30 feet are one group)")
     p.add_argument("--pair-cap", type=nonneg_int, default=0, metavar="N",
                    help="MJX: closest geom pairs tested per collision group (0 = every pair)")
+    p.add_argument("--no-sleep", dest="sleep", action="store_false",
+                   help="C engine: no sleeping of pins at rest, every throw its full length (the engine "
+                        "before sleeping, step for step; 2-3x slower, same accuracy)")
 
 
 #: The smallest --contact-cap that keeps the physics: MJX caps each condim group of candidate
@@ -213,7 +216,8 @@ def solver_settings(args: argparse.Namespace):
                          f"{MIN_CONTACT_CAP} foot contacts form one contact group, so a lower cap drops "
                          f"feet of standing pins and changes the physics; use {MIN_CONTACT_CAP} or more "
                          "(default 32)")
-    return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap)
+    return SolverSettings(args.solver, args.iterations, args.ls_iterations, args.contact_cap, args.pair_cap,
+                          sleep=args.sleep)
 
 
 #: The smallest significance level `compare --alpha` takes: below it the quantiles 1 - α/2 of the

@@ -1,6 +1,7 @@
 """Benchmark the bowling physics backends (SPEC B7): throws/s and physics steps/s.
 
-C engine (``mujoco.rollout``, nthread = CPU count), MJX (jit + vmap, on
+C engine (worker threads, nthread = CPU count; with sleeping pins and throws that end
+once settled unless a setting says ``nosleep``), MJX (jit + vmap, on
 whatever device JAX uses: CPU here, GPU elsewhere) and MJX with its Warp
 implementation (``warp``: NVIDIA GPUs, needs warp-lang). Compile seconds are kept
 apart from run seconds. Throws are a mix of the 21 default angles with the
@@ -11,9 +12,12 @@ default noise, from a full rack, so hits and misses are both in the batch.
     python scripts/bench_bowling.py --backends mjx --physics newton:4:8 cg:8:8 cg:6:4:24 --accuracy 2048
     python scripts/bench_bowling.py --backends warp --mjx-batches 4096 16384 65536 --accuracy 2048
 
-``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap[:pair_cap]]);
+``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap[:pair_cap]][:nosleep]);
 ``--accuracy N`` also scores each setting's pins on the first N throws of its largest
-batch against the C engine at 50/50 Newton iterations on the same noisy throws.
+batch against the reference on the same noisy throws: the C engine at 50/50 Newton
+iterations, without sleeping, every throw its full length.
+
+    python scripts/bench_bowling.py --backends c --physics newton:4:8 newton:4:8:nosleep --accuracy 1024
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from jaxeac.envs.bowling import (  # noqa: E402
     BowlingConfig,
     SolverSettings,
     angles,
+    backend_c,  # noqa: E402
     backend_mjx,  # noqa: E402
     initial_pins,
     throw,
@@ -74,34 +79,39 @@ def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         "run_s": best,
         "throws_per_s": batch / best,
         "steps_per_s": batch * cfg.n_steps / best,
+        "steps_run_per_throw": backend_c.engine(cfg.nthread, cfg.solver).steps_run / batch,
         "mean_knocked": float(np.mean(res.knocked)),
         "_knocked": np.asarray(res.knocked),
     }
 
 
-SPEC_FORMAT = "solver:iterations:ls_iterations[:contact_cap[:pair_cap]]"
+SPEC_FORMAT = "solver:iterations:ls_iterations[:contact_cap[:pair_cap]][:nosleep]"
+#: The accuracy reference: Newton at 50/50 iterations, no sleeping, every throw its full length.
+REFERENCE_SOLVER = SolverSettings("newton", 50, 50, sleep=False)
 
 
 def physics_label(cfg: BowlingConfig) -> str:
     """The --physics spec of cfg's solver settings (the pair cap only where set)."""
     s = cfg.solver
     label = f"{s.method}:{s.iterations}:{s.ls_iterations}:{s.contact_cap}"
-    return label + (f":{s.pair_cap}" if s.pair_cap else "")
+    return label + (f":{s.pair_cap}" if s.pair_cap else "") + ("" if s.sleep else ":nosleep")
 
 
 def parse_physics(spec: str, base: BowlingConfig) -> BowlingConfig:
     """BowlingConfig with the solver settings of a SPEC_FORMAT spec."""
     parts = spec.split(":")
-    if not 3 <= len(parts) <= 5:
+    sleep = parts[-1] != "nosleep"
+    parts = parts if sleep else parts[:-1]
+    if not 3 <= len(parts) <= 5 or not all(x.isdigit() for x in parts[1:]):
         raise SystemExit(f"error: --physics {spec!r}: use {SPEC_FORMAT}")
-    return dataclasses.replace(base, solver=SolverSettings(parts[0], *map(int, parts[1:])))
+    return dataclasses.replace(base, solver=SolverSettings(parts[0], *map(int, parts[1:]), sleep=sleep))
 
 
 def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, reference: dict) -> dict:
-    """Pins per throw on the first n throws of a batch against the C engine at 50/50 Newton
-    iterations on the same noisy throws (same keys): means, paired difference and its s.e."""
+    """Pins per throw on the first n throws of a batch against the reference (`REFERENCE_SOLVER`)
+    on the same noisy throws (same keys): means, paired difference and its s.e."""
     if "knocked" not in reference or reference["knocked"].size < n:
-        ref_cfg = dataclasses.replace(cfg, solver=SolverSettings("newton", 50, 50))
+        ref_cfg = dataclasses.replace(cfg, solver=REFERENCE_SOLVER)
         _, a, keys = _inputs(batch, cfg, 0)  # the batch's own throws: same angles and keys
         res = throw(initial_pins(n), a[:n], keys[:n], backend="c", cfg=ref_cfg)
         reference["knocked"] = np.asarray(res.knocked)

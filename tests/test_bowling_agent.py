@@ -117,7 +117,7 @@ def test_bowling_cli_end_to_end(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["primary_measure"] == "return" and summary["experiment"] == "bowling"
     assert summary["physics"]["solver"] == {"method": "newton", "iterations": 4, "ls_iterations": 8,
-                                            "contact_cap": 32, "pair_cap": 0}  # B7, recorded
+                                            "contact_cap": 32, "pair_cap": 0, "sleep": True}  # B7, recorded
     assert "Table I" in (out / "table1.md").read_text()
 
 

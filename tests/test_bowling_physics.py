@@ -286,6 +286,7 @@ def test_throw_command_and_render(tmp_path):
         {"solver": {"ls_iterations": 1.5}},
         {"solver": {"contact_cap": 0}},
         {"solver": {"pair_cap": -1}},
+        {"solver": {"sleep": "yes"}},
     ],
 )
 def test_bad_config_raises_usage_error(kwargs):
@@ -340,6 +341,20 @@ def test_solver_settings_reach_both_engines():
 
     assert (numeric(default, "max_contact_points"), numeric(default, "max_geom_pairs")) == (32, -1)
     assert (numeric(model, "max_contact_points"), numeric(model, "max_geom_pairs")) == (30, 16)
+    sleep = mujoco.mjtEnableBit.mjENBL_SLEEP
+    assert default.opt.enableflags & sleep  # the C engine's default
+    assert not load_model(SolverSettings(sleep=False)).opt.enableflags & sleep
+
+
+def test_no_sleep_flag_reaches_the_summary(tmp_path):
+    """B7: `--no-sleep` runs the engine without sleeping and says so in summary.json."""
+    from jaxeac.cli import main
+
+    out = tmp_path / "b"
+    argv = ["bowling", "--seeds", "1", "--trials", "1", "--out", str(out), "--quiet", "--no-compare",
+            "--no-sleep"]
+    assert main(argv) == 0
+    assert json.loads((out / "summary.json").read_text())["physics"]["solver"]["sleep"] is False
 
 
 def test_cg_solver_throws_like_newton():
@@ -348,3 +363,87 @@ def test_cg_solver_throws_like_newton():
     cg = BowlingConfig(noise_angle=0.0, noise_speed=0.0, solver=SolverSettings("cg", 12, 4))
     res = throw(initial_pins(2), np.array([0.0, cg.theta_max]), jax.random.key(0), cfg=cg)
     assert int(res.knocked[0]) >= 5 and int(res.knocked[1]) == 0
+
+
+# ---------------------------------------------------------------- the C engine's sleeping (B7)
+def _start_states(n: int, seed: int, partial: bool):
+    """(qpos, qvel) float64 of n noisy throws over the 21 angles, from full racks or, with
+    partial, from the racks a first throw left (removed pins parked, B4)."""
+    from jaxeac.envs.bowling import backend_c
+
+    a = np.resize(angles(CFG), n)
+    eps = batch_noise(jax.random.key(seed), n)
+    pins = initial_pins(n)
+    if partial:
+        pins = throw(pins, a[::-1].copy(), jax.random.key(seed + 1), backend="c", cfg=CFG).pins_after
+        pins = jax.tree.map(jnp.asarray, pins)
+    qpos, qvel = backend_c._prepare_fn(CFG)(pins, jnp.asarray(a, jnp.float32), eps)
+    return np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+
+
+def _in_play(final: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+    """Final poses (n, 10, 7) of the pins in play at the start, zero for removed ones."""
+    live = (qpos[:, 9:77:7] < 10.0)[:, :, None]
+    return np.where(live, final[:, 7:].reshape(-1, 10, 7), 0.0)
+
+
+@pytest.mark.parametrize("partial", [False, True])
+def test_settled_throws_end_where_full_length_throws_end(partial):
+    """B7: a throw that stops once settled leaves every pin in play exactly where the same
+    throw run for its full n_steps leaves it (nothing can wake a sleeping pin), and misses stop
+    long before n_steps."""
+    from jaxeac.envs.bowling.backend_c import CEngine
+
+    qpos, qvel = _start_states(42, seed=5, partial=partial)
+    eng = CEngine(2, SolverSettings())
+    early, _ = eng.simulate(qpos, qvel, CFG.n_steps)
+    steps_early = eng.steps_run
+    full, _ = eng.simulate(qpos, qvel, CFG.n_steps, stop_when_settled=False)
+    assert eng.steps_run == 42 * CFG.n_steps
+    np.testing.assert_array_equal(_in_play(early, qpos), _in_play(full, qpos))
+    assert steps_early < 0.95 * eng.steps_run
+    eng.close()
+
+
+def test_where_removed_pins_wait_changes_no_pin_in_play():
+    """B4/B7: removed pins asleep on the floor behind the thrower or falling 1000 m up: the pins
+    in play move the same, bit for bit."""
+    from jaxeac.envs.bowling.backend_c import CEngine
+
+    qpos, qvel = _start_states(21, seed=8, partial=True)
+    assert np.any(qpos[:, 9:77:7] > 10.0)  # some pins were removed
+    eng = CEngine(2, SolverSettings())
+    floor, _ = eng.simulate(qpos, qvel, CFG.n_steps, stop_when_settled=False)
+    eng.floor_park = False
+    air, _ = eng.simulate(qpos, qvel, CFG.n_steps, stop_when_settled=False)
+    np.testing.assert_array_equal(_in_play(floor, qpos), _in_play(air, qpos))
+    eng.close()
+
+
+def test_throws_do_not_depend_on_thread_or_order():
+    """R1/B7: each throw starts from a reset MjData, so neither the thread count nor the throws
+    run before it change its result."""
+    from jaxeac.envs.bowling.backend_c import CEngine
+
+    qpos, qvel = _start_states(24, seed=3, partial=False)
+    one = CEngine(1, SolverSettings())
+    two = CEngine(2, SolverSettings())
+    a, _ = one.simulate(qpos, qvel, CFG.n_steps)
+    b, _ = two.simulate(qpos[::-1].copy(), qvel[::-1].copy(), CFG.n_steps)
+    np.testing.assert_array_equal(_in_play(a, qpos), _in_play(b[::-1], qpos))
+    one.close()
+    two.close()
+
+
+def test_sleeping_engine_knocks_the_same_pins_as_the_full_engine():
+    """B7: sleeping is a physics setting measured for accuracy (BENCHMARKS.md); on these 63
+    noisy throws it knocks the same number of pins as the engine without sleeping on nearly
+    every throw, and the same total within a few pins."""
+    a = np.resize(angles(CFG), 63)
+    keys = jax.random.split(jax.random.key(11), 63)
+    fast = throw(initial_pins(63), a, keys, backend="c", cfg=CFG)
+    slow = throw(initial_pins(63), a, keys, backend="c",
+                 cfg=BowlingConfig(solver=SolverSettings(sleep=False)))
+    same = np.mean(np.asarray(fast.knocked) == np.asarray(slow.knocked))
+    assert same >= 0.85, same
+    assert abs(int(np.sum(fast.knocked)) - int(np.sum(slow.knocked))) <= 6

@@ -74,11 +74,18 @@ def grid_schedule_and_sweep() -> dict[str, str]:
     return out
 
 
-def bowling_c() -> dict[str, str]:
+def bowling_c(sleep: bool = True) -> dict[str, str]:
+    from jaxeac.envs.bowling import SolverSettings
     from jaxeac.experiments.bowling import BowlingSettings, run_bowling
 
-    run = run_bowling(BowlingSettings(seeds=4, trials=3, key=1, chunk_size=4))
+    settings = BowlingSettings(seeds=4, trials=3, key=1, chunk_size=4, solver=SolverSettings(sleep=sleep))
+    run = run_bowling(settings)
     return {a: digest(r.action, r.knocked, r.success) for a, r in run.results.items()}
+
+
+def bowling_c_no_sleep() -> dict[str, str]:
+    """The C engine without sleeping: the engine before sleeping existed, bit for bit."""
+    return bowling_c(sleep=False)
 
 
 CASES = {
@@ -87,6 +94,7 @@ CASES = {
     "grid_row_tables": grid_row_tables,
     "grid_schedule_and_sweep": grid_schedule_and_sweep,
     "bowling_c": bowling_c,
+    "bowling_c_no_sleep": bowling_c_no_sleep,
 }
 
 EXPECTED: dict[str, dict[str, str]] = {
@@ -111,6 +119,10 @@ EXPECTED: dict[str, dict[str, str]] = {
         'sweep': '62c035bdf92a5d6c',
     },
     'bowling_c': {
+        'ac': '80d291f6bb20d7e8',
+        'eac': '31a400833ff70fc2',
+    },
+    'bowling_c_no_sleep': {
         'ac': 'f9fb59a4caddd30c',
         'eac': '768014369411bdde',
     },

@@ -1,27 +1,41 @@
-"""C-engine bowling backend: MuJoCo's C physics batched with ``mujoco.rollout`` (SPEC B7).
+"""C-engine bowling backend: MuJoCo's C physics, a batch of throws over worker threads (SPEC B7).
 
-The fast choice on CPUs: the batch of throws is split over ``nthread`` worker
-threads (one ``MjData`` each) in a persistent ``mujoco.rollout.Rollout`` pool.
+The fast choice on CPUs. Each of ``nthread`` persistent worker threads owns one ``MjData``
+and takes the batch's throws one at a time (``mj_step`` releases Python's lock, so the
+threads run in parallel); every throw starts from a freshly reset ``MjData``, so its result
+does not depend on the thread, the batch or the throws before it (R1).
+
+With ``SolverSettings.sleep`` (the default) MuJoCo puts bodies at rest to sleep, so the
+standing pins cost nothing until something touches them, and a throw stops as soon as it is
+``settled``: every pin in play asleep and the ball unable to reach any of them. Nothing can
+wake a sleeping pin after that, so the pins end exactly where the full-length throw leaves
+them (``tests/test_bowling_physics.py`` checks it). ``sleep=False`` runs the full
+``n_steps`` of the engine without sleeping, bit for bit as ``mujoco.rollout`` did.
+
 Throw preparation and judging are the same JAX functions as in the MJX backend
-(``scene.throw_start`` / ``scene.judge_throw``), so the two backends differ only
-in the engine (float64 C vs float32 JAX). Inputs and outputs are numpy.
+(``scene.throw_start`` / ``scene.judge_throw``), so the two backends differ only in the
+engine (float64 C vs float32 JAX). Inputs and outputs are numpy.
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
 import mujoco
-import mujoco.rollout
 import numpy as np
 
 from .scene import (
+    BALL_RADIUS,
     DEFAULT_SOLVER,
+    N_PINS,
     NQ,
-    NV,
+    PIN_CENTRE_Z,
+    PIN_RADIUS,
     XML_PATH,
     BowlingConfig,
     PinState,
@@ -32,8 +46,12 @@ from .scene import (
     throw_start,
 )
 
-_CHUNK = 128  # throws per rollout call: bounds the (chunk, n_steps, nstate) output buffer
-_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+SETTLE_CHECK = 10  # steps between two checks of whether a throw has settled
+# A pin in play is a body within this height; removed pins are parked 1000 m up (B4).
+IN_PLAY_Z = 10.0
+# Centre distance beyond which the ball cannot touch a pin, however the pin lies (ball radius
+# plus the pin's half-length and radius), with a margin.
+REACH = BALL_RADIUS + PIN_CENTRE_Z + PIN_RADIUS + 0.05
 
 
 def load_model(solver: SolverSettings = DEFAULT_SOLVER) -> mujoco.MjModel:
@@ -43,6 +61,9 @@ def load_model(solver: SolverSettings = DEFAULT_SOLVER) -> mujoco.MjModel:
         solver.method]
     model.opt.iterations = solver.iterations
     model.opt.ls_iterations = solver.ls_iterations
+    if solver.sleep:  # the C engine's fast path (SolverSettings.sleep); MJX models load without it
+        model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+        model.opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE  # faster than sparse at 66 dofs, same pins
     # MJX's caps (the C engine ignores them); max_geom_pairs -1 = test every pair
     caps = (("max_contact_points", solver.contact_cap), ("max_geom_pairs", solver.pair_cap or -1))
     for name, value in caps:
@@ -51,52 +72,99 @@ def load_model(solver: SolverSettings = DEFAULT_SOLVER) -> mujoco.MjModel:
     return model
 
 
-def _state_offsets(model: mujoco.MjModel) -> tuple[int, int, int]:
-    """(nstate, qpos offset, qvel offset) of the full-physics state vector, found by probing."""
-    data = mujoco.MjData(model)
-    data.qpos[:] = 1000.0 + np.arange(model.nq)
-    data.qvel[:] = 5000.0 + np.arange(model.nv)
-    nstate = mujoco.mj_stateSize(model, _SPEC)
-    state = np.empty(nstate)
-    mujoco.mj_getState(model, data, state, _SPEC)
-    return nstate, int(np.flatnonzero(state == 1000.0)[0]), int(np.flatnonzero(state == 5000.0)[0])
+def floor_park_qpos() -> np.ndarray:
+    """qpos (10, 7) of the sleeping engine's parking spots of removed pins (B4): lying at rest on
+    the floor 10 m behind the thrower, 1 m apart, where they fall asleep within a few steps and
+    touch nothing in play. (The scene's own parking spot, 1000 m up, keeps them falling, awake,
+    for the whole throw; both are out of play, so the pins in play move the same.)"""
+    q = np.zeros((N_PINS, 7))
+    q[:, :3] = np.stack([np.full(N_PINS, -10.0), np.arange(N_PINS) - 4.5, np.full(N_PINS, PIN_RADIUS)], 1)
+    q[:, 3:5] = np.sqrt(0.5)  # a quarter turn about x: the pin lies along y
+    return q
+
+
+FLOOR_PARK = floor_park_qpos()
+
+
+def settled(data: mujoco.MjData, in_play: np.ndarray) -> bool:
+    """Whether nothing can move a pin in play (bool (10,)) any more: every pin in play asleep
+    (MuJoCo's sleeping; an awake tree's sleep counter is negative) and the ball either asleep
+    too or, on its straight roll over the flat floor, out of reach of every pin in play and
+    moving away from it."""
+    asleep = data.tree_asleep >= 0  # tree 0 is the ball, trees 1..10 the pins (the MJCF's order)
+    if not np.all(asleep[1:][in_play]):
+        return False
+    if asleep[0] or not np.any(in_play):
+        return True
+    away = data.qpos[7:NQ].reshape(N_PINS, 7)[in_play, :3] - data.qpos[:3]
+    moving_away = away @ data.qvel[:3] < 0.0
+    out_of_reach = np.einsum("ij,ij->i", away, away) > REACH**2
+    return bool(np.all(moving_away & out_of_reach))
 
 
 class CEngine:
-    """A loaded model, one MjData per thread and a rollout pool: runs batches of throws."""
+    """A loaded model and nthread worker threads with one MjData each: runs batches of throws."""
 
     def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER):
-        """Load the model and start a pool of nthread threads (0: one per CPU core)."""
+        """Load the model and start nthread worker threads (0: one per CPU core)."""
         self.model = load_model(solver)
+        self.sleep = solver.sleep
+        self.floor_park = solver.sleep  # removed pins lie asleep on the floor instead of falling
         self.nthread = nthread or os.cpu_count() or 1
         self.datas = [mujoco.MjData(self.model) for _ in range(self.nthread)]
-        self.pool = mujoco.rollout.Rollout(nthread=self.nthread)
-        self.nstate, self.iq, self.iv = _state_offsets(self.model)
-        template = np.zeros(self.nstate)
-        mujoco.mj_getState(self.model, mujoco.MjData(self.model), template, _SPEC)
-        self.template = template
+        self.pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="jaxeac-throws")
+        self.steps_run = 0  # physics steps run by the last simulate call, all throws together
 
-    def simulate(self, qpos: np.ndarray, qvel: np.ndarray, n_steps: int, stride: int = 0):
-        """Final qpos (B, 77) and, if stride > 0, qpos every stride steps (B, T, 77)."""
+    def _throw(self, data: mujoco.MjData, qpos, qvel, n_steps: int, stride: int, traj, stop: bool) -> int:
+        """One throw from a reset MjData; qpos snapshots into traj every stride steps; with stop, it
+        ends once `settled`. Returns the steps run."""
+        mujoco.mj_resetData(self.model, data)
+        data.qpos[:] = qpos
+        data.qvel[:] = qvel
+        in_play = qpos[9:NQ:7] < IN_PLAY_Z  # z of pins 1..10; removed pins are parked 1000 m up
+        if self.floor_park and not stride:  # (a drawn trajectory keeps them out of the picture, 1000 m up)
+            data.qpos[7:NQ].reshape(N_PINS, 7)[~in_play] = FLOOR_PARK[~in_play]
+        if stride:
+            for k in range(n_steps // stride):
+                mujoco.mj_step(self.model, data, nstep=stride)
+                traj[k] = data.qpos
+            if n_steps % stride:
+                mujoco.mj_step(self.model, data, nstep=n_steps % stride)
+            return n_steps
+        done = 0
+        while done < n_steps:
+            block = min(SETTLE_CHECK, n_steps - done)
+            mujoco.mj_step(self.model, data, nstep=block)
+            done += block
+            if stop and settled(data, in_play):
+                break
+        return done
+
+    def simulate(self, qpos: np.ndarray, qvel: np.ndarray, n_steps: int, stride: int = 0,
+                 stop_when_settled: bool = True):
+        """Final qpos (B, 77) and, if stride > 0, qpos every stride steps (B, T, 77). With sleep and
+        stop_when_settled, a throw without a trajectory ends once `settled` (the pins in play end
+        where its full n_steps leave them); otherwise every throw runs its full n_steps."""
+        stop = self.sleep and stop_when_settled and not stride
         batch = qpos.shape[0]
-        init = np.tile(self.template, (batch, 1))
-        init[:, self.iq : self.iq + NQ] = qpos
-        init[:, self.iv : self.iv + NV] = qvel
         final = np.empty((batch, NQ))
         traj = np.empty((batch, n_steps // stride, NQ)) if stride else None
-        buf = np.empty((min(batch, _CHUNK), n_steps, self.nstate))
-        for lo in range(0, batch, _CHUNK):
-            hi = min(batch, lo + _CHUNK)
-            out = buf[: hi - lo]
-            self.pool.rollout(self.model, self.datas, init[lo:hi], nstep=n_steps, state=out)
-            final[lo:hi] = out[:, -1, self.iq : self.iq + NQ]
-            if stride:
-                traj[lo:hi] = out[:, stride - 1 :: stride, self.iq : self.iq + NQ]
+        steps = np.zeros(batch, np.int64)
+        order = itertools.count()  # throws handed out one at a time (their lengths differ)
+
+        def work(data: mujoco.MjData) -> None:
+            while (i := next(order)) < batch:
+                steps[i] = self._throw(data, qpos[i], qvel[i], n_steps, stride,
+                                       traj[i] if stride else None, stop)
+                final[i] = data.qpos
+
+        list(self.pool.map(work, self.datas))
+        self.steps_run = int(steps.sum())
         return final, traj
 
     def close(self) -> None:
-        """Stop the thread pool."""
-        self.pool.close()
+        """Stop the worker threads."""
+        self.pool.shutdown()
 
 
 @functools.lru_cache(maxsize=4)

@@ -26,6 +26,7 @@ meant for accelerators. Compile takes 6-18 s per batch shape on a 2-core CPU.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
 
@@ -70,6 +71,11 @@ def check_impl(impl: str) -> str:
     return impl
 
 
+def _engine_model(solver: SolverSettings):
+    """The MjModel MJX runs: the solver settings without the C engine's sleeping (B7)."""
+    return load_model(dataclasses.replace(solver, sleep=False))
+
+
 def mjx_model(solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax") -> mjx.Model:
     """The bowling model (these solver settings) on the JAX device, in MJX implementation impl."""
     return _put_model(solver, check_impl(impl))
@@ -87,7 +93,7 @@ def _put_model(solver: SolverSettings, impl: str) -> mjx.Model:
     if impl == "warp":
         wp = _mjx_warp.warp
         wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-    mx = mjx.put_model(load_model(solver), impl=impl)
+    mx = mjx.put_model(_engine_model(solver), impl=impl)
     if impl == "warp":
         flags = _mjx_warp.mjwp_types.OverflowType
         opt = mx.opt._impl.replace(
@@ -102,7 +108,7 @@ def blank_data(batch: int, solver: SolverSettings = DEFAULT_SOLVER, impl: str = 
     if impl == "jax":
         mx = mjx_model(solver, "jax")
         return jax.vmap(lambda _: mjx.make_data(mx))(jnp.arange(batch))
-    m = load_model(solver)
+    m = _engine_model(solver)
 
     def one(_):
         # naconmax counts the contacts of all worlds together; njmax is per world.

@@ -70,7 +70,10 @@ class SolverSettings:
     """The constraint solver a loaded model runs with, in both backends (B7); validated.
 
     The defaults are the MJCF file's: Newton, 4 iterations, 8 line-search iterations,
-    the accurate setting. CG with enough iterations is faster under MJX on GPUs at the
+    the accurate setting. ``sleep`` (the C engine's default) lets MuJoCo put bodies at rest to
+    sleep, so standing pins cost nothing until something touches them, and ends a throw as soon
+    as nothing can move a pin any more (``backend_c.settled``): 2-3x faster at the same accuracy
+    (BENCHMARKS.md, *Bowling on the CPU*); ``sleep=False`` is the engine before it, step for step. CG with enough iterations is faster under MJX on GPUs at the
     same accuracy; fewer iterations or a lower contact cap trade accuracy for speed
     (measured in BENCHMARKS.md with scripts/bench_bowling.py --accuracy).
     """
@@ -80,11 +83,14 @@ class SolverSettings:
     ls_iterations: int = 8
     contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
     pair_cap: int = 0  # MJX only: closest geom pairs tested per collision group (max_geom_pairs; 0 = all)
+    sleep: bool = True  # C engine only: bodies at rest sleep (MuJoCo's island sleeping), and a throw ends early
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""
         if self.method not in SOLVERS:
             raise UsageError(f"unknown solver {self.method!r}: use one of {', '.join(SOLVERS)}")
+        if not isinstance(self.sleep, bool):
+            raise UsageError(f"sleep={self.sleep!r}: need True or False")
         for name, low in (("iterations", 1), ("ls_iterations", 1), ("contact_cap", 1), ("pair_cap", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= 1000:
@@ -287,11 +293,14 @@ def judge_throw(pins: PinState, rest_qpos: jax.Array, cfg: BowlingConfig) -> Thr
     knocked = jnp.sum(pins.standing & down).astype(jnp.int32)
     park = jnp.asarray(park_qpos(), pins.qpos.dtype)
     qpos_after = jnp.where(standing[:, None], rest_qpos.astype(pins.qpos.dtype), park)
+    # pins removed before the throw are reported at their parking spot, wherever their free fall
+    # took them (it touches nothing; its length depends on when the throw stopped simulating)
+    rest = jnp.where(pins.standing[:, None], rest_qpos.astype(pins.qpos.dtype), park)
     return ThrowResult(
         pins_after=PinState(qpos=qpos_after, standing=standing),
         knocked=knocked,
         standing=standing,
-        rest_qpos=rest_qpos.astype(pins.qpos.dtype),
+        rest_qpos=rest,
     )
 
 
