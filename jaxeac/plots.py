@@ -305,6 +305,45 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
     plt.close(fig)
 
 
+def path_ratio_figure(curves: dict[str, dict], path: Path, *, window: tuple[int, int] | None = None):
+    """Fig. 2's "more optimized" paths over trials: per algorithm, the mean path ratio of the trials
+    that succeeded (chances used over the shortest path from the trial's start; 1 = shortest) and
+    the share of them on a shortest path, each with a pointwise 95 % CI.
+
+    curves[algo] = {"ratio": {"mean", "lo", "hi"}, "optimal": {...}, "n": seeds}, one value per
+    trial (`jaxeac.experiments.reproduce.measures.trial_means`); `window` (first, last trial,
+    1-based) is shaded: the trials a comparison uses.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    panels = (("ratio", "steps / shortest path (successful trials)"),
+              ("optimal", "share of successful trials on a shortest path"))
+    for ax, (name, ylabel) in zip(axes, panels, strict=True):
+        for algo, c in curves.items():
+            mean, lo, hi = (np.asarray(c[name][k], float) for k in ("mean", "lo", "hi"))
+            trials = np.arange(1, mean.size + 1)
+            color = COLORS.get(algo)
+            ax.plot(trials, mean, color=color, lw=1.5,
+                    label=f"{LABELS.get(algo, algo)}: mean of {c['n']} seeds")
+            ax.fill_between(trials, lo, hi, color=color, alpha=0.25, lw=0)
+        if window is not None:
+            ax.axvspan(window[0] - 0.5, window[1] + 0.5, color="0.5", alpha=0.12, lw=0,
+                       label=f"trials {window[0]}-{window[1]} (compared)")
+        ax.set_xlabel("trial")
+        ax.set_ylabel(ylabel, fontsize=9)
+        ax.grid(alpha=0.3)
+    top = max((np.nanmax(np.asarray(c["ratio"]["mean"], float)) for c in curves.values()), default=2.0)
+    axes[0].set_ylim(0.9, 1.1 * top + 0.1)  # ratios are ≥ 1; bands of trials few seeds succeeded in are cut
+    axes[1].set_ylim(0, 1)
+    axes[0].axhline(1, color="0.5", lw=0.8)
+    axes[0].set_title("path length relative to the shortest (1 = shortest; band: pointwise 95% CI)",
+                      fontsize=8)
+    axes[1].set_title("shortest paths among successful trials (band: pointwise 95% CI)", fontsize=8)
+    axes[1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
 def forest_figure(rows: list[dict], path: Path, *, title: str, xlabel: str):
     """Differences with 95 % CIs, one row per comparison: rows = [{"label", "diff", "ci": (lo, hi)}]."""
     fig, ax = plt.subplots(figsize=(6.4, 0.42 * len(rows) + 1.4))

@@ -1,4 +1,5 @@
-"""`jaxeac reproduce` end to end at a tiny size: report, verdicts, numbers from the step JSONs, resume."""
+"""`jaxeac reproduce` end to end at a tiny size: report, verdicts, numbers from the step JSONs, resume;
+and the per-seed measures of the claims by hand on tiny made-up inputs."""
 
 from __future__ import annotations
 
@@ -8,13 +9,18 @@ import re
 import numpy as np
 import pytest
 
-from jaxeac.envs.grid import parse_map
+from jaxeac import paper
+from jaxeac.envs.grid import parse_map, shortest_steps
 from jaxeac.errors import UsageError
 from jaxeac.experiments.reproduce import (
     QUICK,
     Sizes,
+    chance_split,
     greedy_reach,
     paper_position,
+    path_ratios,
+    path_window,
+    rate_change,
     reproduce,
 )
 from jaxeac.experiments.reproduce import supported as _supported
@@ -24,7 +30,7 @@ TINY = Sizes(grid_seeds=24, bowling_seeds=4, calibration_seeds=8,
              ablation_bowling_seeds=4, ablation_algos=("ac", "eac", "eac_success_only"),
              temperatures=(0.5, 1.0), noise_scales=(0.0, 1.0), resamples=200, band_resamples=200)
 VERDICTS = ("holds", "partly holds", "does not hold")
-CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "BOWL-1", "BOWL-2", "BOWL-3")
+CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "GRID-4", "GRID-5", "BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4")
 
 
 @pytest.fixture(scope="module")
@@ -135,6 +141,92 @@ def test_verdicts_follow_the_rules(run):
     assert supported and c["GRID-3"]["verdict"] == "holds"
 
 
+def test_new_claims_state_their_rule_before_the_result(run):
+    out, report = run
+    text = report.read_text()
+    rec = json.loads((out / "reproduce.json").read_text())
+    c = {x["id"]: x for x in rec["claims"]}
+    for cid in ("GRID-4", "GRID-5", "BOWL-4"):
+        sec = section(text, f"### {cid} ")
+        assert sec.index(f"*Rule, fixed before the run.* {c[cid]['rule']}") < sec.index("| ") < sec.index(
+            "**Verdict:")
+
+    sp, g4 = rec["grid"]["speedup"], section(text, "### GRID-4 ")
+    assert sp["windows"] == [[141, 160], [161, 180], [181, 200]]
+    for a in ("ac", "eac"):
+        rise, bend = sp[a]["rise"], sp[a]["bend"]
+        rates = " | ".join(f"{sp[a]['rates'][w]['mean']:.3f}" for w in ("earlier", "before", "after"))
+        assert (f"| {a.upper()} | {rates} | {rise['mean']:+.3f} [{rise['ci95'][0]:+.3f}, "
+                f"{rise['ci95'][1]:+.3f}]") in g4
+        assert f"{bend['mean']:+.3f} [{bend['ci95'][0]:+.3f}, {bend['ci95'][1]:+.3f}]" in g4
+        assert rise["n"] == TINY.grid_seeds
+    pa, g5 = rec["grid"]["paths"], section(text, "### GRID-5 ")
+    assert pa["window"] == [181, 200] and "](grid/fig2_path_ratio.png)" in g5
+    for name in ("ratio", "optimal"):
+        for cell in row_cells(pa[f"contrast_{name}"], 3):
+            assert cell in g5, cell
+    split, b4 = rec["bowling"]["chance_split"], section(text, "### BOWL-4 ")
+    for cell in row_cells(split["contrast"], 3):
+        assert cell in b4, cell
+    assert "| AC |" in b4 and "40 + 27 (0.403)" in b4 and "40 + 41 (0.506)" in b4
+    assert f"{split['paper_position']['eac']['percentile']:.1f} | {TINY.bowling_seeds} |" in b4
+
+    # the per-seed measures behind the numbers, recomputed from the run folders
+    from jaxeac.experiments.results import load_grid_results
+
+    success = {a: r.success for a, r in load_grid_results(out / "grid", ("ac", "eac"), 200).items()}
+    rise = rate_change(success["ac"], 180, 20)["rise"]
+    assert sp["ac"]["rise"]["mean"] == pytest.approx(rise.mean())
+    assert sp["ac"]["rates"]["after"]["mean"] == pytest.approx(success["ac"][:, 180:].mean())
+    with np.load(out / "bowling" / "bowling.npz") as npz:
+        share = chance_split(npz["eac_knocked"])["share_chance2"]
+    assert split["eac"]["share_chance2"]["mean"] == pytest.approx(np.nanmean(share))
+
+
+def test_new_verdicts_follow_their_rules(run):
+    out, _ = run
+    rec = json.loads((out / "reproduce.json").read_text())
+    c = {x["id"]: x for x in rec["claims"]}
+
+    def up(s):  # a one-sample summary supports "above 0"
+        return s["ci95"][0] > 0 and s["p_ttest_vs_0"] <= 0.05
+
+    def direction(s):
+        if not s["p_welch"] <= 0.05:
+            return 0
+        return 1 if s["diff_ci95"][0] > 0 else -1 if s["diff_ci95"][1] < 0 else 0
+
+    ac = rec["grid"]["speedup"]["ac"]
+    assert c["GRID-4"]["verdict"] == ("holds" if up(ac["rise"]) and up(ac["bend"]) else
+                                      "partly holds" if up(ac["rise"]) else "does not hold")
+    pa = rec["grid"]["paths"]
+    n = (direction(pa["contrast_ratio"]) < 0) + (direction(pa["contrast_optimal"]) > 0)
+    assert c["GRID-5"]["verdict"] == ("holds", "partly holds", "does not hold")[2 - n]
+    split = rec["bowling"]["chance_split"]
+    within = all(split["paper_position"][a]["within_5_95"] for a in ("ac", "eac"))
+    d = direction(split["contrast"])
+    assert c["BOWL-4"]["verdict"] == ("holds" if d > 0 and within else "partly holds" if d > 0 else
+                                      "does not hold")
+
+
+def test_start_cells_of_the_run_fit_its_paths(run):
+    """Every successful trial of the recorded run took at least the fewest moves from the start cell
+    `start_states` gives it; start cells of another root key break this, so the check has teeth."""
+    from jaxeac.experiments.grid import GridSettings
+    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.running.batch import start_states
+
+    out, _ = run
+    settings = GridSettings(preset="paper", seeds=TINY.grid_seeds, key=3).resolved()
+    env, shortest = settings.make_env(), shortest_steps(settings.grid_map())
+    for r in load_grid_results(out / "grid", ("ac", "eac"), settings.trials).values():
+        starts = start_states(env, 3, r.seeds, settings.trials)
+        ratios = path_ratios(r.success, r.trial_steps, starts, shortest)
+        assert np.nanmin(ratios) == 1.0
+        wrong = shortest[start_states(env, 4, r.seeds, settings.trials)]
+        assert (r.trial_steps[r.success] < wrong[r.success]).any()
+
+
 def test_rerun_resumes_and_other_settings_are_refused(run):
     out, _ = run
     before = json.loads((out / "reproduce.json").read_text())
@@ -145,6 +237,95 @@ def test_rerun_resumes_and_other_settings_are_refused(run):
     assert after["grid"] == before["grid"]
     with pytest.raises(UsageError, match="other settings"):
         reproduce(out, key=4, progress=False, sizes=TINY)
+
+
+def test_step_of_an_older_record_runs_again(run):
+    """A grid step finished before its record had GRID-4 and GRID-5 (a fingerprint with no record
+    version) is recomputed on resume, from its run folder; the other steps are reused."""
+    out, _ = run
+    before = json.loads((out / "reproduce.json").read_text())
+    marker = out / "grid" / "reproduce.json"
+    m = json.loads(marker.read_text())
+    del m["fingerprint"]["record"]
+    for field in ("speedup", "paths"):
+        del m["result"][field]
+    marker.write_text(json.dumps(m))
+    reproduce(out, key=3, progress=False, sizes=TINY)
+    after = json.loads((out / "reproduce.json").read_text())
+    assert {s: t["resumed"] for s, t in after["timings"].items()} == {
+        "grid": False, "bowling": True, "calibration": True, "ablations": True}
+    assert after["grid"] == before["grid"]
+    assert [c["verdict"] for c in after["claims"]] == [c["verdict"] for c in before["claims"]]
+
+
+def test_rate_change_by_hand():
+    success = np.array([[0, 1, 0, 0, 1, 1],
+                        [1, 1, 1, 1, 0, 0]], bool)
+    m = rate_change(success, at=4, width=2)  # windows: trials 1-2, 3-4, 5-6
+    np.testing.assert_allclose(m["earlier"], [0.5, 1.0])
+    np.testing.assert_allclose(m["before"], [0.0, 1.0])
+    np.testing.assert_allclose(m["after"], [1.0, 0.0])
+    np.testing.assert_allclose(m["rise"], [1.0, -1.0])
+    np.testing.assert_allclose(m["bend"], [1.5, -1.0])  # (1 − 0) − (0 − 0.5); (0 − 1) − (1 − 1)
+    m = rate_change(success, at=4, width=1)  # windows: trials 3, 4, 5
+    np.testing.assert_allclose([m["rise"], m["bend"]], [[1.0, -1.0], [1.0, -1.0]])
+    with pytest.raises(ValueError):
+        rate_change(success, at=3, width=2)  # no room for the earlier window
+
+
+def test_shortest_steps_and_path_ratios_by_hand():
+    grid = parse_map("...\n.#G\n...\n")  # goal (2, 1), obstacle (1, 1)
+    shortest = shortest_steps(grid)
+    np.testing.assert_array_equal(shortest, [3, 2, 1, 4, -1, 0, 3, 2, 1])  # (0, 1) goes round: 4 moves
+    walled = parse_map("G#.\n.#.\n")  # the right column cannot reach the goal
+    np.testing.assert_array_equal(shortest_steps(walled), [0, -1, -1, 1, -1, -1])
+
+    success = np.array([[True, True, False, True]])
+    steps = np.array([[4, 5, 40, 1]])
+    starts = np.array([[3, 0, 2, 8]])  # shortest 4, 3, 1, 1
+    ratios = path_ratios(success, steps, starts, shortest)
+    np.testing.assert_allclose(ratios, [[1.0, 5 / 3, np.nan, 1.0]])
+    w = path_window(ratios, slice(0, 4))
+    np.testing.assert_allclose([w["ratio"][0], w["optimal"][0]], [(1 + 5 / 3 + 1) / 3, 2 / 3])
+    w = path_window(ratios, slice(1, 3))
+    np.testing.assert_allclose([w["ratio"][0], w["optimal"][0]], [5 / 3, 0.0])
+    assert np.isnan(path_window(ratios, slice(2, 3))["ratio"][0])  # no success there
+    with pytest.raises(ValueError):  # a success from a cell that cannot reach the goal
+        path_ratios(success, steps, np.array([[4, 0, 2, 8]]), shortest)
+
+
+def test_chance_split_by_hand():
+    knocked = np.array([[[3, 5], [10, 0]],  # a strike in trial 2: its pins are chance 1's
+                        [[0, 0], [0, 0]]])
+    s = chance_split(knocked)
+    np.testing.assert_array_equal(s["chance1"], [13, 0])
+    np.testing.assert_array_equal(s["chance2"], [5, 0])
+    assert s["share_chance2"][0] == pytest.approx(5 / 18) and np.isnan(s["share_chance2"][1])
+    # Table I: EAC 40 + 41 = 81 pins, AC 40 + 27 = 67
+    for algo, (c1, c2) in (("eac", (40, 41)), ("ac", (40, 27))):
+        s = chance_split(np.asarray(paper.TABLE_ONE[algo])[None])
+        assert (s["chance1"][0], s["chance2"][0]) == (c1, c2)
+        assert s["share_chance2"][0] == pytest.approx(c2 / (c1 + c2))
+
+
+def test_start_states_are_the_runs():
+    """`start_states` gives the start cell each trial of the `trials` loop starts in (G3, R1)."""
+    import jax
+
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.envs.grid import GridWorld
+    from jaxeac.rng import seed_key
+    from jaxeac.running.batch import start_states
+    from jaxeac.running.config import RunConfig
+    from jaxeac.running.loops import trace_run
+
+    env = GridWorld(parse_map("....\n.#G.\n....\n"), 6)
+    cfg = RunConfig(trials=8, agent=algorithm("eac"), alpha=0.1, beta=0.3, gamma=0.9, temperature=1.0)
+    starts = start_states(env, 11, [0, 5], cfg.trials)
+    for row, seed in enumerate((0, 5)):
+        _, records = trace_run(env, cfg, seed_key(jax.random.key(11), seed), cfg.hyper())
+        np.testing.assert_array_equal(starts[row], np.asarray(records.states)[:, 0])
+    assert len(set(starts.ravel().tolist())) > 1
 
 
 def test_supported_needs_ci_and_p():

@@ -267,6 +267,24 @@ def shaped_reward(distance, bumped, goal_known) -> jax.Array:
     return jnp.where(bumped, -1.0, jnp.where(goal_known, 1.0 / (1.0 + distance), 0.0))
 
 
+def shortest_steps(grid_map: GridMap) -> np.ndarray:
+    """int64 [S]: the fewest moves (G2, G4) from each cell to the goal, by breadth-first search
+    backwards from the goal over `transition_tables`; 0 at the goal, −1 on obstacles and on cells
+    from which the goal cannot be reached. Not E5's ‖s − g‖₂, which ignores obstacles."""
+    nxt = transition_tables(grid_map)[0]
+    free = ~grid_map.obstacles.reshape(-1)
+    dist = np.full(grid_map.n_cells, -1, np.int64)
+    dist[grid_map.goal_index] = 0
+    level = np.zeros(grid_map.n_cells, bool)
+    level[grid_map.goal_index] = True
+    for d in range(1, grid_map.n_cells):
+        level = free & (dist < 0) & level[nxt].any(axis=1)  # one move enters the previous level
+        if not level.any():
+            break
+        dist[level] = d
+    return dist
+
+
 def transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tabulate G4 for every (cell, action): next cell, reward, bumped."""
     h, w = grid_map.height, grid_map.width

@@ -58,6 +58,17 @@ def make_batch_run(env: Env, cfg: RunConfig, mesh: Mesh | None = None) -> Callab
     return jax.jit(batch)
 
 
+def start_states(env: Env, root_key: int, seeds, trials: int) -> np.ndarray:
+    """int32 [N, T]: the state each trial of seeds `seeds` of a run with root key `root_key` starts in
+    (G3), drawn as the run loops draw it (`env.start` from the seed's words, R1). Runs do not record
+    their start states; this recovers them, the same for every algorithm."""
+    words = jax.vmap(lambda s: seed_words(seed_key(jax.random.key(root_key), s)))(
+        np.asarray(seeds, np.int32))
+    per_trial = jax.vmap(lambda w, t: env.observation(env.start(w, t)), in_axes=(None, 0))
+    starts = jax.jit(jax.vmap(per_trial, in_axes=(0, None)))(words, np.arange(trials, dtype=np.int32))
+    return np.asarray(starts, np.int32)
+
+
 def chunks(n_seeds: int, chunk_size: int) -> Iterator[np.ndarray]:
     """Seed indices 0..N−1 in chunks of `chunk_size` (the last one may be short)."""
     for start in range(0, n_seeds, chunk_size):

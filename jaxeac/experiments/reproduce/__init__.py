@@ -9,7 +9,7 @@ verdict decided by fixed rules (`VERDICT_RULES`).
 
 - `runs`: the four steps, their folders and markers, and `reproduce`, which runs them;
 - `measures`: the per-seed measures the steps compute;
-- `claims`: the paper's claims (GRID-1…3, BOWL-1…3) and the verdict rules;
+- `claims`: the paper's claims (GRID-1…5, BOWL-1…4) and the verdict rules;
 - `report`: report.md's prose, and `export_document` for docs/REPLICATION.md.
 
 All statistics come from `jaxeac.stats` (BCa intervals, Welch and permutation tests,
@@ -17,13 +17,24 @@ Hedges' g, A12, Holm, sup-t curve bands); nothing here re-derives them.
 """
 
 from jaxeac.experiments.reproduce.claims import ALPHA, VERDICT_RULES, judge_claims, supported
-from jaxeac.experiments.reproduce.measures import contrast, greedy_reach, mean_ci, paper_position, sub_key
+from jaxeac.experiments.reproduce.measures import (
+    chance_split,
+    contrast,
+    greedy_reach,
+    mean_ci,
+    paper_position,
+    path_ratios,
+    path_window,
+    rate_change,
+    sub_key,
+)
 from jaxeac.experiments.reproduce.report import export_document, render_report
 from jaxeac.experiments.reproduce.runs import (
     ANGLE_LATE_FROM,
     CALIBRATION_SETS,
     CALIBRATION_TOLERANCE,
     FULL,
+    LATE_TRIALS,
     QUICK,
     STEPS,
     Sizes,
@@ -35,8 +46,8 @@ from jaxeac.experiments.reproduce.runs import (
 )
 
 __all__ = [
-    "ALPHA", "ANGLE_LATE_FROM", "CALIBRATION_SETS", "CALIBRATION_TOLERANCE", "FULL", "QUICK", "STEPS",
-    "VERDICT_RULES", "Sizes", "contrast", "export_document", "greedy_reach", "judge_claims", "mean_ci",
-    "paper_position", "render_report", "reproduce", "step_ablations", "step_bowling", "step_calibration",
-    "step_grid", "sub_key", "supported",
+    "ALPHA", "ANGLE_LATE_FROM", "CALIBRATION_SETS", "CALIBRATION_TOLERANCE", "FULL", "LATE_TRIALS", "QUICK",
+    "STEPS", "VERDICT_RULES", "Sizes", "chance_split", "contrast", "export_document", "greedy_reach",
+    "judge_claims", "mean_ci", "paper_position", "path_ratios", "path_window", "rate_change", "render_report",
+    "reproduce", "step_ablations", "step_bowling", "step_calibration", "step_grid", "sub_key", "supported",
 ]

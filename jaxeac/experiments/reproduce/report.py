@@ -27,6 +27,13 @@ def _effect_row(label: str, s: dict, nd: int = 2, unit: str = "") -> str:
             f"{p_value(s['p_welch'])} | {p_value(s['p_permutation'])} |")
 
 
+def _share(s: dict, side: str = "") -> str:
+    """"45.5 %<side> [42.4, 48.6]": a `measures.one_sample` share of seeds on the claimed side, Wilson CI."""
+    lo, hi = s["share_claimed_side_ci95"]
+    return (f"{number(100 * s['share_claimed_side'], 1)} %{side} "
+            f"[{number(100 * lo, 1)}, {number(100 * hi, 1)}]")
+
+
 EFFECT_HEADER = ("| comparison | N (AC / EAC) | AC | EAC | EAC − AC [95 % CI] | Hedges' g [95 % CI] | "
                  "A12 [95 % CI] | p Welch | p permutation |\n|---|---|---|---|---|---|---|---|---|")
 
@@ -107,6 +114,7 @@ def render_report(rec: dict, out: Path) -> str:
           "Fig. 2 redrawn for seed 0 of each method: the final greedy action per cell (memory action where "
           "there is one, else the highest preference; SPEC G7) and the greedy path from the first free "
           "cell.", ""]
+    L += _speedup_section(cl["GRID-4"], g["speedup"]) + _paths_section(cl["GRID-5"], g["paths"], g["trials"])
 
     # ---- bowling
     bp = cl["BOWL-1"]["stats"]
@@ -136,10 +144,7 @@ def render_report(rec: dict, out: Path) -> str:
             s = ang[a][name]
             L.append(f"| {a.upper()} | {ch} | {number(s['mean'], 4, sign=True)} "
                      f"{interval(s['ci95'], 4, sign=True)} | "
-                     f"{p_value(s['p_ttest_vs_0'])} | {number(100 * s['share_claimed_side'], 1)} % θ {side} "
-                     f"[{number(100 * s['share_claimed_side_ci95'][0], 1)}, "
-                     f"{number(100 * s['share_claimed_side_ci95'][1], 1)}] "
-                     f"| {s['n']} |")
+                     f"{p_value(s['p_ttest_vs_0'])} | {_share(s, f' θ {side}')} | {s['n']} |")
     L += ["", EFFECT_HEADER, _effect_row(f"mean chance-1 angle, trials {lo_t}–{hi_t} (rad)",
                                           ang["contrast_theta1"], 4),
           _effect_row(f"mean chance-2 angle, trials {lo_t}–{hi_t} (rad)", ang["contrast_theta2"], 4), "",
@@ -149,6 +154,7 @@ def render_report(rec: dict, out: Path) -> str:
           _effect_row(f"sd of the chance-1 angle over trials {lo_t}–{hi_t} (rad; lower = more settled)",
                       cl["BOWL-3"]["stats"], 4), "",
           f"**Verdict: {cl['BOWL-3']['verdict']}** — {cl['BOWL-3']['why']}.", ""]
+    L += _split_section(cl["BOWL-4"], b["chance_split"], b["trials"])
 
     # ---- calibration
     cc, cj, near = cal["closest"], cal["joint"], cal["near"]
@@ -230,6 +236,74 @@ def render_report(rec: dict, out: Path) -> str:
     return "\n".join(L)
 
 
+def _speedup_section(claim: dict, sp: dict) -> list[str]:
+    """GRID-4: its rule, each method's success rate in the three windows, rise and bend, the verdict."""
+    (e0, e1), (b0, b1), (a0, a1) = sp["windows"]
+    lines = [f"### GRID-4 — AC speeds up after trial ~{paper.GRID_AC_SPEEDUP_TRIAL} (Fig. 3)", "",
+             f"*Rule, fixed before the run.* {claim['rule']}", "",
+             f"| method | rate {e0}–{e1} | rate {b0}–{b1} | rate {a0}–{a1} | rise [95 % CI] | p (t vs 0) "
+             "| seeds with a rise > 0 [95 % CI] | bend [95 % CI] | p (t vs 0) | N |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for a in ("ac", "eac"):
+        s = sp[a]
+        rise, bend = s["rise"], s["bend"]
+        lines.append(f"| {a.upper()} | "
+                     + " | ".join(number(s["rates"][w]["mean"], 3) for w in ("earlier", "before", "after"))
+                     + f" | {number(rise['mean'], 3, sign=True)} {interval(rise['ci95'], 3, sign=True)} | "
+                     f"{p_value(rise['p_ttest_vs_0'])} | {_share(rise)} | "
+                     f"{number(bend['mean'], 3, sign=True)} {interval(bend['ci95'], 3, sign=True)} | "
+                     f"{p_value(bend['p_ttest_vs_0'])} | {rise['n']} |")
+    return lines + ["", "Rates are successes per trial, means over seeds.", "",
+                    f"**Verdict: {claim['verdict']}** — {claim['why']}.", ""]
+
+
+def _paths_section(claim: dict, pa: dict, trials: int) -> list[str]:
+    """GRID-5: its rule, EAC − AC on the path ratio and on the share of shortest paths, the figure."""
+    w0, w1 = pa["window"]
+    ac, eac = pa["ac"]["all_trials"], pa["eac"]["all_trials"]
+    return ["### GRID-5 — EAC's paths are closer to the shortest (Fig. 2)", "",
+            f"*Rule, fixed before the run.* {claim['rule']}", "", EFFECT_HEADER,
+            _effect_row(f"mean path ratio of successful trials {w0}–{w1} (1 = shortest; lower is better)",
+                        pa["contrast_ratio"], 3),
+            _effect_row(f"share of successful trials {w0}–{w1} on a shortest path", pa["contrast_optimal"],
+                        3), "",
+            f"Seeds with no success in trials {w0}–{w1} (left out): AC {pa['ac']['seeds_without_success']}, "
+            f"EAC {pa['eac']['seeds_without_success']}. Over all {trials} trials, successful paths are "
+            f"{number(ac['ratio'], 3)} (AC, {ac['successful_trials']} successful trials) and "
+            f"{number(eac['ratio'], 3)} (EAC, {eac['successful_trials']}) times the shortest on average; "
+            f"{number(100 * ac['optimal'], 1)} % and {number(100 * eac['optimal'], 1)} % of them are "
+            "shortest.", "",
+            f"**Verdict: {claim['verdict']}** — {claim['why']}.", "",
+            "![Fig. 2 as numbers: path length over the shortest, per trial](grid/fig2_path_ratio.png)", "",
+            "Per trial, over the seeds whose trial succeeded: the mean path ratio (left) and the share of "
+            f"shortest paths (right), each with a pointwise 95 % t CI; the shaded trials {w0}–{w1} are "
+            "the ones compared above.", ""]
+
+
+def _split_section(claim: dict, split: dict, trials: int) -> list[str]:
+    """BOWL-4: its rule, EAC − AC on the chance-2 share, and where the paper's Table I runs lie."""
+    lines = ["### BOWL-4 — how the pins split between the two chances (Table I)", "",
+             f"*Rule, fixed before the run.* {claim['rule']}", "", EFFECT_HEADER,
+             _effect_row(f"share of pins knocked with chance 2 (of all pins over {trials} trials)",
+                         claim["stats"], 3), "",
+             "| method | pins with chance 1 [95 % CI] | pins with chance 2 [95 % CI] | share with chance 2 "
+             "[95 % CI] | seeds' 5–95 % share | the paper's run: chance 1 + chance 2 (share) "
+             "| its percentile among our seeds: chance 1, chance 2, share | N |",
+             "|---|---|---|---|---|---|---|---|"]
+    for a in ("ac", "eac"):
+        s, pp, pos = split[a], split[a]["paper"], split["paper_position"][a]
+        sh = s["share_chance2"]
+        lines.append(f"| {a.upper()} | {number(s['chance1']['mean'])} {interval(s['chance1']['ci95'])} | "
+                     f"{number(s['chance2']['mean'])} {interval(s['chance2']['ci95'])} | "
+                     f"{number(sh['mean'], 3)} {interval(sh['ci95'], 3)} | "
+                     f"[{number(sh['q05'], 3)}, {number(sh['q95'], 3)}] | "
+                     f"{pp['chance1']} + {pp['chance2']} ({number(pp['share_chance2'], 3)}) | "
+                     f"{s['paper_chance1_position']['percentile']:.1f}, "
+                     f"{s['paper_chance2_position']['percentile']:.1f}, {pos['percentile']:.1f} "
+                     f"| {sh['n']} |")
+    return lines + ["", f"**Verdict: {claim['verdict']}** — {claim['why']}.", ""]
+
+
 def _headline_claim(title, label, stats, family, values, positions, paper_diff, claim) -> list[str]:
     """Report lines of a paper's headline claim (GRID-1, BOWL-1): effect table, Holm p and power, where the
     paper's single runs fall among our seeds, the two differences and the verdict."""
@@ -265,6 +339,23 @@ def headline(c: dict) -> str:
     if c["id"] == "GRID-3":
         return (f"goal reached from {100 * s['mean_treatment']:.1f} % vs {100 * s['mean_baseline']:.1f} % of "
                 f"start cells; g {number(s['hedges_g'], 2)}")
+    if c["id"] == "GRID-4":
+        ac, eac, rise, bend = s["ac"]["rates"], s["eac"]["rates"], s["ac"]["rise"], s["ac"]["bend"]
+        return (f"AC rate {number(ac['before']['mean'], 3)} → {number(ac['after']['mean'], 3)} per trial, "
+                f"rise {number(rise['mean'], 3, sign=True)} {interval(rise['ci95'], 3, sign=True)}, "
+                f"bend {number(bend['mean'], 3, sign=True)} {interval(bend['ci95'], 3, sign=True)}; "
+                f"EAC {number(eac['before']['mean'], 3)} → {number(eac['after']['mean'], 3)}")
+    if c["id"] == "GRID-5":
+        r, o = s["contrast_ratio"], s["contrast_optimal"]
+        w0, w1 = s["window"]
+        return (f"trials {w0}–{w1}: path / shortest EAC {number(r['mean_treatment'], 3)} vs AC "
+                f"{number(r['mean_baseline'], 3)}, EAC − AC {number(r['diff'], 3, sign=True)} "
+                f"{interval(r['diff_ci95'], 3, sign=True)}; shortest paths "
+                f"{100 * o['mean_treatment']:.1f} % vs {100 * o['mean_baseline']:.1f} %")
+    if c["id"] == "BOWL-4":
+        return (f"chance-2 share EAC {number(s['mean_treatment'], 3)}, AC {number(s['mean_baseline'], 3)}; "
+                f"EAC − AC {number(s['diff'], 3, sign=True)} {interval(s['diff_ci95'], 3, sign=True)}, "
+                f"g {number(s['hedges_g'], 2)}")
     if c["id"] == "BOWL-2":
         e1, e2 = s["eac"]["theta1"], s["eac"]["theta2"]
         return (f"EAC θ₁ {number(e1['mean'], 4, sign=True)} {interval(e1['ci95'], 4, sign=True)}, "

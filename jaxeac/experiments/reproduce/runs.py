@@ -11,7 +11,7 @@ exists with the same fingerprint; a rerun with the same settings skips finished 
 
 `reproduce` runs the steps, then hands their records to `claims` and `report`.
 
-Longer than the package's ~400-line aim (about 480 lines): the four steps and `reproduce`,
+Longer than the package's ~400-line aim (about 540 lines): the four steps and `reproduce`,
 which runs and resumes them, share one convention for run folders and step markers
 (`finished_run`, `_marker`, `_fingerprint`); a separate driver module would split it in two.
 """
@@ -37,10 +37,15 @@ from jaxeac.experiments.reproduce.claims import judge_claims
 from jaxeac.experiments.reproduce.measures import (
     angle_measures,
     contrast,
+    finite,
     greedy_reach,
     mean_ci,
     one_sample,
     paper_position,
+    path_ratios,
+    path_summary,
+    speedup_summary,
+    split_summary,
     sub_key,
 )
 from jaxeac.experiments.reproduce.report import (
@@ -62,6 +67,9 @@ from jaxeac.io import (
 CALIBRATION_TOLERANCE = 5.0
 #: Fig. 5: "after about 5 trials" — the late window starts at this (1-based) trial.
 ANGLE_LATE_FROM = paper.ANGLE_SETTLE_TRIALS + 1
+#: GRID-4 and GRID-5: windows of this many trials; with T = 200, the trials after the paper's ~180
+#: (181–200) are the last window, GRID-4 compares it with 161–180 and 141–160.
+LATE_TRIALS = paper.GRID_TRIALS - paper.GRID_AC_SPEEDUP_TRIAL
 STEPS = ("grid", "bowling", "calibration", "ablations")
 
 
@@ -170,16 +178,20 @@ def _npz_arrays(path: Path, names: list[str], algos) -> dict:
 
 # ------------------------------------------------------------------ steps
 def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
-    """Paper preset, AC vs EAC: run folder, `jaxeac compare`, Fig. 3 with a sup-t band, Fig. 2 reach."""
+    """Paper preset, AC vs EAC: run folder, `jaxeac compare`, Fig. 3 with a sup-t band and AC's speed-up
+    (GRID-4), Fig. 2 reach and path lengths (GRID-5)."""
     from jaxeac import plots
     from jaxeac.experiments.grid import GridSettings
+    from jaxeac.experiments.results import load_grid_results
     from jaxeac.stats import compare_run_dir, curve_bands
 
     settings = GridSettings(preset="paper", seeds=sizes.grid_seeds, key=key,
                             chunk_size=sizes.grid_chunk).resolved()
     _grid_run(folder, settings, progress, figures=True, label="grid: AC and EAC")
     stats = compare_run_dir(folder, resamples=sizes.resamples, key=key, progress=progress)
-    success, policies = _grid_data(folder, ("ac", "eac"), settings.trials)
+    loaded = load_grid_results(folder, ("ac", "eac"), settings.trials)
+    success = {a: r.success for a, r in loaded.items()}
+    policies = {a: r.policy for a, r in loaded.items() if r.policy is not None}
     cum = {a: np.cumsum(s, axis=1, dtype=np.float64) for a, s in success.items()}
     band_key = sub_key(key, "grid/fig3_band")
     bands = curve_bands(cum["ac"], cum["eac"], band_key, resamples=sizes.band_resamples)
@@ -190,9 +202,12 @@ def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
                         "n": cum[algo].shape[0]}
     reach = {a: greedy_reach(settings.grid_map(), policies[a], settings.chances) for a in ("ac", "eac")}
     marks = paper.GRID_SUCCESSES if settings.trials == paper.GRID_TRIALS else None
+    paths = path_summary(_path_ratios(folder, settings, loaded), LATE_TRIALS, sub_key(key, "grid/paths"),
+                         sizes.resamples)
     with staged_dir(folder) as stage:
         plots.cumulative_band_figure(curves, stage / "fig3_simultaneous.png", paper=marks,
                                      band_label="sup-t 95% band over all trials")
+        plots.path_ratio_figure(paths.pop("curves"), stage / "fig2_path_ratio.png", window=paths["window"])
     successes = {a: s.sum(axis=1) for a, s in success.items()}
     T = settings.trials
     windows = {name: sl for name, sl in (("first 10%", slice(0, max(1, T // 10))),
@@ -217,11 +232,30 @@ def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
             "contrast": contrast(reach["ac"], reach["eac"], sub_key(key, "grid/reach"),
                                  resamples=sizes.resamples),
         },
+        "speedup": speedup_summary(success, LATE_TRIALS),
+        "paths": paths,
         "stats_primary_diff": stats["primary"]["diff"],
         "figures": {"fig2": "grid/fig2_policies.png", "fig3": "grid/fig3_simultaneous.png",
                     "fig3_pointwise": "grid/fig3_cumulative_successes.png",
-                    "compare_curves": "grid/compare_curves.png"},
+                    "compare_curves": "grid/compare_curves.png", "paths": "grid/fig2_path_ratio.png"},
     }
+
+
+def _path_ratios(folder: Path, settings, loaded: dict) -> dict:
+    """GRID-5's per-trial path ratios [N, T] per method (`path_ratios`), with each trial's start cell
+    recomputed from the seed's stream (`start_states`, G3, R1) and the map's shortest paths."""
+    from jaxeac.envs.grid import shortest_steps
+    from jaxeac.running.batch import start_states
+
+    env, shortest = settings.make_env(), shortest_steps(settings.grid_map())
+    out = {}
+    for a, r in loaded.items():
+        if r.trial_steps is None:
+            raise UsageError(f"{folder} holds no per-trial steps; delete it and run `jaxeac reproduce` again")
+        starts = start_states(env, settings.key, r.seeds, settings.trials)
+        out[a] = path_ratios(r.success, r.trial_steps, starts, shortest)
+    return out
+
 
 def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     """Bowling, AC vs EAC on the C backend: run folder, `jaxeac compare`, Table I, Fig. 5 angle analysis."""
@@ -243,13 +277,13 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
                   "sd_theta1": mean_ci(m[a]["sd_theta1"])}
 
     def both(name):
-        xa, xe = m["ac"][name], m["eac"][name]
-        return xa[np.isfinite(xa)], xe[np.isfinite(xe)]
+        return finite(m["ac"][name]), finite(m["eac"][name])
 
     ang["contrast_theta1"] = contrast(*both("theta1"), sub_key(key, "bowling/theta1"),
                                       resamples=sizes.resamples, higher_is_better=False)
     ang["contrast_theta2"] = contrast(*both("theta2"), sub_key(key, "bowling/theta2"),
                                       resamples=sizes.resamples)
+    knocked = _npz_arrays(folder / "bowling.npz", ["ac_knocked", "eac_knocked"], ("ac", "eac"))
     ang["contrast_sd_theta1"] = contrast(*both("sd_theta1"), sub_key(key, "bowling/sd_theta1"),
                                          resamples=sizes.resamples, higher_is_better=False)
     return {
@@ -258,6 +292,7 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
         "paper_position": {a: paper_position(totals[a], paper.BOWLING_PINS[a]) for a in ("ac", "eac")},
         "paper_diff": paper.BOWLING_PINS["eac"] - paper.BOWLING_PINS["ac"],
         "angles": ang, "angle_window": [late_from, settings.trials],
+        "chance_split": split_summary(knocked, sub_key(key, "bowling/split"), sizes.resamples),
         "stats_primary_diff": stats["primary"]["diff"],
         "figures": {"fig5": "bowling/fig5_angles.png", "compare_curves": "bowling/compare_curves.png"},
         "table1": "bowling/table1.md",
@@ -395,6 +430,11 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
 
 
 # ------------------------------------------------------------------ driver
+#: The version of each step's record (what its function returns). A step finished under an older
+#: version (before GRID-4, GRID-5 and BOWL-4: none) runs again on resume, reusing its run folders.
+RECORDS = {"grid": 2, "bowling": 2, "calibration": 1, "ablations": 1}
+
+
 def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
     relevant = {
         "grid": ("grid_seeds", "resamples", "band_resamples"),
@@ -403,8 +443,13 @@ def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
         "ablations": ("ablation_grid_seeds", "ablation_bowling_seeds", "ablation_algos", "temperatures",
                       "noise_scales", "resamples", "bowling_seeds"),
     }[step]
-    return plain_json({"step": step, "key": key, "jaxeac": __version__,
-                    **{k: getattr(sizes, k) for k in relevant}})
+    return plain_json({"step": step, "record": RECORDS[step], "key": key, "jaxeac": __version__,
+                       **{k: getattr(sizes, k) for k in relevant}})
+
+
+def _settings(fingerprint) -> dict | None:
+    """What a step ran with: its fingerprint less the record version (None if not a fingerprint)."""
+    return {k: v for k, v in fingerprint.items() if k != "record"} if isinstance(fingerprint, dict) else None
 
 
 def _marker(folder: Path) -> dict | None:
@@ -426,8 +471,9 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     """Run every step into subfolders of `out` (skipping finished ones) and write `out/report.md`.
 
     `sizes` overrides the `QUICK` / `FULL` sizes (for tests). Returns the report's path.
-    A step is finished when its ``reproduce.json`` exists with the same fingerprint; a folder
-    holding a step of other settings is refused (`UsageError`) before any compute.
+    A step is finished when its ``reproduce.json`` exists with the same fingerprint; one of the same
+    settings but an older record (`RECORDS`) runs again; a folder holding a step of other settings is
+    refused (`UsageError`) before any compute.
     """
     check_key(key)
     mode = "custom" if sizes is not None else "quick" if quick else "full"
@@ -435,7 +481,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     out = check_writable_dir(out)
     for step in STEPS:
         m = _marker(out / step)
-        if m is not None and m.get("fingerprint") != _fingerprint(step, sizes, key):
+        if m is not None and _settings(m.get("fingerprint")) != _settings(_fingerprint(step, sizes, key)):
             raise UsageError(f"{out / step} holds a reproduce step run with other settings "
                              f"({m.get('fingerprint')}); choose another --out or remove that folder")
     t_start = time.perf_counter()
@@ -449,7 +495,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     for i, step in enumerate(STEPS):
         folder = out / step
         m = _marker(folder)
-        if m is not None:
+        if m is not None and m.get("fingerprint") == _fingerprint(step, sizes, key):
             _say(progress, f"[{i + 1}/{len(STEPS)}] {step}: finished earlier, reusing {folder}")
             records[step] = m["result"]
             timings[step] = {"seconds": m["seconds"], "resumed": True}
