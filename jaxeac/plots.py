@@ -261,8 +261,9 @@ def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict |
 def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, str] = ("preset", "chances"),
                           axes: tuple[str, str] = ("alpha", "beta"),
                           target: float = float(GRID_SUCCESSES["ac"]),
-                          tolerance: float = 5.0):
-    """EAC − AC mean successes over a sweep: one small heatmap per (facet values), axes[0] × axes[1].
+                          tolerance: float = 5.0, unit: str = "successes"):
+    """EAC − AC mean `unit` (successes; bowling: pins) over a sweep: one small heatmap per (facet
+    values), axes[0] × axes[1].
 
     points: one dict per sweep point with the swept keys, `ac` and `eac` mean successes and
     `diff`; values appear in the order of `points` (a sweep's order). Each cell shows EAC − AC
@@ -296,7 +297,7 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
                 ax.set_xlabel(axes[0], fontsize=8)
             if c == 0:
                 ax.set_ylabel(axes[1], fontsize=8)
-    fig.suptitle(f"EAC − AC mean successes (cell text: difference, AC mean)\n"
+    fig.suptitle(f"EAC − AC mean {unit} (cell text: difference, AC mean)\n"
                  f"boxed: AC within ±{tolerance:g} of the paper's {target:g}", fontsize=8)
     fig.tight_layout(rect=(0, 0, 0.9, 0.93))
     if im is not None:

@@ -28,7 +28,9 @@ from jaxeac.experiments.reproduce import supported as _supported
 TINY = Sizes(grid_seeds=24, bowling_seeds=4, calibration_seeds=8,
              calibration_sets=("alpha=0.05,0.1", "beta=0.3,0.9"), ablation_grid_seeds=16,
              ablation_bowling_seeds=4, ablation_algos=("ac", "eac", "eac_success_only"),
-             temperatures=(0.5, 1.0), noise_scales=(0.0, 1.0), resamples=200, band_resamples=200)
+             temperatures=(0.5, 1.0), noise_scales=(0.0, 1.0), resamples=200, band_resamples=200,
+             bowling_calibration_seeds=4, bowling_calibration_grid=(("beta", (0.1, 0.3)), ("theta_max", (0.1, 0.2))),
+             bowling_calibration_lines=(("alpha", (0.2,)),), bowling_ablation_algos=("eac_success_only",))
 VERDICTS = ("holds", "partly holds", "does not hold")
 CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "GRID-4", "GRID-5", "BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4")
 
@@ -253,7 +255,8 @@ def test_step_of_an_older_record_runs_again(run):
     reproduce(out, key=3, progress=False, sizes=TINY)
     after = json.loads((out / "reproduce.json").read_text())
     assert {s: t["resumed"] for s, t in after["timings"].items()} == {
-        "grid": False, "bowling": True, "calibration": True, "ablations": True}
+        "grid": False, "bowling": True, "calibration": True, "bowling_calibration": True,
+        "ablations": True}
     assert after["grid"] == before["grid"]
     assert [c["verdict"] for c in after["claims"]] == [c["verdict"] for c in before["claims"]]
 
@@ -367,3 +370,50 @@ def test_modes_meet_the_issue_sizes():
     assert 100 <= QUICK.bowling_seeds <= 200
     assert set(FULL.ablation_algos) >= {"ac", "eac", "eac_success_only", "eac_failure_only",
                                         "eac_learn_on_memory", "eac_within_trial"}
+
+
+# ---------------------------------------------------------------- bowling calibration
+def test_failure_rule_counts_by_hand():
+    """E6's condition r̃(c | t) < r̃(c | t − 1) in failed trials t ≥ 2, counted by hand."""
+    from jaxeac.experiments.reproduce.bowling_calibration import failure_rule_counts
+
+    knocked = np.array([[[7, 2], [6, 3], [10, -1], [5, 1]],    # t2 fails: c1 6<7 fires, c2 3<2 no;
+                        [[9, 0], [9, 1], [8, 2], [8, 1]]])     # t3 a strike (succeeds), t4 fails: 5<10
+    success = np.array([[False, False, True, False],            # tested only on c1 (c2 not reached in t3)
+                        [False, False, False, True]])           # seed 2: t2 none fire, t3 8<9 fires,
+    fires, tested = failure_rule_counts(knocked, success)       # c2 2<1 no; t4 succeeds: not tested
+    np.testing.assert_array_equal(fires, [2, 1])
+    np.testing.assert_array_equal(tested, [3, 4])
+
+
+def test_bowling_sweep_points_in_order():
+    """The grid's product first (the heatmap), then each line's values that differ from the default."""
+    from jaxeac.experiments.reproduce.bowling_calibration import sweep_points
+
+    pts = sweep_points((("beta", (0.1, 0.3)), ("theta_max", (0.1, 0.2))), (("alpha", (0.1, 0.2)),))
+    assert pts == [{"beta": 0.1, "theta_max": 0.1}, {"beta": 0.1, "theta_max": 0.2},
+                   {"beta": 0.3, "theta_max": 0.1}, {"beta": 0.3, "theta_max": 0.2}, {"alpha": 0.2}]
+
+
+def test_bowling_calibration_record_and_report(run):
+    """Every point's numbers are the bowling experiment's own at that point (same seeds and key);
+    the calibrated point is the one with AC closest to the paper's 67; the report prints it."""
+    from jaxeac.experiments.bowling import run_bowling
+    from jaxeac.experiments.reproduce.bowling_calibration import point_settings, sweep_points
+
+    out, report = run
+    rec = json.loads((out / "bowling_calibration" / "reproduce.json").read_text())["result"]
+    points = sweep_points(TINY.bowling_calibration_grid, TINY.bowling_calibration_lines)
+    assert len(rec["points"]) == len(points) == 5
+    last = run_bowling(point_settings(points[-1], seeds=4, key=3, chunk=500, algos=("ac", "eac")))
+    for algo in ("ac", "eac"):
+        assert rec["points"][-1][algo] == pytest.approx(last.results[algo].total_return.mean())
+    target = paper.BOWLING_PINS["ac"]
+    best = min(rec["points"], key=lambda r: (abs(r["ac"] - target), r["point"]))
+    assert rec["calibrated"]["point"] == best["point"]
+    assert [v["algo"] for v in rec["ablations"]] == ["eac_success_only"]
+    assert (out / "bowling_calibration" / "heatmap.png").stat().st_size > 0
+    text = section(report.read_text(), "## Bowling calibration")
+    k = rec["calibrated"]["contrast"]
+    assert f"EAC − AC {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}]" in text
+    assert "eac_success_only" in text and "heatmap.png" in text

@@ -12,6 +12,7 @@ import shutil
 from pathlib import Path
 
 from jaxeac import paper
+from jaxeac.experiments.reproduce.bowling_calibration import bowling_calibration_section
 from jaxeac.experiments.reproduce.claims import VERDICT_RULES, supported
 from jaxeac.fmt import interval, number, p_value, size_word
 from jaxeac.io import atomic_write_text
@@ -192,6 +193,8 @@ def render_report(rec: dict, out: Path) -> str:
           "", f"Does {eac} come out? {rec['calibration_answer']}", "",
           "![calibration landscape](calibration/landscape.png)", ""]
 
+    L += bowling_calibration_section(rec["bowling_calibration"])
+
     # ---- ablations
     L += ["## Ablations: which part of EAC does the work?", "",
           f"Grid, paper preset, {abl['grid_seeds']} seeds per variant; each variant minus AC. Holm "
@@ -231,7 +234,7 @@ def render_report(rec: dict, out: Path) -> str:
     L += ["", "- Versions: " + ", ".join(f"{k} {v}" for k, v in rec["versions"].items()) + ".",
           f"- Devices: {', '.join(rec['devices'])}.",
           "- Every number here is in `reproduce.json`, `grid/stats.json`, `bowling/stats.json`, "
-          "`calibration/reproduce.json` and `ablations/reproduce.json`; per-comparison reports are "
+          "`calibration/reproduce.json`, `bowling_calibration/reproduce.json` and `ablations/reproduce.json`; per-comparison reports are "
           "`grid/report.md` and `bowling/report.md`.", ""]
     return "\n".join(L)
 

@@ -6,6 +6,7 @@ exists with the same fingerprint; a rerun with the same settings skips finished 
     grid/         paper preset, AC and EAC (run folder + stats.json + Fig. 2, Fig. 3)
     bowling/      C backend, AC and EAC (run folder + stats.json + Table I, Fig. 5)
     calibration/  `jaxeac sweep` over grid size, chances, α, β (results.csv, landscape.png)
+    bowling_calibration/  bowling over β × θ_max, α, K, noise; ablations at the calibrated point
     ablations/    grid variants and temperatures, bowling noise levels (run folders, figures)
     report.md     the verdicts;  reproduce.json  every number report.md quotes
 
@@ -33,6 +34,12 @@ from jaxeac import __version__, paper
 from jaxeac.algorithm.agent import ALGORITHMS
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_key, finished_run, plain_json, versions
+from jaxeac.experiments.reproduce.bowling_calibration import (
+    BOWLING_ABLATIONS,
+    BOWLING_GRID,
+    BOWLING_LINES,
+    step_bowling_calibration,
+)
 from jaxeac.experiments.reproduce.claims import judge_claims
 from jaxeac.experiments.reproduce.measures import (
     angle_measures,
@@ -70,7 +77,7 @@ ANGLE_LATE_FROM = paper.ANGLE_SETTLE_TRIALS + 1
 #: GRID-4 and GRID-5: windows of this many trials; with T = 200, the trials after the paper's ~180
 #: (181–200) are the last window, GRID-4 compares it with 161–180 and 141–160.
 LATE_TRIALS = paper.GRID_TRIALS - paper.GRID_AC_SPEEDUP_TRIAL
-STEPS = ("grid", "bowling", "calibration", "ablations")
+STEPS = ("grid", "bowling", "calibration", "bowling_calibration", "ablations")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +97,10 @@ class Sizes:
     band_resamples: int = 5_000
     grid_chunk: int = 2048
     bowling_chunk: int = 500
+    bowling_calibration_seeds: int = 200
+    bowling_calibration_grid: tuple = BOWLING_GRID
+    bowling_calibration_lines: tuple = BOWLING_LINES
+    bowling_ablation_algos: tuple[str, ...] = BOWLING_ABLATIONS
 
 
 CALIBRATION_SETS = ("preset=paper9,paper,paper13", "chances=20,40,60", "alpha=0.05,0.1,0.2",
@@ -97,7 +108,9 @@ CALIBRATION_SETS = ("preset=paper9,paper,paper13", "chances=20,40,60", "alpha=0.
 FULL = Sizes(grid_seeds=10_000, bowling_seeds=1_000, calibration_seeds=200, calibration_sets=CALIBRATION_SETS,
              ablation_grid_seeds=10_000, ablation_bowling_seeds=200)
 QUICK = Sizes(grid_seeds=2_000, bowling_seeds=150, calibration_seeds=64, calibration_sets=CALIBRATION_SETS,
-              ablation_grid_seeds=1_000, ablation_bowling_seeds=40, resamples=2_000, band_resamples=1_000)
+              ablation_grid_seeds=1_000, ablation_bowling_seeds=40, resamples=2_000, band_resamples=1_000,
+              bowling_calibration_seeds=24, bowling_calibration_grid=(("beta", (0.03, 0.3)), ("theta_max", (0.1, 0.3))),
+              bowling_calibration_lines=())
 
 
 # ------------------------------------------------------------------ folders
@@ -432,7 +445,7 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
 # ------------------------------------------------------------------ driver
 #: The version of each step's record (what its function returns). A step finished under an older
 #: version (before GRID-4, GRID-5 and BOWL-4: none) runs again on resume, reusing its run folders.
-RECORDS = {"grid": 2, "bowling": 2, "calibration": 1, "ablations": 1}
+RECORDS = {"grid": 2, "bowling": 2, "calibration": 1, "bowling_calibration": 1, "ablations": 1}
 
 
 def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
@@ -440,6 +453,8 @@ def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
         "grid": ("grid_seeds", "resamples", "band_resamples"),
         "bowling": ("bowling_seeds", "resamples"),
         "calibration": ("calibration_seeds", "calibration_sets", "resamples"),
+        "bowling_calibration": ("bowling_calibration_seeds", "bowling_calibration_grid",
+                                "bowling_calibration_lines", "bowling_ablation_algos", "resamples"),
         "ablations": ("ablation_grid_seeds", "ablation_bowling_seeds", "ablation_algos", "temperatures",
                       "noise_scales", "resamples", "bowling_seeds"),
     }[step]
@@ -490,6 +505,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
         "grid": lambda f: step_grid(f, sizes, key, progress),
         "bowling": lambda f: step_bowling(f, sizes, key, progress),
         "calibration": lambda f: step_calibration(f, sizes, key, progress),
+        "bowling_calibration": lambda f: step_bowling_calibration(f, sizes, key, progress, _bar),
         "ablations": lambda f: step_ablations(f, sizes, key, progress, out / "bowling"),
     }
     for i, step in enumerate(STEPS):
