@@ -86,6 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--backend", default="c", metavar="c|mjx|warp",
                    help="physics backend (B7; default c; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
     add_solver_flags(b)
+    b.add_argument("--state", default="mask", metavar="mask|tree",
+                   help="mask: the standing pins (B5, default); tree: chance 2 keyed on the chance-1 angle, "
+                        "the paper's Fig. 5 tree (B5a)")
+    b.add_argument("--success-pins", type=positive_int, default=10, metavar="N",
+                   help="pins a trial must knock to succeed (B5b; default 10, all down)")
     b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO")
     b.add_argument("--alpha", type=finite_float, default=0.1, metavar="A", help="critic step size α")
     b.add_argument("--beta", type=finite_float, default=0.3, metavar="B", help="actor step size β")
@@ -414,7 +419,8 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
-        beta=args.beta, gamma=args.gamma, solver=solver_settings(args),
+        beta=args.beta, gamma=args.gamma, solver=solver_settings(args), state=args.state,
+        success_pins=args.success_pins,
     )
     settings.validate()
     check_bowling_memory_layout(settings)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import jax
@@ -36,8 +37,10 @@ def test_mask_index():
 
 
 def throw_(cfg, agent, state, action, knocked, after, last):
+    """One throw under the paper's rules (B5): the state is the standing mask, all down = success."""
+    cleared = jnp.bool_(after == 0)
     return learn_from_throw(cfg, agent, jnp.int32(state), jnp.int32(action), jnp.bool_(True),
-                            jnp.int32(knocked), jnp.int32(after), last, jnp.bool_(True), HYPER)
+                            jnp.int32(knocked), jnp.int32(after), cleared, cleared, last, jnp.bool_(True), HYPER)
 
 
 @pytest.mark.parametrize("tables", ["split", "rows"])
@@ -181,3 +184,47 @@ def test_mjx_backend_runs_as_one_jit(backend):
     assert (r.returns >= 0).all() and (r.returns <= 10).all()
     assert ((r.action[:, :, 1] == -1) == (r.knocked[:, :, 0] == 10)).all()  # chance 2 only after no strike
     jax.clear_caches()
+
+
+def test_trial_rules_states_by_hand():
+    """B5 / B5a: the mask state is the standing pins; the tree's chance 2 hangs under angle k."""
+    from jaxeac.experiments.bowling import TrialRules
+
+    mask, tree = TrialRules(), TrialRules("tree")
+    assert (mask.n_states(21), mask.first_state) == (1024, FULL_RACK)
+    assert (tree.n_states(21), tree.first_state) == (22, 0)
+    standing = np.zeros(10, bool)
+    standing[[0, 9]] = True
+    assert int(mask.next_state(standing, 7)) == 513
+    assert int(tree.next_state(standing, 7)) == 8
+
+
+@pytest.mark.parametrize(("state", "success_pins"), [("mask", 10), ("tree", 10), ("mask", 7), ("tree", 8)])
+def test_success_follows_the_rules_and_runs_keep_r1(state, success_pins):
+    """B5b: a trial succeeds when it knocks at least `success_pins` pins (10: all down, B5); under
+    either state (B5a) a seed's run does not depend on the chunk it ran in (R1)."""
+    settings = BowlingSettings(seeds=4, trials=4, key=2, state=state, success_pins=success_pins)
+    settings.validate()
+    whole = run_bowling_algo(settings, "eac")
+    np.testing.assert_array_equal(whole.success, whole.returns >= success_pins)
+    split = run_bowling_algo(dataclasses.replace(settings, chunk_size=2), "eac")
+    np.testing.assert_array_equal(whole.action, split.action)
+    np.testing.assert_array_equal(whole.knocked, split.knocked)
+
+
+def test_tree_state_changes_what_eac_learns():
+    """B5a: keying chance 2 on the chance-1 angle is a different agent: same seeds, other actions."""
+    runs = {s: run_bowling_algo(BowlingSettings(seeds=6, trials=6, key=1, state=s), "eac") for s in ("mask", "tree")}
+    np.testing.assert_array_equal(runs["mask"].action[:, 0, 0], runs["tree"].action[:, 0, 0])  # same first throw
+    assert not np.array_equal(runs["mask"].action, runs["tree"].action)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["bowling", "--state", "leaf"], "unknown bowling state"),
+    (["bowling", "--success-pins", "11"], "success pins 11"),
+])
+def test_bad_trial_rules_exit_2(tmp_path, capsys, argv, message):
+    out = tmp_path / "b"
+    assert main([*argv, "--out", str(out), "--seeds", "2"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and not out.exists()

@@ -56,6 +56,46 @@ def mask_index(standing) -> jax.Array:
     return (jnp.asarray(standing).astype(jnp.int32) << jnp.arange(N_PINS)).sum(-1)
 
 
+STATES = ("mask", "tree")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrialRules:
+    """What a state is and when a trial succeeds (B5 and its named variants B5a, B5b).
+
+    ``state="mask"`` (B5): the set of standing pins, 1,024 states. ``state="tree"`` (B5a, the
+    paper's Fig. 5 tree): chance 1 is the root state 0, chance 2 is state 1 + k after angle k at
+    chance 1, so chance-2 angles hang under the chance-1 angle, K + 1 states. ``success_pins``
+    (B5b): a trial succeeds when it knocks at least this many pins (10, the default: all down).
+    """
+
+    state: str = "mask"
+    success_pins: int = N_PINS
+
+    def __post_init__(self) -> None:
+        if self.state not in STATES:
+            raise UsageError(f"unknown bowling state {self.state!r}: use one of {', '.join(STATES)}")
+        if isinstance(self.success_pins, bool) or not isinstance(self.success_pins, int) \
+                or not 1 <= self.success_pins <= N_PINS:
+            raise UsageError(f"success pins {self.success_pins!r}: need an integer in [1, {N_PINS}] "
+                             "(pins a trial must knock to succeed; 10 = all down)")
+
+    def n_states(self, n_angles: int) -> int:
+        return N_MASKS if self.state == "mask" else 1 + n_angles
+
+    @property
+    def first_state(self) -> int:
+        """The state of chance 1: the full rack, or the tree's root."""
+        return FULL_RACK if self.state == "mask" else 0
+
+    def next_state(self, standing, action):
+        """The state after a throw that left `standing` pins, having thrown angle `action`."""
+        return mask_index(standing) if self.state == "mask" else 1 + jnp.asarray(action, jnp.int32)
+
+
+PAPER_RULES = TrialRules()
+
+
 @pytree_dataclass
 class BowlingRecord:
     """Per seed: angle index [T, 2] (−1 = not thrown), pins per chance [T, 2], success [T]."""
@@ -71,15 +111,15 @@ def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active
 
 
 def learn_from_throw(cfg: RunConfig, agent: AgentState, state, action, learns, knocked, next_state,
-                     last_chance, active, hyper: Hyper) -> AgentState:
-    """(2)–(4) with r = pins knocked, E5 r̃ = pins knocked, and E4/E6 when the trial ends
-    (`jaxeac.running.loops.learn_and_record`, then `end_trial`)."""
+                     cleared, success, last_chance, active, hyper: Hyper) -> AgentState:
+    """(2)–(4) with r = pins knocked, E5 r̃ = pins knocked, and E4/E6 when the trial ends (all pins
+    down or its last chance; a success by `TrialRules`) (`jaxeac.running.loops.learn_and_record`,
+    then `end_trial`)."""
     reward = knocked.astype(agent.values.dtype)
-    cleared = next_state == 0
     ends = active & (cleared | last_chance)
     agent = learn_and_record(cfg, agent, state, action, learns & active, reward, next_state, ends, reward,
                              active, hyper)
-    return end_trial(cfg.agent, agent, cleared, ends)
+    return end_trial(cfg.agent, agent, success, ends)
 
 
 def noise_normals(key: jax.Array, trial, chance) -> jax.Array:
@@ -92,24 +132,28 @@ def _learning_steps(cfg: RunConfig):
     """jit(vmap) versions of `choose`, `learn_from_throw` and `noise_normals` over seeds."""
     pick = jax.jit(jax.vmap(functools.partial(choose, cfg), in_axes=(0, 0, 0, None, 0)))
     learn = jax.jit(jax.vmap(functools.partial(learn_from_throw, cfg),
-                             in_axes=(0, 0, 0, 0, 0, 0, None, 0, None)))
+                             in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, 0, None)))
     noise = jax.jit(jax.vmap(noise_normals, in_axes=(0, None, None)))
     return pick, learn, noise
 
 
-def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyper) -> BowlingRecord:
+def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyper,
+                rules: TrialRules = PAPER_RULES) -> BowlingRecord:
     """One chunk of seeds with the C backend: compiled learning, batched C physics in between."""
     cfg = cfg.resolve(None)
     pick, learn, noise = _learning_steps(cfg)
     m = keys.shape[0]
     words = jax.vmap(seed_words)(keys)
-    agents = jax.vmap(lambda _: init_agent(cfg.agent, N_MASKS, phys.n_angles, CHANCES, cfg.trials))(keys)
+    n_states = rules.n_states(phys.n_angles)
+    agents = jax.vmap(lambda _: init_agent(cfg.agent, n_states, phys.n_angles, CHANCES, cfg.trials))(keys)
     grid = angle_grid(phys)
     action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
     knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
     for t in range(cfg.trials):
         pins = initial_pins(m)
-        state = np.full(m, FULL_RACK, np.int32)
+        state = np.full(m, rules.first_state, np.int32)
+        standing = np.full(m, FULL_RACK, np.int32)
+        pins_so_far = np.zeros(m, np.int32)
         active = np.ones(m, bool)
         for c in range(CHANCES):
             chosen = pick(agents, words, jnp.asarray(state), hyper, jnp.asarray(active))
@@ -122,14 +166,18 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
                 sub = jax.tree.map(lambda x, i=idx: np.asarray(x)[i], pins)
                 res = throw(sub, grid[action[idx]], eps[idx], backend="c", cfg=phys)
                 knocked[idx] = res.knocked
-                after[idx] = np.asarray(mask_index(res.standing))
+                standing[idx] = np.asarray(mask_index(res.standing))
+                after[idx] = np.asarray(rules.next_state(res.standing, action[idx]))
                 pins = jax.tree.map(lambda full, part, i=idx: _set_rows(full, i, part), pins, res.pins_after)
                 action_rec[idx, t, c] = action[idx]
                 knocked_rec[idx, t, c] = res.knocked
+            pins_so_far += knocked
+            cleared = standing == 0
             agents = learn(agents, jnp.asarray(state), jnp.asarray(action), jnp.asarray(learns),
-                           jnp.asarray(knocked), jnp.asarray(after), c == CHANCES - 1,
+                           jnp.asarray(knocked), jnp.asarray(after), jnp.asarray(cleared),
+                           jnp.asarray(pins_so_far >= rules.success_pins), c == CHANCES - 1,
                            jnp.asarray(active), hyper)
-            active &= after != 0
+            active &= ~cleared
             state = after
     return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes))
 
@@ -140,7 +188,8 @@ def _set_rows(full, rows, part):
     return out
 
 
-def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Callable:
+def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
+                 rules: TrialRules = PAPER_RULES) -> Callable:
     """The whole chunk with MJX (implementation impl) as one jit-compiled function:
     ``(keys [M], hyper) -> BowlingRecord``."""
     cfg = cfg.resolve(None)
@@ -156,11 +205,13 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Call
     def batch(keys, hyper):
         m = keys.shape[0]
         words = jax.vmap(seed_words)(keys)
-        agents = jax.vmap(lambda _: init_agent(cfg.agent, N_MASKS, phys.n_angles, CHANCES, cfg.trials))(keys)
+        n_states = rules.n_states(phys.n_angles)
+        agents = jax.vmap(lambda _: init_agent(cfg.agent, n_states, phys.n_angles, CHANCES, cfg.trials))(keys)
 
         def trial_step(agents, t):
             pins = jax.tree.map(jnp.asarray, initial_pins(m))
-            state = jnp.full((m,), FULL_RACK, jnp.int32)
+            state = jnp.full((m,), rules.first_state, jnp.int32)
+            pins_so_far = jnp.zeros((m,), jnp.int32)
             active = jnp.ones((m,), bool)
             actions, knocks = [], []
             for c in range(CHANCES):
@@ -168,13 +219,16 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax") -> Call
                                                                                      hyper, active)
                 res = physics(pins, action, keys, t, c)
                 knocked = jnp.where(active, res.knocked, 0)
-                after = jnp.where(active, mask_index(res.standing), state)
-                agents = jax.vmap(learn_from_throw, in_axes=(None, 0, 0, 0, 0, 0, 0, None, 0, None))(
-                    cfg, agents, state, action, learns, knocked, after, c == CHANCES - 1, active, hyper)
+                after = jnp.where(active, rules.next_state(res.standing, action), state)
+                cleared = active & (mask_index(res.standing) == 0)
+                pins_so_far = pins_so_far + knocked
+                agents = jax.vmap(learn_from_throw, in_axes=(None, 0, 0, 0, 0, 0, 0, 0, 0, None, 0, None))(
+                    cfg, agents, state, action, learns, knocked, after, cleared,
+                    pins_so_far >= rules.success_pins, c == CHANCES - 1, active, hyper)
                 actions.append(jnp.where(active, action, -1))
                 knocks.append(knocked)
                 pins = res.pins_after
-                active = active & (after != 0)
+                active = active & ~cleared
                 state = after
             return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1))
 
@@ -204,6 +258,8 @@ class BowlingSettings:
     gamma: float = 1.0
     temperature: float = 1.0
     solver: SolverSettings = DEFAULT_SOLVER  # B7 constraint solver of both physics engines
+    state: str = "mask"  # B5 standing-pin mask; "tree": B5a, chance 2 keyed on the chance-1 angle
+    success_pins: int = N_PINS  # B5b: pins a trial must knock to succeed (10: all down, B5)
 
     def validate(self) -> None:
         from jaxeac.experiments.common import check_algos, check_positive_int, check_rate
@@ -219,6 +275,10 @@ class BowlingSettings:
         check_rate("temperature", self.temperature, positive=True)
         check_algos(self.algos)
         self.physics()  # BowlingConfig validates θ_max and the noise levels
+        self.rules()
+
+    def rules(self) -> TrialRules:
+        return TrialRules(self.state, self.success_pins)
 
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
@@ -299,18 +359,18 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
         padded = np.pad(seeds, (0, chunk - seeds.size), mode="edge")
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root, jnp.asarray(padded))
         if settings.backend in MJX_IMPL:
-            cache = (cfg, phys, settings.backend, chunk)
+            cache = (cfg, phys, settings.backend, chunk, settings.rules())
             if cache not in _MJX_COMPILED:
                 if len(_MJX_COMPILED) >= 16:
                     _MJX_COMPILED.clear()
                 c0 = time.perf_counter()
-                _MJX_COMPILED[cache] = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend]).lower(
+                _MJX_COMPILED[cache] = make_run_mjx(cfg, phys, MJX_IMPL[settings.backend], settings.rules()).lower(
                     keys, hyper).compile()
                 compiled_now = compile_seconds = time.perf_counter() - c0
             run_mjx = _MJX_COMPILED[cache]
             rec = jax.device_get(run_mjx(keys, hyper))
         else:
-            rec = run_chunk_c(cfg, phys, keys, hyper)
+            rec = run_chunk_c(cfg, phys, keys, hyper, settings.rules())
         parts.append(jax.tree.map(lambda x, n=seeds.size: np.asarray(x)[:n], rec))
         if progress is not None:
             progress(seeds.size)
