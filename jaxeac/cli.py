@@ -86,6 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--backend", default="c", metavar="c|mjx|warp",
                    help="physics backend (B7; default c; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
     add_solver_flags(b)
+    b.add_argument("--scene", default="default", metavar="default|table1",
+                   help="ball and pin deck (B1; table1: a smaller ball and wider deck whose first throws "
+                        "are like the paper's Table I, B1a)")
     b.add_argument("--state", default="mask", metavar="mask|tree",
                    help="mask: the standing pins (B5, default); tree: chance 2 keyed on the chance-1 angle, "
                         "the paper's Fig. 5 tree (B5a)")
@@ -109,6 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--backend", default="c", metavar="c|mjx|warp")
     add_solver_flags(t)
     t.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X")
+    t.add_argument("--scene", default="default", metavar="default|table1", help="ball and pin deck (B1, B1a)")
     t.add_argument("--key", type=prng_key, default=0, metavar="K", help="noise PRNG key, 0..2^32-1")
     t.add_argument("--render", metavar="FILE.png", help="save a picture of the pin deck after the throw")
 
@@ -419,7 +423,7 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         seeds=args.seeds, trials=args.trials, angles=args.angles, theta_max=args.theta_max,
         noise_angle=args.noise_angle, noise_speed=args.noise_speed, backend=args.backend,
         algos=tuple(args.algos), key=args.key, chunk_size=args.chunk_size, alpha=args.alpha,
-        beta=args.beta, gamma=args.gamma, solver=solver_settings(args), state=args.state,
+        beta=args.beta, gamma=args.gamma, solver=solver_settings(args), scene=args.scene, state=args.state,
         success_pins=args.success_pins,
     )
     settings.validate()
@@ -464,8 +468,9 @@ def cmd_throw(args: argparse.Namespace) -> int:
     import json
 
     from jaxeac.envs.bowling import BowlingConfig, throw_command
+    from jaxeac.envs.bowling.scene import check_scene
 
-    cfg = BowlingConfig(theta_max=args.theta_max, solver=solver_settings(args))
+    cfg = BowlingConfig(theta_max=args.theta_max, solver=solver_settings(args), scene=check_scene(args.scene))
     render = None if args.render is None else render_path(args.render, len(args.angles))
     targets = [] if render is None else render_targets(render, len(args.angles))
     fresh = [t for t in targets if not t.exists()]

@@ -447,3 +447,45 @@ def test_sleeping_engine_knocks_the_same_pins_as_the_full_engine():
     same = np.mean(np.asarray(fast.knocked) == np.asarray(slow.knocked))
     assert same >= 0.85, same
     assert abs(int(np.sum(fast.knocked)) - int(np.sum(slow.knocked))) <= 6
+
+
+# ---------------------------------------------------------------- scenes (B1, B1a)
+def test_table1_scene_model_has_its_sizes():
+    """B1a: the table1 scene resizes the ball (inertia follows, mass stays) and spreads the pins."""
+    from jaxeac.envs.bowling import SCENES
+    from jaxeac.envs.bowling.backend_c import load_model
+
+    scene = SCENES["table1"]
+    m, d = load_model(scene=scene), load_model()
+    ball = m.body("ball").id
+    assert m.geom("ball").size[0] == pytest.approx(0.06)
+    assert m.body_mass[ball] == pytest.approx(d.body_mass[ball]) == pytest.approx(6.0)
+    assert m.body_inertia[ball][0] == pytest.approx(0.4 * 6.0 * 0.06**2)
+    pos = np.array([m.body(f"pin{i + 1}").pos[:2] for i in range(10)])
+    np.testing.assert_allclose(pos, scene.pin_xy(), atol=1e-9)
+    assert np.linalg.norm(pos[1] - pos[2]) == pytest.approx(0.40)  # pins 2 and 3
+
+
+def test_table1_scene_first_throws_knock_at_most_seven():
+    """B1a: like Table I, no exact first throw at any of the 21 angles knocks more than 7 pins; the
+    default scene knocks 8 or more near the centre."""
+    from jaxeac.envs.bowling import SCENES
+
+    a = angles(CFG)
+    table1 = BowlingConfig(noise_angle=0.0, noise_speed=0.0, scene=SCENES["table1"])
+    res = throw(initial_pins(len(a), table1.scene), a, jnp.zeros((len(a), 2)), backend="c", cfg=table1)
+    assert 4 <= int(np.max(res.knocked)) <= 7
+    default = throw(initial_pins(len(a)), a, jnp.zeros((len(a), 2)), backend="c", cfg=EXACT)
+    assert int(np.max(default.knocked)) >= 8
+
+
+def test_bad_scene_is_refused():
+    """B1a: unknown scene names and impossible sizes are one-line UsageErrors."""
+    from jaxeac.cli import main
+    from jaxeac.envs.bowling import Scene
+
+    with pytest.raises(UsageError, match="ball_radius"):
+        Scene(ball_radius=0.5)
+    with pytest.raises(UsageError, match="pins must not touch"):
+        Scene(pin_spacing=0.1)
+    assert main(["throw", "--angles", "0", "--scene", "wide"]) == 2

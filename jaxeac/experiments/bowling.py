@@ -35,7 +35,7 @@ from jaxeac.algorithm.agent import AgentState, end_trial, init_agent
 from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from jaxeac.envs.bowling import angles as angle_grid
-from jaxeac.envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend
+from jaxeac.envs.bowling.scene import DEFAULT_SOLVER, MJX_IMPL, check_backend, check_scene
 from jaxeac.errors import UsageError
 from jaxeac.paper import BOWLING_PINS
 from jaxeac.pytree import pytree_dataclass
@@ -150,7 +150,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
     action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
     knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
     for t in range(cfg.trials):
-        pins = initial_pins(m)
+        pins = initial_pins(m, phys.scene)
         state = np.full(m, rules.first_state, np.int32)
         standing = np.full(m, FULL_RACK, np.int32)
         pins_so_far = np.zeros(m, np.int32)
@@ -209,7 +209,7 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
         agents = jax.vmap(lambda _: init_agent(cfg.agent, n_states, phys.n_angles, CHANCES, cfg.trials))(keys)
 
         def trial_step(agents, t):
-            pins = jax.tree.map(jnp.asarray, initial_pins(m))
+            pins = jax.tree.map(jnp.asarray, initial_pins(m, phys.scene))
             state = jnp.full((m,), rules.first_state, jnp.int32)
             pins_so_far = jnp.zeros((m,), jnp.int32)
             active = jnp.ones((m,), bool)
@@ -258,6 +258,7 @@ class BowlingSettings:
     gamma: float = 1.0
     temperature: float = 1.0
     solver: SolverSettings = DEFAULT_SOLVER  # B7 constraint solver of both physics engines
+    scene: str = "default"  # B1; "table1": B1a, a deck whose first throws are like Table I's
     state: str = "mask"  # B5 standing-pin mask; "tree": B5a, chance 2 keyed on the chance-1 angle
     success_pins: int = N_PINS  # B5b: pins a trial must knock to succeed (10: all down, B5)
 
@@ -282,7 +283,8 @@ class BowlingSettings:
 
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
-                             noise_angle=self.noise_angle, noise_speed=self.noise_speed, solver=self.solver)
+                             noise_angle=self.noise_angle, noise_speed=self.noise_speed, solver=self.solver,
+                             scene=check_scene(self.scene))
 
     def run_config(self, algo: str) -> RunConfig:
         """The resolved `RunConfig` of `algo` (bowling runs the XLA steps: no grid kernel)."""

@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from .scene import (
-    BALL_RADIUS,
+    DEFAULT_SCENE,
     DEFAULT_SOLVER,
     N_PINS,
     NQ,
@@ -39,6 +39,7 @@ from .scene import (
     XML_PATH,
     BowlingConfig,
     PinState,
+    Scene,
     SolverSettings,
     ThrowResult,
     Trajectory,
@@ -49,14 +50,26 @@ from .scene import (
 SETTLE_CHECK = 10  # steps between two checks of whether a throw has settled
 # A pin in play is a body within this height; removed pins are parked 1000 m up (B4).
 IN_PLAY_Z = 10.0
-# Centre distance beyond which the ball cannot touch a pin, however the pin lies (ball radius
-# plus the pin's half-length and radius), with a margin.
-REACH = BALL_RADIUS + PIN_CENTRE_Z + PIN_RADIUS + 0.05
 
 
-def load_model(solver: SolverSettings = DEFAULT_SOLVER) -> mujoco.MjModel:
-    """The bowling MjModel from the package's MJCF file (B1), with these solver settings."""
-    model = mujoco.MjModel.from_xml_path(str(XML_PATH))
+def reach(scene: Scene) -> float:
+    """Centre distance beyond which the ball cannot touch a pin, however the pin lies (ball radius
+    plus the pin's half-length and radius), with a margin."""
+    return scene.ball_radius + PIN_CENTRE_Z + PIN_RADIUS + 0.05
+
+
+def load_model(solver: SolverSettings = DEFAULT_SOLVER, scene: Scene = DEFAULT_SCENE) -> mujoco.MjModel:
+    """The bowling MjModel from the package's MJCF file (B1), with these solver settings; another
+    scene (B1a) resizes the ball and moves the pins before compiling (masses stay, inertia follows)."""
+    if scene == DEFAULT_SCENE:
+        model = mujoco.MjModel.from_xml_path(str(XML_PATH))
+    else:
+        spec = mujoco.MjSpec.from_file(str(XML_PATH))
+        spec.geom("ball").size[0] = scene.ball_radius
+        spec.body("ball").pos[2] = scene.ball_radius
+        for i, (x, y) in enumerate(scene.pin_xy()):
+            spec.body(f"pin{i + 1}").pos[:2] = (x, y)
+        model = spec.compile()
     model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[
         solver.method]
     model.opt.iterations = solver.iterations
@@ -86,7 +99,7 @@ def floor_park_qpos() -> np.ndarray:
 FLOOR_PARK = floor_park_qpos()
 
 
-def settled(data: mujoco.MjData, in_play: np.ndarray) -> bool:
+def settled(data: mujoco.MjData, in_play: np.ndarray, reach_m: float) -> bool:
     """Whether nothing can move a pin in play (bool (10,)) any more: every pin in play asleep
     (MuJoCo's sleeping; an awake tree's sleep counter is negative) and the ball either asleep
     too or, on its straight roll over the flat floor, out of reach of every pin in play and
@@ -98,16 +111,17 @@ def settled(data: mujoco.MjData, in_play: np.ndarray) -> bool:
         return True
     away = data.qpos[7:NQ].reshape(N_PINS, 7)[in_play, :3] - data.qpos[:3]
     moving_away = away @ data.qvel[:3] < 0.0
-    out_of_reach = np.einsum("ij,ij->i", away, away) > REACH**2
+    out_of_reach = np.einsum("ij,ij->i", away, away) > reach_m**2
     return bool(np.all(moving_away & out_of_reach))
 
 
 class CEngine:
     """A loaded model and nthread worker threads with one MjData each: runs batches of throws."""
 
-    def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER):
+    def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER, scene: Scene = DEFAULT_SCENE):
         """Load the model and start nthread worker threads (0: one per CPU core)."""
-        self.model = load_model(solver)
+        self.model = load_model(solver, scene)
+        self.reach = reach(scene)
         self.sleep = solver.sleep
         self.floor_park = solver.sleep  # removed pins lie asleep on the floor instead of falling
         self.nthread = nthread or os.cpu_count() or 1
@@ -136,7 +150,7 @@ class CEngine:
             block = min(SETTLE_CHECK, n_steps - done)
             mujoco.mj_step(self.model, data, nstep=block)
             done += block
-            if stop and settled(data, in_play):
+            if stop and settled(data, in_play, self.reach):
                 break
         return done
 
@@ -168,9 +182,9 @@ class CEngine:
 
 
 @functools.lru_cache(maxsize=4)
-def engine(nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER) -> CEngine:
-    """A cached CEngine for nthread threads and these solver settings."""
-    return CEngine(nthread, solver)
+def engine(nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER, scene: Scene = DEFAULT_SCENE) -> CEngine:
+    """A cached CEngine for nthread threads, these solver settings and this scene."""
+    return CEngine(nthread, solver, scene)
 
 
 @functools.lru_cache(maxsize=16)
@@ -194,7 +208,7 @@ def throw_c(
 ) -> ThrowResult:
     """Batched throw on the C engine: pins (B,...), angle (B,), eps (B, 2) -> numpy ThrowResult (B7)."""
     qpos, qvel = _prepare_fn(cfg)(pins, jnp.asarray(angle, jnp.float32), eps)
-    eng = engine(cfg.nthread, cfg.solver)
+    eng = engine(cfg.nthread, cfg.solver, cfg.scene)
     stride = cfg.trajectory_stride if record_trajectory else 0
     final, traj = eng.simulate(
         np.asarray(qpos, np.float64), np.asarray(qvel, np.float64), cfg.n_steps, stride

@@ -41,9 +41,11 @@ from jaxeac.errors import UsageError
 
 from .backend_c import load_model
 from .scene import (
+    DEFAULT_SCENE,
     DEFAULT_SOLVER,
     BowlingConfig,
     PinState,
+    Scene,
     SolverSettings,
     ThrowResult,
     Trajectory,
@@ -71,18 +73,18 @@ def check_impl(impl: str) -> str:
     return impl
 
 
-def _engine_model(solver: SolverSettings):
-    """The MjModel MJX runs: the solver settings without the C engine's sleeping (B7)."""
-    return load_model(dataclasses.replace(solver, sleep=False))
+def _engine_model(solver: SolverSettings, scene: Scene):
+    """The MjModel MJX runs: the solver settings without the C engine's sleeping (B7), the scene."""
+    return load_model(dataclasses.replace(solver, sleep=False), scene)
 
 
-def mjx_model(solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax") -> mjx.Model:
-    """The bowling model (these solver settings) on the JAX device, in MJX implementation impl."""
-    return _put_model(solver, check_impl(impl))
+def mjx_model(solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax", scene: Scene = DEFAULT_SCENE) -> mjx.Model:
+    """The bowling model (these solver settings, this scene) on the JAX device, in MJX implementation impl."""
+    return _put_model(solver, check_impl(impl), scene)
 
 
 @functools.lru_cache(maxsize=8)
-def _put_model(solver: SolverSettings, impl: str) -> mjx.Model:
+def _put_model(solver: SolverSettings, impl: str, scene: Scene) -> mjx.Model:
     """One device copy per (solver, impl), however the caller spelt the arguments.
 
     Warp prints a line from the GPU whenever a step uses all its solver or line-search
@@ -93,7 +95,7 @@ def _put_model(solver: SolverSettings, impl: str) -> mjx.Model:
     if impl == "warp":
         wp = _mjx_warp.warp
         wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
-    mx = mjx.put_model(_engine_model(solver), impl=impl)
+    mx = mjx.put_model(_engine_model(solver, scene), impl=impl)
     if impl == "warp":
         flags = _mjx_warp.mjwp_types.OverflowType
         opt = mx.opt._impl.replace(
@@ -102,13 +104,14 @@ def _put_model(solver: SolverSettings, impl: str) -> mjx.Model:
     return mx
 
 
-def blank_data(batch: int, solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax") -> mjx.Data:
+def blank_data(batch: int, solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax",
+               scene: Scene = DEFAULT_SCENE) -> mjx.Data:
     """A blank batch of Data [batch] to start throws from, made inside the caller's trace
     (warp: its contact and constraint arrays sized for the batch)."""
     if impl == "jax":
-        mx = mjx_model(solver, "jax")
+        mx = mjx_model(solver, "jax", scene)
         return jax.vmap(lambda _: mjx.make_data(mx))(jnp.arange(batch))
-    m = _engine_model(solver)
+    m = _engine_model(solver, scene)
 
     def one(_):
         # naconmax counts the contacts of all worlds together; njmax is per world.
@@ -118,10 +121,10 @@ def blank_data(batch: int, solver: SolverSettings = DEFAULT_SOLVER, impl: str = 
 
 
 def simulate_batch(qpos: jax.Array, qvel: jax.Array, n_steps: int, stride: int = 0,
-                   solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax"):
+                   solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax", scene: Scene = DEFAULT_SCENE):
     """Final qpos [B, 77] after n_steps from (qpos, qvel) [B, ...], and qpos every stride steps [B, T, 77]."""
-    mx = mjx_model(solver, impl)
-    d = blank_data(qpos.shape[0], solver, impl)
+    mx = mjx_model(solver, impl, scene)
+    d = blank_data(qpos.shape[0], solver, impl, scene)
     d = d.replace(qpos=qpos.astype(d.qpos.dtype), qvel=qvel.astype(d.qvel.dtype))
     step = jax.vmap(mjx.step, in_axes=(None, 0))
 
@@ -148,7 +151,7 @@ def throw_batch_eps(pins: PinState, angle: jax.Array, eps: jax.Array, cfg: Bowli
     qpos, qvel = jax.vmap(throw_start, in_axes=(0, 0, 0, None))(pins, jnp.asarray(angle, jnp.float32),
                                                                 eps, cfg)
     final, traj = simulate_batch(qpos, qvel, cfg.n_steps, cfg.trajectory_stride if record else 0,
-                                 cfg.solver, impl)
+                                 cfg.solver, impl, cfg.scene)
     res = jax.vmap(judge_throw, in_axes=(0, 0, None))(pins, final[:, 7:].reshape(-1, 10, 7), cfg)
     if traj is None:
         return res
@@ -165,7 +168,7 @@ def throw_batch(pins: PinState, angle: jax.Array, key: jax.Array, cfg: BowlingCo
 
 def make_batch_throw(cfg: BowlingConfig, record_trajectory: bool = False, impl: str = "jax"):
     """Pure jittable throw_fn(pins [B], angle [B], key [B]) -> ThrowResult [B] in MJX implementation impl."""
-    mjx_model(cfg.solver, impl)  # put the model on the device once, before any tracing
+    mjx_model(cfg.solver, impl, cfg.scene)  # put the model on the device once, before any tracing
     return functools.partial(throw_batch, cfg=cfg, record=record_trajectory, impl=impl)
 
 
@@ -178,7 +181,7 @@ def throw_key(pins: PinState, angle: jax.Array, key: jax.Array, cfg: BowlingConf
 
 def make_mjx_throw(cfg: BowlingConfig, record_trajectory: bool = False):
     """Pure jittable throw_fn(pins, angle, key) -> ThrowResult for one throw (vmap it to batch)."""
-    mjx_model(cfg.solver)
+    mjx_model(cfg.solver, "jax", cfg.scene)
     return functools.partial(throw_key, cfg=cfg, record=record_trajectory)
 
 
@@ -191,5 +194,5 @@ def batched_throw(cfg: BowlingConfig, record_trajectory: bool = False, impl: str
 @functools.lru_cache(maxsize=16)
 def batched_throw_eps(cfg: BowlingConfig, record_trajectory: bool = False, impl: str = "jax"):
     """jit(throw_batch_eps) over a leading batch axis of (pins, angle, eps)."""
-    mjx_model(cfg.solver, impl)
+    mjx_model(cfg.solver, impl, cfg.scene)
     return jax.jit(functools.partial(throw_batch_eps, cfg=cfg, record=record_trajectory, impl=impl))

@@ -17,15 +17,7 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 
-from .scene import (
-    BALL_RADIUS,
-    DECK_HALF_WIDTH,
-    DECK_X,
-    PIN_RADIUS,
-    PIN_XY,
-    PinState,
-    ThrowResult,
-)
+from .scene import DEFAULT_SCENE, PIN_RADIUS, PinState, Scene, ThrowResult
 
 METHODS = ("auto", "matplotlib", "mujoco")
 
@@ -62,8 +54,9 @@ def render_deck(
     index: int = 0,
     method: str = "auto",
     title: str | None = None,
+    scene: Scene = DEFAULT_SCENE,
 ) -> str:
-    """Save a picture of the pin deck after a throw to path_png; return the method used."""
+    """Save a picture of the pin deck of `scene` after a throw to path_png; return the method used."""
     if method not in METHODS:
         raise UsageError(f"unknown render method {method!r}: use one of {', '.join(METHODS)}")
     path = Path(path_png)
@@ -74,7 +67,7 @@ def render_deck(
         method == "auto" and os.environ.get("MUJOCO_GL", "").lower() in ("egl", "osmesa")
     ):
         try:
-            _render_mujoco(qpos, standing, ball, path)
+            _render_mujoco(qpos, standing, ball, path, scene)
             return "mujoco"
         except Exception as err:  # no GL context: fall back unless asked for explicitly
             if method == "mujoco":
@@ -82,11 +75,11 @@ def render_deck(
                     f"MuJoCo offscreen rendering failed ({err}): set MUJOCO_GL=egl or use "
                     "method='matplotlib'"
                 ) from err
-    _render_matplotlib(qpos, standing, ball, path, title)
+    _render_matplotlib(qpos, standing, ball, path, title, scene)
     return "matplotlib"
 
 
-def _render_matplotlib(qpos, standing, ball, path: Path, title: str | None) -> None:
+def _render_matplotlib(qpos, standing, ball, path: Path, title: str | None, scene: Scene) -> None:
     """Top-down drawing of lane end, deck, pins and ball path."""
     import matplotlib
 
@@ -95,13 +88,14 @@ def _render_matplotlib(qpos, standing, ball, path: Path, title: str | None) -> N
     from matplotlib.patches import Circle, Rectangle
 
     fig, ax = plt.subplots(figsize=(5, 6.5))
-    x0, x1 = DECK_X[0] - 1.2, DECK_X[1] + 0.6
+    deck_x, half = scene.deck_x, scene.deck_half_width
+    x0, x1 = deck_x[0] - 1.2, deck_x[1] + 0.6
     ax.add_patch(Rectangle((-0.525, x0), 1.05, x1 - x0, color="#d9b27a", zorder=0))
     ax.add_patch(
         Rectangle(
-            (-DECK_HALF_WIDTH, DECK_X[0]),
-            2 * DECK_HALF_WIDTH,
-            DECK_X[1] - DECK_X[0],
+            (-half, deck_x[0]),
+            2 * half,
+            deck_x[1] - deck_x[0],
             fill=False,
             ls="--",
             ec="0.4",
@@ -109,12 +103,12 @@ def _render_matplotlib(qpos, standing, ball, path: Path, title: str | None) -> N
         )
     )
     # The plot's horizontal axis is -y so the thrower's left is on the left of the picture.
-    for (x, y) in PIN_XY:
+    for (x, y) in scene.pin_xy():
         ax.add_patch(Circle((-y, x), PIN_RADIUS, fill=False, ec="0.6", lw=0.5, ls=":"))
     if ball is not None:
         ball = np.asarray(ball)
         ax.plot(-ball[:, 1], ball[:, 0], "-", color="k", lw=1, label="ball path")
-        ax.add_patch(Circle((-ball[-1, 1], ball[-1, 0]), BALL_RADIUS, color="k", alpha=0.5))
+        ax.add_patch(Circle((-ball[-1, 1], ball[-1, 0]), scene.ball_radius, color="k", alpha=0.5))
     for k in range(10):
         x, y = qpos[k, 0], qpos[k, 1]
         if not (np.isfinite(x) and np.isfinite(y)):
@@ -138,7 +132,7 @@ def _render_matplotlib(qpos, standing, ball, path: Path, title: str | None) -> N
     plt.close(fig)
 
 
-def _render_mujoco(qpos, standing, ball, path: Path) -> None:
+def _render_mujoco(qpos, standing, ball, path: Path, scene: Scene) -> None:
     """MuJoCo offscreen render of the scene with pins where they came to rest."""
     import matplotlib
 
@@ -148,16 +142,16 @@ def _render_mujoco(qpos, standing, ball, path: Path) -> None:
 
     from .backend_c import load_model
 
-    model = load_model()
+    model = load_model(scene=scene)
     data = mujoco.MjData(model)
     data.qpos[7:] = np.asarray(qpos, np.float64).reshape(-1)
     if ball is not None:
         data.qpos[:3] = np.asarray(ball)[-1]
     else:
-        data.qpos[:3] = (DECK_X[1] + 1.0, 0.0, BALL_RADIUS)
+        data.qpos[:3] = (scene.deck_x[1] + 1.0, 0.0, scene.ball_radius)
     mujoco.mj_forward(model, data)
     cam = mujoco.MjvCamera()
-    cam.lookat[:] = (PIN_XY[:, 0].mean(), 0.0, 0.1)
+    cam.lookat[:] = (scene.pin_xy()[:, 0].mean(), 0.0, 0.1)
     cam.distance, cam.azimuth, cam.elevation = 2.6, 0.0, -35.0  # from the thrower's side
     with mujoco.Renderer(model, 480, 640) as renderer:
         renderer.update_scene(data, camera=cam)

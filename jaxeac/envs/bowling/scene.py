@@ -34,19 +34,69 @@ ROW_GAP = PIN_SPACING * math.sqrt(3.0) / 2.0
 _F32_TINY = float(np.finfo(np.float32).tiny)  # smallest normal float32
 
 
-def _pin_xy() -> np.ndarray:
+def _pin_xy(spacing: float = PIN_SPACING) -> np.ndarray:
     """Pin centres (10, 2), standard numbering; +y is the thrower's left (B1)."""
+    gap = spacing * math.sqrt(3.0) / 2.0
     xy = []
     for row in range(4):
         for j in range(row + 1):
-            xy.append((HEAD_PIN_X + row * ROW_GAP, (row / 2.0 - j) * PIN_SPACING))
+            xy.append((HEAD_PIN_X + row * gap, (row / 2.0 - j) * spacing))
     return np.asarray(xy, dtype=np.float64)
 
 
 PIN_XY = _pin_xy()
-# The pin deck (B4 "leaves the deck"): a pin whose centre ends outside this box is down.
-DECK_X = (HEAD_PIN_X - 0.5, HEAD_PIN_X + 3 * ROW_GAP + 0.3)
-DECK_HALF_WIDTH = 0.6
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """The sizes of the ball and the pin deck (B1, B1a); the MJCF file holds the default's.
+
+    ``SCENES["table1"]`` (B1a): a smaller ball (6 cm radius) and wider pin spacing (0.40 m),
+    chosen by measurement so that the landscape of first throws is like the paper's Table I:
+    no throw knocks more than 7 pins and strikes are rare (BENCHMARKS.md, *A scene like Table I*).
+    """
+
+    ball_radius: float = BALL_RADIUS  # m
+    pin_spacing: float = PIN_SPACING  # m between neighbouring pin centres
+
+    def __post_init__(self) -> None:
+        """Check both sizes; raise UsageError naming the problem and the fix."""
+        if not isinstance(self.ball_radius, int | float) or not 0.02 <= self.ball_radius <= 0.2:
+            raise UsageError(f"ball_radius={self.ball_radius!r}: need a radius in [0.02, 0.2] m")
+        lo = 2 * PIN_RADIUS + 0.02
+        if not isinstance(self.pin_spacing, int | float) or not lo <= self.pin_spacing <= 1.0:
+            raise UsageError(f"pin_spacing={self.pin_spacing!r}: need a spacing in [{lo:g}, 1] m "
+                             "(pins must not touch)")
+
+    def pin_xy(self) -> np.ndarray:
+        """Pin centres (10, 2) of this deck."""
+        return _pin_xy(self.pin_spacing)
+
+    @property
+    def deck_x(self) -> tuple[float, float]:
+        """The deck's extent along the lane: from 0.5 m before the head pin to 0.3 m behind the last row."""
+        return HEAD_PIN_X - 0.5, HEAD_PIN_X + 3 * (self.pin_spacing * math.sqrt(3.0) / 2.0) + 0.3
+
+    @property
+    def deck_half_width(self) -> float:
+        """Half the deck's width: 0.15 m beyond the outer pins of the back row."""
+        return 1.5 * self.pin_spacing + 0.15
+
+
+SCENES = {"default": Scene(), "table1": Scene(ball_radius=0.06, pin_spacing=0.40)}
+DEFAULT_SCENE = SCENES["default"]
+# The default pin deck (B4 "leaves the deck"): a pin whose centre ends outside this box is down.
+DECK_X = DEFAULT_SCENE.deck_x
+DECK_HALF_WIDTH = DEFAULT_SCENE.deck_half_width
+
+
+def check_scene(name: str) -> Scene:
+    """The scene preset of this name, or UsageError listing them."""
+    if name not in SCENES:
+        raise UsageError(f"unknown scene {name!r}: use one of {', '.join(SCENES)}")
+    return SCENES[name]
+
+
 # Fallen pins are parked here (B4 "removed"): 1000 m up, 1 m apart, behind the thrower.
 # They free-fall during a throw (20 m in 2 s; 10 s allowed), touching nothing, and are
 # put back here before every throw.
@@ -114,6 +164,7 @@ class BowlingConfig:
     trajectory_stride: int = 5  # record every k-th step when a trajectory is asked for
     nthread: int = 0  # C backend threads; 0 = os.cpu_count()
     solver: SolverSettings = DEFAULT_SOLVER  # constraint solver, both backends (B7)
+    scene: Scene = DEFAULT_SCENE  # ball and deck sizes (B1, B1a)
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""
@@ -152,6 +203,8 @@ class BowlingConfig:
             raise UsageError(f"nthread={self.nthread!r}: need an integer >= 0 (0 = all cores)")
         if not isinstance(self.solver, SolverSettings):
             raise UsageError(f"solver={self.solver!r}: pass a SolverSettings")
+        if not isinstance(self.scene, Scene):
+            raise UsageError(f"scene={self.scene!r}: pass a Scene (e.g. SCENES['table1'])")
 
 
 def angles(cfg: BowlingConfig) -> np.ndarray:
@@ -215,10 +268,10 @@ class ThrowResult:
     trajectory: Trajectory | None = None
 
 
-def upright_qpos() -> np.ndarray:
-    """qpos (10, 7) of the full rack, upright at the triangle positions (B1)."""
+def upright_qpos(scene: Scene = DEFAULT_SCENE) -> np.ndarray:
+    """qpos (10, 7) of the full rack, upright at the triangle positions of `scene` (B1)."""
     q = np.zeros((N_PINS, 7))
-    q[:, :2] = PIN_XY
+    q[:, :2] = scene.pin_xy()
     q[:, 2] = PIN_CENTRE_Z
     q[:, 3] = 1.0
     return q
@@ -232,9 +285,9 @@ def park_qpos() -> np.ndarray:
     return q
 
 
-def initial_pins(batch: int | None = None) -> PinState:
-    """A full rack, batched over a leading axis of size batch (None: unbatched) (B5)."""
-    qpos = jnp.asarray(upright_qpos(), dtype=jnp.float32)
+def initial_pins(batch: int | None = None, scene: Scene = DEFAULT_SCENE) -> PinState:
+    """A full rack of `scene`, batched over a leading axis of size batch (None: unbatched) (B5)."""
+    qpos = jnp.asarray(upright_qpos(scene), dtype=jnp.float32)
     standing = jnp.ones(N_PINS, dtype=bool)
     if batch is None:
         return PinState(qpos=qpos, standing=standing)
@@ -258,12 +311,13 @@ def throw_start(
     theta = angle + cfg.noise_angle * eps[0]
     speed = jnp.maximum(cfg.release_speed + cfg.noise_speed * eps[1], 0.1 * cfg.release_speed)
     c, s = jnp.cos(theta), jnp.sin(theta)
-    ball_q = jnp.stack([ARM_LENGTH * c, ARM_LENGTH * s, jnp.full_like(c, BALL_RADIUS),
+    radius = cfg.scene.ball_radius
+    ball_q = jnp.stack([ARM_LENGTH * c, ARM_LENGTH * s, jnp.full_like(c, radius),
                         jnp.ones_like(c), jnp.zeros_like(c), jnp.zeros_like(c),
                         jnp.zeros_like(c)])
     vx, vy = speed * c, speed * s
     # Rolling without slip; free-joint angular velocity is in the body frame (identity here).
-    ball_v = jnp.stack([vx, vy, jnp.zeros_like(c), -vy / BALL_RADIUS, vx / BALL_RADIUS,
+    ball_v = jnp.stack([vx, vy, jnp.zeros_like(c), -vy / radius, vx / radius,
                         jnp.zeros_like(c)])
     pin_q = pins.qpos.astype(ball_q.dtype)
     pin_q = jnp.where(pins.standing[:, None], pin_q, jnp.asarray(park_qpos(), pin_q.dtype))
@@ -279,9 +333,8 @@ def pin_down(rest_qpos: jax.Array, cfg: BowlingConfig) -> jax.Array:
     # z-component of the pin's axis in the world frame = cos(tilt).
     cos_tilt = 1.0 - 2.0 * (quat[:, 1] ** 2 + quat[:, 2] ** 2)
     tilted = cos_tilt < math.cos(math.radians(cfg.tilt_down_deg))
-    off_deck = (
-        (pos[:, 0] < DECK_X[0]) | (pos[:, 0] > DECK_X[1]) | (jnp.abs(pos[:, 1]) > DECK_HALF_WIDTH)
-    )
+    (x0, x1), half = cfg.scene.deck_x, cfg.scene.deck_half_width
+    off_deck = (pos[:, 0] < x0) | (pos[:, 0] > x1) | (jnp.abs(pos[:, 1]) > half)
     bad = ~jnp.all(jnp.isfinite(rest_qpos), axis=-1)
     return tilted | off_deck | bad
 

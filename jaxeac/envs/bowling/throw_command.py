@@ -48,7 +48,7 @@ def throw_command(
         raise UsageError(f"--noise {noise:g} scales the noise out of range ({exc}); use a --noise from 0 "
                          "to a few (1: the noise of SPEC B3)") from None
     res = throw(
-        initial_pins(len(a)),
+        initial_pins(len(a), cfg.scene),
         a,
         jax.random.key(seed),
         backend=backend,
@@ -72,7 +72,7 @@ def throw_command(
         for i in range(len(a)):
             p = path if len(a) == 1 else path.with_name(f"{path.stem}_{i}{path.suffix}")
             title = f"theta = {a[i]:+.3f} rad: {int(knocked[i])} pins down ({backend})"
-            render_deck(res, p, index=i, title=title)
+            render_deck(res, p, index=i, title=title, scene=cfg.scene)
             paths.append(str(p))
         out["render"] = paths
     return out
