@@ -32,7 +32,7 @@ TINY = Sizes(grid_seeds=24, bowling_seeds=4, calibration_seeds=8,
              bowling_calibration_seeds=4, bowling_calibration_grid=(("beta", (0.1, 0.3)), ("theta_max", (0.1, 0.2))),
              bowling_calibration_lines=(("alpha", (0.2,)),), bowling_ablation_algos=("eac_success_only",))
 VERDICTS = ("holds", "partly holds", "does not hold")
-CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "GRID-4", "GRID-5", "BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4")
+CLAIMS = ("GRID-1", "GRID-2", "GRID-3", "GRID-4", "GRID-5", "BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4", "BOWL-5")
 
 
 @pytest.fixture(scope="module")
@@ -255,8 +255,8 @@ def test_step_of_an_older_record_runs_again(run):
     reproduce(out, key=3, progress=False, sizes=TINY)
     after = json.loads((out / "reproduce.json").read_text())
     assert {s: t["resumed"] for s, t in after["timings"].items()} == {
-        "grid": False, "bowling": True, "calibration": True, "bowling_calibration": True,
-        "ablations": True}
+        "grid": False, "bowling": True, "bowling_table1": True, "calibration": True,
+        "bowling_calibration": True, "ablations": True}
     assert after["grid"] == before["grid"]
     assert [c["verdict"] for c in after["claims"]] == [c["verdict"] for c in before["claims"]]
 
@@ -417,3 +417,42 @@ def test_bowling_calibration_record_and_report(run):
     k = rec["calibrated"]["contrast"]
     assert f"EAC − AC {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}]" in text
     assert "eac_success_only" in text and "heatmap.png" in text
+
+
+# ---------------------------------------------------------------- BOWL-5 and the table1 scene
+def test_toward_standing_by_hand():
+    """BOWL-5: a chance-2 angle aims at the standing pins' side when it has the sign of their mean y."""
+    from jaxeac.envs.bowling.scene import PIN_XY
+    from jaxeac.experiments.reproduce.measures import toward_standing
+
+    left = 1 << 1 | 1 << 3  # pins 2 and 4: y = +0.15, +0.30 (the thrower's left, θ > 0)
+    right = 1 << 2  # pin 3: y = −0.15
+    centre = 1 << 0  # pin 1: y = 0, no side
+    standing = np.array([[[left, 0], [right, 0], [centre, 0], [left, -1]],
+                         [[0, -1], [0, -1], [0, -1], [0, -1]]])  # seed 2: all strikes, no chance 2
+    angle = np.array([[[0.0, 0.05], [0.0, 0.04], [0.0, 0.02], [0.0, np.nan]],
+                      [[0.0, np.nan]] * 4])
+    share = toward_standing(standing, angle, PIN_XY, first_trial=1)
+    assert share[0] == pytest.approx(0.5)  # trial 1 toward (left, +), trial 2 away (right, +); 3, 4 no side
+    assert np.isnan(share[1])
+    assert toward_standing(standing, angle, PIN_XY, first_trial=2)[0] == pytest.approx(0.0)
+
+
+def test_bowl5_and_the_table1_scene_in_the_report(run):
+    """BOWL-5's verdict follows its rule; the table1 scene's run is its own and its claims are printed
+    beside the default scene's."""
+    from jaxeac.experiments.reproduce.claims import supported
+
+    out, report = run
+    rec = json.loads((out / "reproduce.json").read_text())
+    c = {x["id"]: x for x in rec["claims"]}["BOWL-5"]
+    aim = rec["bowling"]["aim"]
+    above = supported({"diff_ci95": aim["eac"]["ci95"], "p_welch": aim["eac"]["p_ttest_vs_0"]}) > 0
+    beats = supported(aim["contrast"]) > 0
+    assert c["verdict"] == ("holds" if above and beats else "partly holds" if above or beats else "does not hold")
+    summary = json.loads((out / "bowling_table1" / "summary.json").read_text())
+    assert summary["config"]["scene"] == "table1" and summary["physics"]["scene"]["ball_radius"] == 0.06
+    text = section(report.read_text(), "### The bowling claims on a deck like Table I's")
+    assert [x["id"] for x in rec["claims_table1"]] == ["BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4", "BOWL-5"]
+    for x in rec["claims_table1"]:
+        assert x["headline"] in text

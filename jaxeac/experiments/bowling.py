@@ -98,11 +98,13 @@ PAPER_RULES = TrialRules()
 
 @pytree_dataclass
 class BowlingRecord:
-    """Per seed: angle index [T, 2] (−1 = not thrown), pins per chance [T, 2], success [T]."""
+    """Per seed: angle index [T, 2] (−1 = not thrown), pins per chance [T, 2], success [T], pins
+    standing after each chance [T, 2] (10-bit masks as `mask_index`; −1 = not thrown)."""
 
     action: jax.Array
     knocked: jax.Array
     success: jax.Array
+    standing: jax.Array
 
 
 def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active=True):
@@ -149,6 +151,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
     grid = angle_grid(phys)
     action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
     knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
+    standing_rec = np.full((m, cfg.trials, CHANCES), -1, np.int16)
     for t in range(cfg.trials):
         pins = initial_pins(m, phys.scene)
         state = np.full(m, rules.first_state, np.int32)
@@ -171,6 +174,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
                 pins = jax.tree.map(lambda full, part, i=idx: _set_rows(full, i, part), pins, res.pins_after)
                 action_rec[idx, t, c] = action[idx]
                 knocked_rec[idx, t, c] = res.knocked
+                standing_rec[idx, t, c] = standing[idx]
             pins_so_far += knocked
             cleared = standing == 0
             agents = learn(agents, jnp.asarray(state), jnp.asarray(action), jnp.asarray(learns),
@@ -179,7 +183,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
                            jnp.asarray(active), hyper)
             active &= ~cleared
             state = after
-    return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes))
+    return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes), standing_rec)
 
 
 def _set_rows(full, rows, part):
@@ -213,7 +217,7 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
             state = jnp.full((m,), rules.first_state, jnp.int32)
             pins_so_far = jnp.zeros((m,), jnp.int32)
             active = jnp.ones((m,), bool)
-            actions, knocks = [], []
+            actions, knocks, masks = [], [], []
             for c in range(CHANCES):
                 action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None, 0))(cfg, agents, words, state,
                                                                                      hyper, active)
@@ -227,14 +231,16 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
                     pins_so_far >= rules.success_pins, c == CHANCES - 1, active, hyper)
                 actions.append(jnp.where(active, action, -1))
                 knocks.append(knocked)
+                masks.append(jnp.where(active, mask_index(res.standing), -1))
                 pins = res.pins_after
                 active = active & ~cleared
                 state = after
-            return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1))
+            return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1), jnp.stack(masks, -1))
 
-        agents, (actions, knocks) = jax.lax.scan(trial_step, agents, jnp.arange(cfg.trials))
+        agents, (actions, knocks, masks) = jax.lax.scan(trial_step, agents, jnp.arange(cfg.trials))
         return BowlingRecord(jnp.swapaxes(actions, 0, 1).astype(jnp.int8),
-                             jnp.swapaxes(knocks, 0, 1).astype(jnp.int8), agents.outcomes)
+                             jnp.swapaxes(knocks, 0, 1).astype(jnp.int8), agents.outcomes,
+                             jnp.swapaxes(masks, 0, 1).astype(jnp.int16))
 
     return jax.jit(batch)
 
@@ -302,6 +308,7 @@ class BowlingResult:
     angles: np.ndarray  # float [K], the angle grid
     compile_seconds: float
     run_seconds: float
+    standing: np.ndarray | None = None  # int16 [N, T, 2]: pins standing after each chance (mask), −1 not thrown
 
     @property
     def returns(self) -> np.ndarray:
@@ -335,9 +342,10 @@ class BowlingResult:
     @classmethod
     def concatenate(cls, parts: list[BowlingResult]) -> BowlingResult:
         """Consecutive batches of one algorithm's seeds as one result (a sequential run)."""
+        standing = None if parts[0].standing is None else np.concatenate([p.standing for p in parts])
         return cls(np.concatenate([p.action for p in parts]), np.concatenate([p.knocked for p in parts]),
                    np.concatenate([p.success for p in parts]), parts[0].angles,
-                   parts[0].compile_seconds, sum(p.run_seconds for p in parts))
+                   parts[0].compile_seconds, sum(p.run_seconds for p in parts), standing)
 
 
 _MJX_COMPILED: dict = {}  # (config, physics, backend, chunk) -> compiled run
@@ -379,7 +387,7 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
     elapsed = time.perf_counter() - t0
     cat = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     return BowlingResult(cat.action, cat.knocked, cat.success.astype(bool), angle_grid(phys),
-                         compile_seconds, elapsed - compiled_now)
+                         compile_seconds, elapsed - compiled_now, cat.standing.astype(np.int16))
 
 
 @dataclasses.dataclass
@@ -499,7 +507,10 @@ def write_bowling_outputs(run: BowlingRun, out, *, figures: bool = True,
                             **{f"{a}_knocked": r.knocked for a, r in run.results.items()},
                             **{f"{a}_action": r.action for a, r in run.results.items()},
                             **{f"{a}_angle": r.angle_values for a, r in run.results.items()},
-                            angles=angle_grid(run.settings.physics()))
+                            **{f"{a}_standing": r.standing for a, r in run.results.items()
+                               if r.standing is not None},
+                            angles=angle_grid(run.settings.physics()),
+                            pin_xy=run.settings.physics().scene.pin_xy())
         (stage / "table1.md").write_text(table_one(run))
         if figures:
             from jaxeac.plots import angle_figure

@@ -145,6 +145,8 @@ def judge_claims(grid: dict, gstats: dict, bowl: dict, bstats: dict) -> list[dic
                 else f"EAC's chance-1 angle does not vary less than AC's over trials {lo_t}-{hi_t}"),
     })
     out.append(_split_claim(bowl["chance_split"], bowl["trials"]))
+    if "aim" in bowl:
+        out.append(_aim_claim(bowl["aim"]))
     return out
 
 
@@ -234,3 +236,30 @@ def _split_claim(split: dict, trials: int) -> dict:
         "otherwise.")
     return c
 
+
+
+def _aim_claim(aim: dict) -> dict:
+    """BOWL-5: Fig. 5 in a form the scene's symmetry does not decide: does EAC's chance-2 angle aim at
+    the pins still standing (`measures.toward_standing`), more often than chance and than AC's?"""
+    above_half = _one_sample_direction(aim["eac"])
+    beats_ac = supported(aim["contrast"])
+    lo, hi = aim["window"]
+    c = {"id": "BOWL-5", "experiment": "bowling",
+         "claim": "EAC's chance-2 angle aims at the pins still standing after chance 1 (Fig. 5: θ₂ on the "
+                  "side of the pins θ₁ left)",
+         "paper": "Fig. 5: after ~5 trials EAC's θ₁ < 0 (right pins), θ₂ > 0 (left pins); one run",
+         "measure": "share_chance2_toward_standing", "stats": aim["contrast"],
+         "verdict": "holds" if above_half > 0 and beats_ac > 0 else
+                    "partly holds" if above_half > 0 or beats_ac > 0 else "does not hold",
+         "why": ("EAC aims at the standing side more often than not" if above_half > 0 else
+                 "EAC does not aim at the standing side more often than not")
+                + (", and more often than AC" if beats_ac > 0 else ", but not more often than AC")}
+    c["rule"] = (
+        f"In our symmetric scene θ₁ < 0, θ₂ > 0 cannot be the one optimum, so BOWL-2 tests the scene as much "
+        f"as EAC. BOWL-5 asks what Fig. 5 shows in a form symmetry does not decide: per seed, over trials "
+        f"{lo}–{hi}, the share of its chance-2 throws whose angle has the sign of the side where the pins "
+        f"standing after chance 1 lie (their mean lateral position at least {aim['side_min_m']:g} m off the "
+        "centre line; θ₂ = 0 and centred racks count for no side). It **holds** when EAC's mean share is above "
+        "½ (one-sample t on share − ½, supported) and above AC's (supported); it **partly holds** when one of "
+        "the two is supported; it **does not hold** otherwise.")
+    return c

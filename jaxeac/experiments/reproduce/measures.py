@@ -232,3 +232,39 @@ def split_summary(knocked: dict, key: int, resamples: int) -> dict:
     out["contrast"] = contrast(finite(split["ac"]["share_chance2"]), finite(split["eac"]["share_chance2"]),
                                key, resamples=resamples)
     return out
+
+
+#: BOWL-5: a chance-2 throw aims at a side when its angle has that side's sign (θ > 0: the thrower's
+#: left, +y, B2) and the pins standing after chance 1 lie on it, their mean lateral position at least
+#: this far (m) from the lane's centre line; throws at θ = 0 or at a centred rack count for no side.
+AIM_SIDE_MIN = 0.05
+
+
+def toward_standing(standing: np.ndarray, angle: np.ndarray, pin_xy: np.ndarray, first_trial: int) -> np.ndarray:
+    """Per seed, from trial `first_trial` (1-based) on: the share of its chance-2 throws that aim
+    at the side where the pins standing after chance 1 lie (BOWL-5; `AIM_SIDE_MIN`), NaN for a seed
+    without such a throw. standing int [N, T, 2]: masks after each chance (bit i: pin i+1, −1: not
+    thrown); angle [N, T, 2] rad (NaN: not thrown); pin_xy [10, 2] of the run's scene."""
+    mask = np.asarray(standing)[:, first_trial - 1:, 0].astype(np.int64)
+    theta2 = np.asarray(angle, float)[:, first_trial - 1:, 1]
+    bits = (mask[..., None] >> np.arange(10)) & 1
+    n_up = bits.sum(-1)
+    y = np.where(n_up > 0, (bits * np.asarray(pin_xy)[:, 1]).sum(-1) / np.maximum(n_up, 1), 0.0)
+    sided = np.isfinite(theta2) & (mask > 0) & (np.abs(y) >= AIM_SIDE_MIN) & (theta2 != 0)
+    toward = sided & (np.sign(np.nan_to_num(theta2)) == np.sign(y))
+    n = sided.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, toward.sum(axis=1) / np.maximum(n, 1), np.nan)
+
+
+def aim_summary(standing: dict, angles: dict, pin_xy: np.ndarray, first_trial: int, key: int,
+                resamples: int) -> dict:
+    """BOWL-5 per method: the share of chance-2 throws aimed at the standing pins' side
+    (`toward_standing`), its mean against ½ (one-sample t on share − ½), and EAC − AC."""
+    share = {a: toward_standing(standing[a], angles[a], pin_xy, first_trial) for a in ("ac", "eac")}
+    out = {a: {**one_sample(share[a] - 0.5, negative=False), "share": mean_ci(finite(share[a])),
+               "seeds_without": int(np.isnan(share[a]).sum())} for a in ("ac", "eac")}
+    out["contrast"] = contrast(finite(share["ac"]), finite(share["eac"]), key, resamples=resamples)
+    out["window"] = [first_trial, int(np.asarray(standing["eac"]).shape[1])]
+    out["side_min_m"] = AIM_SIDE_MIN
+    return out

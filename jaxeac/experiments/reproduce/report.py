@@ -156,6 +156,10 @@ def render_report(rec: dict, out: Path) -> str:
                       cl["BOWL-3"]["stats"], 4), "",
           f"**Verdict: {cl['BOWL-3']['verdict']}** — {cl['BOWL-3']['why']}.", ""]
     L += _split_section(cl["BOWL-4"], b["chance_split"], b["trials"])
+    if "BOWL-5" in cl:
+        L += _aim_section(cl["BOWL-5"], b["aim"])
+    if "claims_table1" in rec:
+        L += _table1_scene_section(rec, cl)
 
     # ---- calibration
     cc, cj, near = cal["closest"], cal["joint"], cal["near"]
@@ -307,6 +311,49 @@ def _split_section(claim: dict, split: dict, trials: int) -> list[str]:
     return lines + ["", f"**Verdict: {claim['verdict']}** — {claim['why']}.", ""]
 
 
+def _aim_section(claim: dict, aim: dict) -> list[str]:
+    """BOWL-5: its rule, each method's share of chance-2 throws aimed at the standing pins, the verdict."""
+    lo, hi = aim["window"]
+    lines = ["### BOWL-5 — EAC's chance 2 aims at the pins still standing (Fig. 5, without the scene's "
+             "symmetry)", "", f"*Rule, fixed before the run.* {claim['rule']}", "",
+             "| method | share aimed at the standing side [95 % CI] | share − ½, p (t) | seeds above ½ "
+             "[95 % CI] | seeds without such a throw | N |", "|---|---|---|---|---|---|"]
+    for a in ("ac", "eac"):
+        s = aim[a]
+        lines.append(f"| {a.upper()} | {number(s['share']['mean'], 3)} {interval(s['share']['ci95'], 3)} | "
+                     f"{number(s['mean'], 3, sign=True)}, {p_value(s['p_ttest_vs_0'])} | "
+                     f"{100 * s['share_claimed_side']:.0f} % "
+                     f"{interval([100 * x for x in s['share_claimed_side_ci95']], 0)} | {s['seeds_without']} "
+                     f"| {s['share']['n']} |")
+    lines += ["", EFFECT_HEADER, _effect_row(f"share of chance-2 throws aimed at the standing pins, trials "
+                                             f"{lo}–{hi}", aim["contrast"], 3), "",
+              f"**Verdict: {claim['verdict']}** — {claim['why']}.", ""]
+    return lines
+
+
+def _table1_scene_section(rec: dict, default: dict) -> list[str]:
+    """The bowling claims on the table1 scene (B1a) beside the default scene's verdicts."""
+    t = rec["bowling_table1"]
+    r = t["returns"]
+    lines = ["### The bowling claims on a deck like Table I's (scene `table1`)", "",
+             "In the default scene a centre throw knocks 8–9 pins and the best angles are symmetric about "
+             "θ = 0; the paper's Table I never shows a first throw above 7. The `table1` scene (SPEC B1a: a "
+             "6 cm ball, pins 0.40 m apart) has first throws like Table I's. Same seeds, key, learners and "
+             f"rules; {t['seeds']} seeds per method. AC {number(r['ac']['mean'])} "
+             f"{interval(r['ac']['ci95'])}, EAC {number(r['eac']['mean'])} {interval(r['eac']['ci95'])} pins "
+             f"of {paper.BOWLING_MAX_PINS}; the paper's 67 and 81 lie at percentiles "
+             f"{t['paper_position']['ac']['percentile']:.1f} (AC) and {t['paper_position']['eac']['percentile']:.1f}"
+             " (EAC) of our seeds there.", "",
+             "| # | claim | default scene: we find | verdict | table1 scene: we find | verdict |",
+             "|---|---|---|---|---|---|"]
+    for c in rec["claims_table1"]:
+        d = default.get(c["id"])
+        lines.append(f"| {c['id']} | {c['claim']} | {d['headline'] if d else '–'} | "
+                     f"{d['verdict'] if d else '–'} | {c['headline']} | **{c['verdict']}** |")
+    lines += ["", f"![Fig. 5 in the table1 scene]({t['figures']['fig5']})", ""]
+    return lines
+
+
 def _headline_claim(title, label, stats, family, values, positions, paper_diff, claim) -> list[str]:
     """Report lines of a paper's headline claim (GRID-1, BOWL-1): effect table, Holm p and power, where the
     paper's single runs fall among our seeds, the two differences and the verdict."""
@@ -359,6 +406,10 @@ def headline(c: dict) -> str:
         return (f"chance-2 share EAC {number(s['mean_treatment'], 3)}, AC {number(s['mean_baseline'], 3)}; "
                 f"EAC − AC {number(s['diff'], 3, sign=True)} {interval(s['diff_ci95'], 3, sign=True)}, "
                 f"g {number(s['hedges_g'], 2)}")
+    if c["id"] == "BOWL-5":
+        return (f"chance-2 throws aimed at the standing pins' side: EAC {100 * s['mean_treatment']:.1f} %, "
+                f"AC {100 * s['mean_baseline']:.1f} %; EAC − AC {number(100 * s['diff'], 1, sign=True)} points "
+                f"{interval([100 * x for x in s['diff_ci95']], 1, sign=True)}")
     if c["id"] == "BOWL-2":
         e1, e2 = s["eac"]["theta1"], s["eac"]["theta2"]
         return (f"EAC θ₁ {number(e1['mean'], 4, sign=True)} {interval(e1['ci95'], 4, sign=True)}, "

@@ -5,6 +5,7 @@ exists with the same fingerprint; a rerun with the same settings skips finished 
 
     grid/         paper preset, AC and EAC (run folder + stats.json + Fig. 2, Fig. 3)
     bowling/      C backend, AC and EAC (run folder + stats.json + Table I, Fig. 5)
+    bowling_table1/  the same in the table1 scene (B1a), whose first throws are like Table I's
     calibration/  `jaxeac sweep` over grid size, chances, α, β (results.csv, landscape.png)
     bowling_calibration/  bowling over β × θ_max, α, K, noise; ablations at the calibrated point
     ablations/    grid variants and temperatures, bowling noise levels (run folders, figures)
@@ -42,6 +43,7 @@ from jaxeac.experiments.reproduce.bowling_calibration import (
 )
 from jaxeac.experiments.reproduce.claims import judge_claims
 from jaxeac.experiments.reproduce.measures import (
+    aim_summary,
     angle_measures,
     contrast,
     finite,
@@ -77,7 +79,7 @@ ANGLE_LATE_FROM = paper.ANGLE_SETTLE_TRIALS + 1
 #: GRID-4 and GRID-5: windows of this many trials; with T = 200, the trials after the paper's ~180
 #: (181–200) are the last window, GRID-4 compares it with 161–180 and 141–160.
 LATE_TRIALS = paper.GRID_TRIALS - paper.GRID_AC_SPEEDUP_TRIAL
-STEPS = ("grid", "bowling", "calibration", "bowling_calibration", "ablations")
+STEPS = ("grid", "bowling", "bowling_table1", "calibration", "bowling_calibration", "ablations")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,14 +272,15 @@ def _path_ratios(folder: Path, settings, loaded: dict) -> dict:
     return out
 
 
-def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
-    """Bowling, AC vs EAC on the C backend: run folder, `jaxeac compare`, Table I, Fig. 5 angle analysis."""
+def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool, scene: str = "default") -> dict:
+    """Bowling, AC vs EAC on the C backend in `scene` (B1, B1a): run folder, `jaxeac compare`, Table I,
+    Fig. 5 angle analysis, the chances' split of pins and where chance 2 aims."""
     from jaxeac.experiments.bowling import BowlingSettings
     from jaxeac.stats import compare_run_dir
 
     settings = BowlingSettings(seeds=sizes.bowling_seeds, key=key, chunk_size=sizes.bowling_chunk,
-                               backend="c")
-    _bowling_run(folder, settings, progress, figures=True, label="bowling: AC and EAC (C backend)")
+                               backend="c", scene=scene)
+    _bowling_run(folder, settings, progress, figures=True, label=f"bowling: AC and EAC ({scene} scene)")
     stats = compare_run_dir(folder, resamples=sizes.resamples, key=key, progress=progress)
     returns, angles = _bowling_data(folder, ("ac", "eac"))
     totals = {a: r.sum(axis=1) for a, r in returns.items()}
@@ -299,7 +302,13 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     knocked = _npz_arrays(folder / "bowling.npz", ["ac_knocked", "eac_knocked"], ("ac", "eac"))
     ang["contrast_sd_theta1"] = contrast(*both("sd_theta1"), sub_key(key, "bowling/sd_theta1"),
                                          resamples=sizes.resamples, higher_is_better=False)
+    standing = _npz_arrays(folder / "bowling.npz", ["ac_standing", "eac_standing"], ("ac", "eac"))
+    with np.load(folder / "bowling.npz") as z:
+        pin_xy = z["pin_xy"]
+    name = folder.name
     return {
+        "scene": scene,
+        "aim": aim_summary(standing, angles, pin_xy, late_from, sub_key(key, "bowling/aim"), sizes.resamples),
         "seeds": settings.seeds, "trials": settings.trials, "settings": plain_json(dataclasses.asdict(settings)),
         "returns": {a: mean_ci(x) for a, x in totals.items()},
         "paper_position": {a: paper_position(totals[a], paper.BOWLING_PINS[a]) for a in ("ac", "eac")},
@@ -307,8 +316,8 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
         "angles": ang, "angle_window": [late_from, settings.trials],
         "chance_split": split_summary(knocked, sub_key(key, "bowling/split"), sizes.resamples),
         "stats_primary_diff": stats["primary"]["diff"],
-        "figures": {"fig5": "bowling/fig5_angles.png", "compare_curves": "bowling/compare_curves.png"},
-        "table1": "bowling/table1.md",
+        "figures": {"fig5": f"{name}/fig5_angles.png", "compare_curves": f"{name}/compare_curves.png"},
+        "table1": f"{name}/table1.md",
     }
 
 
@@ -445,13 +454,15 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
 # ------------------------------------------------------------------ driver
 #: The version of each step's record (what its function returns). A step finished under an older
 #: version (before GRID-4, GRID-5 and BOWL-4: none) runs again on resume, reusing its run folders.
-RECORDS = {"grid": 2, "bowling": 2, "calibration": 1, "bowling_calibration": 1, "ablations": 1}
+RECORDS = {"grid": 2, "bowling": 3, "bowling_table1": 1, "calibration": 1, "bowling_calibration": 1,
+           "ablations": 1}
 
 
 def _fingerprint(step: str, sizes: Sizes, key: int) -> dict:
     relevant = {
         "grid": ("grid_seeds", "resamples", "band_resamples"),
         "bowling": ("bowling_seeds", "resamples"),
+        "bowling_table1": ("bowling_seeds", "resamples"),
         "calibration": ("calibration_seeds", "calibration_sets", "resamples"),
         "bowling_calibration": ("bowling_calibration_seeds", "bowling_calibration_grid",
                                 "bowling_calibration_lines", "bowling_ablation_algos", "resamples"),
@@ -504,6 +515,7 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
     runners = {
         "grid": lambda f: step_grid(f, sizes, key, progress),
         "bowling": lambda f: step_bowling(f, sizes, key, progress),
+        "bowling_table1": lambda f: step_bowling(f, sizes, key, progress, scene="table1"),
         "calibration": lambda f: step_calibration(f, sizes, key, progress),
         "bowling_calibration": lambda f: step_bowling_calibration(f, sizes, key, progress, _bar),
         "ablations": lambda f: step_ablations(f, sizes, key, progress, out / "bowling"),
@@ -527,10 +539,16 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
         timings[step] = {"seconds": seconds, "resumed": False}
         _say(progress, f"[{i + 1}/{len(STEPS)}] {step}: done in {seconds:.0f} s")
 
-    gstats, bstats = (read_json_object(out / step / "stats.json", f"delete {out / step} and run `jaxeac "
-                                       "reproduce` again to rebuild it") for step in ("grid", "bowling"))
+    gstats, bstats, tstats = (read_json_object(out / step / "stats.json", f"delete {out / step} and run "
+                                               "`jaxeac reproduce` again to rebuild it")
+                              for step in ("grid", "bowling", "bowling_table1"))
     cls = judge_claims(records["grid"], gstats, records["bowling"], bstats)
     for c in cls:
+        c["headline"] = headline(c)
+    # the bowling claims again on the table1 scene (B1a), judged by the same rules
+    cls_table1 = [c for c in judge_claims(records["grid"], gstats, records["bowling_table1"], tstats)
+                  if c["experiment"] == "bowling"]
+    for c in cls_table1:
         c["headline"] = headline(c)
     command = (f"jaxeac reproduce{' --quick' if quick else ''} --out {out} --key {key}" if mode != "custom"
                else f"jaxeac.experiments.reproduce.reproduce({str(out)!r}, key={key}, "
@@ -545,7 +563,8 @@ def reproduce(out, *, quick: bool = False, key: int = 0, progress: bool = True,
         "total_seconds": time.perf_counter() - t_start, "timings": timings,
         "versions": versions(), "devices": [str(d) for d in jax.devices()],
         "paper": {"grid": paper.GRID_SUCCESSES, "bowling": paper.BOWLING_PINS},
-        "claims": cls, "plain": plain_words(cls, records["grid"], records["bowling"]),
+        "claims": cls, "claims_table1": cls_table1,
+        "plain": plain_words(cls, records["grid"], records["bowling"]),
         "calibration_answer": calibration_answer(records["calibration"]),
         "ablation_answer": ablation_answer(records["ablations"]),
         **{step: records[step] for step in STEPS},
