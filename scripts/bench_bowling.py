@@ -79,7 +79,7 @@ def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
         "run_s": best,
         "throws_per_s": batch / best,
         "steps_per_s": batch * cfg.n_steps / best,
-        "steps_run_per_throw": backend_c.engine(cfg.nthread, cfg.solver).steps_run / batch,
+        "steps_run_per_throw": backend_c.engine(cfg.nthread, cfg.solver, cfg.scene).steps_run / batch,
         "mean_knocked": float(np.mean(res.knocked)),
         "_knocked": np.asarray(res.knocked),
     }

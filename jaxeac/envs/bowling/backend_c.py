@@ -104,6 +104,8 @@ def settled(data: mujoco.MjData, in_play: np.ndarray, reach_m: float) -> bool:
     (MuJoCo's sleeping; an awake tree's sleep counter is negative) and the ball either asleep
     too or, on its straight roll over the flat floor, out of reach of every pin in play and
     moving away from it."""
+    if data.ntree_awake > 1:  # more than the ball awake (removed pins too: asleep a few steps in)
+        return False
     asleep = data.tree_asleep >= 0  # tree 0 is the ball, trees 1..10 the pins (the MJCF's order)
     if not np.all(asleep[1:][in_play]):
         return False
