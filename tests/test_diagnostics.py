@@ -19,7 +19,7 @@ from jaxeac.algorithm.agent import StepRoute, init_agent, select_action
 from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.algorithm.memory import with_committed
 from jaxeac.cli import main
-from jaxeac.envs.grid import GridWorld, parse_map, shortest_actions
+from jaxeac.envs.grid import GridWorld, get_map, parse_map, shortest_actions
 from jaxeac.experiments.grid import GridSettings, memory_diagnostics, run_grid
 from jaxeac.rng import action_uniform, seed_key, seed_words
 from jaxeac.running.config import RunConfig
@@ -140,17 +140,20 @@ def test_diagnostics_block_pools_and_leaves_empty_shares_null():
     assert block["flags_on_best_share"] is None and block["flags_on_best_chance"] is None
 
 
-VARIANTS = ["ac", "eac", "eac_failure_only", "eac_success_only", "eac_learn_on_memory", "eac_within_trial",
-            "q_learning"]
+VARIANTS = {name: algorithm(name) for name in ("ac", "eac", "eac_failure_only", "eac_success_only",
+                                               "eac_learn_on_memory", "eac_within_trial", "q_learning")}
+VARIANTS["eac_buffer_small"] = algorithm("eac", memory="buffer", capacity=3)  # FIFO eviction in use
 
 
-@pytest.mark.parametrize("algo", VARIANTS)
-def test_counts_equal_the_literal_reference(algo, rng):
+@pytest.mark.parametrize("algo", sorted(VARIANTS))
+@pytest.mark.parametrize("world", ["paper7", "random"])
+def test_counts_equal_the_literal_reference(algo, world, rng):
     """Per chance index: steps, E1(a), E1(b) and learning steps of tests/reference.py (float64, so
-    every step is the same), and its failure memory against the best actions."""
-    grid = parse_map(random_map_text(rng))
+    every step is the same), and its failure memory (E7 buffer: the pairs it still holds) against
+    the best actions (on paper7, EAC's flags land on best actions and elsewhere)."""
+    grid = get_map(world) if world != "random" else parse_map(random_map_text(rng))
     trials, chances, key = 30, 8, 7
-    agent_cfg = algorithm(algo)
+    agent_cfg = VARIANTS[algo]
     with jax.enable_x64(True):
         env = GridWorld(grid, chances)
         cfg = RunConfig(trials=trials, agent=agent_cfg)

@@ -91,10 +91,11 @@ def throw_routes(cfg: RunConfig, agents: AgentState, words, state, hyper: Hyper,
 
 def end_flags(cfg: RunConfig, agent: AgentState, n_angles: int) -> tuple[jax.Array, jax.Array]:
     """E8: (flags over every state, flags at the full rack [K]) of one seed's failure memory."""
-    from jaxeac.running.diagnostics import failure_table
+    from jaxeac.running.diagnostics import failure_pairs
 
-    table = failure_table(cfg.agent, agent, N_MASKS, n_angles)
-    return table.sum(dtype=jnp.int32), table[FULL_RACK]
+    states, actions, held = failure_pairs(cfg.agent, agent, N_MASKS, n_angles)
+    rack = jnp.where(held & (states == FULL_RACK), actions, n_angles)  # other pairs: dropped writes
+    return held.sum(dtype=jnp.int32), jnp.zeros((n_angles,), bool).at[rack].set(True, mode="drop")
 
 
 @functools.lru_cache(maxsize=8)
@@ -398,8 +399,8 @@ def summarize_bowling(run: BowlingRun) -> dict:
             "mean_successes": float(r.success.sum(axis=1).mean()), "throws": r.throws,
             "throws_per_second": r.throws / r.run_seconds if r.run_seconds > 0 else None,
         }
-    return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": BOWLING_PINS} \
-        | bowling_diagnostics(run)
+    out |= bowling_diagnostics(run)  # E8
+    return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": BOWLING_PINS}
 
 
 def rack_means(results: dict[str, BowlingResult]) -> np.ndarray:

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.algorithm.agent import AgentState, StepRoute
+from jaxeac.algorithm.buffer import BufferMemory
 from jaxeac.algorithm.config import AgentConfig, Hyper
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import seed_key
@@ -47,25 +48,38 @@ class SeedDiagnostics:
     success: jax.Array  # bool [T]: the run's per-trial successes
 
 
-def failure_table(cfg: AgentConfig, agent: AgentState, n_states: int, n_actions: int) -> jax.Array:
-    """bool [S, A]: the failure memory in effect after the agent's last trial (E6; flags are
-    only ever added, so every pair flagged during the run that the memory still holds; the E7
-    buffer drops the oldest when full). All False without a failure memory."""
+def failure_pairs(cfg: AgentConfig, agent: AgentState, n_states: int, n_actions: int
+                  ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(states, actions, held), int32/int32/bool [P]: the (state, action) pairs the failure memory
+    holds after the agent's last trial (E6 only adds flags, so every pair flagged during the run;
+    an E7 buffer that overflowed keeps its latest K). Dense layout: every pair of the table
+    (P = S·A, held where flagged); buffer: its K slots (held where filled; no pair twice), read
+    directly, so that no per-state search over the slots runs. Nothing held without a failure memory."""
     if not cfg.failure_memory:
-        return jnp.zeros((n_states, n_actions), bool)
+        none = jnp.zeros((0,), jnp.int32)
+        return none, none, jnp.zeros((0,), bool)
     memory = agent.memory
-    return jax.vmap(lambda s: memory.failure_flags(s, agent.trial, agent.outcomes))(jnp.arange(n_states))
+    if isinstance(memory, BufferMemory):  # slots below the insertion count are filled (FIFO)
+        held = jnp.arange(memory.failure_states.shape[0]) < memory.failure_count
+        return memory.failure_states, memory.failure_actions, held
+    table = jax.vmap(lambda s: memory.failure_flags(s, agent.trial, agent.outcomes))(jnp.arange(n_states))
+    states, actions = jnp.divmod(jnp.arange(n_states * n_actions, dtype=jnp.int32), n_actions)
+    return states, actions, table.reshape(-1)
 
 
-def flag_counts(flags: jax.Array, best: jax.Array | None) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """(flags, flags on a best action, Σ over flagged pairs of the share of best actions at their
-    state) of one failure table [S, A], given the best actions `best` [S, A] (None: none known)."""
-    n = flags.sum(dtype=jnp.int32)
+def flag_counts(pairs: tuple[jax.Array, jax.Array, jax.Array], best: jax.Array | None
+                ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(flags, flags on a best action, Σ over flags of the share of best actions at their state)
+    of one seed's `failure_pairs`, given the best actions `best` [S, A] (None: none known)."""
+    states, actions, held = pairs
+    n = held.sum(dtype=jnp.int32)
     if best is None:
         return n, jnp.int32(0), jnp.float32(0.0)
     best = jnp.asarray(best, bool)
+    states = jnp.clip(states, 0, best.shape[0] - 1)  # an empty buffer slot holds −1 (not held)
+    on_best = held & best[states, jnp.clip(actions, 0, best.shape[1] - 1)]
     share = best.sum(axis=1) / best.shape[1]
-    return n, (flags & best).sum(dtype=jnp.int32), (flags * share[:, None]).sum(dtype=jnp.float32)
+    return n, on_best.sum(dtype=jnp.int32), jnp.where(held, share[states], 0.0).sum(dtype=jnp.float32)
 
 
 def route_sums(route: StepRoute, axis: int = 0) -> StepRoute:
@@ -83,8 +97,8 @@ def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
     """One seed's run in the `trials` loop with ``diagnose=True``, reduced to its E8 counts."""
     cfg = trials_config(env, cfg)
     agent, records = trace_run(env, cfg, key, hyper, diagnose=True)
-    flags = failure_table(cfg.agent, agent, env.n_states, env.n_actions)
-    return SeedDiagnostics(route_sums(records.route), *flag_counts(flags, best), records.success)
+    pairs = failure_pairs(cfg.agent, agent, env.n_states, env.n_actions)
+    return SeedDiagnostics(route_sums(records.route), *flag_counts(pairs, best), records.success)
 
 
 @functools.lru_cache(maxsize=16)
