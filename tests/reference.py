@@ -26,6 +26,8 @@ class ReferenceTrial:
     actions: list[int] = field(default_factory=list)
     rtilde: list[float] = field(default_factory=list)
     success: bool = False
+    branches: list[str] = field(default_factory=list)  # per step, E1's branch: "a", "b" or "c" (E8)
+    learned: list[bool] = field(default_factory=list)  # per step, whether p and V were updated (E2, E8)
 
 
 @dataclass
@@ -210,18 +212,18 @@ def reference_run(world, cfg: AgentConfig, *, trials, chances, alpha, beta, gamm
         pending = None  # SARSA's next action
         for c in range(chances):
             u = uniform(action_uniform, t, c, chances)
-            learn = True
+            learn, branch = True, "c"
             remembered = success_mem.get(s) if cfg.success_memory else None
             flagged = [a for a in range(n_actions) if cfg.failure_memory and (s, a) in failure_mem]
             if value_based:  # X3
                 a = pending if pending is not None else epsilon_greedy_choice(prefs[s], epsilon, u)
             elif remembered is not None:  # lines 4-6
                 a = remembered
-                learn = False
+                learn, branch = False, "a"
             elif 0 < len(flagged) < n_actions:  # lines 7-9: avoid the failed actions
                 allowed = [a for a in range(n_actions) if a not in flagged]
                 a = softmax_choice(prefs[s], allowed, tau, u)
-                learn = False
+                learn, branch = False, "b"
             else:  # lines 11-14
                 a = softmax_choice(prefs[s], list(range(n_actions)), tau, u)
             if cfg.learn_on_memory_steps:
@@ -242,6 +244,8 @@ def reference_run(world, cfg: AgentConfig, *, trials, chances, alpha, beta, gamm
                 goal_known = True
             trial.states.append(s)
             trial.actions.append(a)
+            trial.branches.append(branch)
+            trial.learned.append(learn)
             trial.rtilde.append(world.rtilde(s2, r, bumped, goal_known))
             s = s2
             if terminal:  # lines 15-20

@@ -155,18 +155,33 @@ def learns(cfg: AgentConfig, from_memory, active):
     return active & ~from_memory
 
 
-def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, active=None):
+@pytree_dataclass
+class StepRoute:
+    """How E1 chose one step's action and whether the step learns (E2), for the memory
+    diagnostics (E8). Every field is False where the step was not taken."""
+
+    taken: jax.Array  # bool: the step was taken (`active`)
+    remembered: jax.Array  # bool: E1(a), the success memory chose the action
+    restricted: jax.Array  # bool: E1(b), no success action and the failure flags restricted the softmax
+    learns: jax.Array  # bool: E2, the step updates p and V
+
+
+def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, active=None, route: bool = False):
     """E1: choose an action at `state` with the uniform `u`; returns (action, learns), where
-    `learns` follows E2 (and is False where the step is not `active`).
+    `learns` follows E2 (and is False where the step is not `active`). With `route` (static),
+    returns (action, learns, `StepRoute`): which branch of E1 chose (E8's counters).
 
     (a) a success action → take it; (b) some but not all actions flagged failed →
     softmax over the unflagged ones; (c) otherwise plain AC softmax (1).
     """
+    active = jnp.bool_(True) if active is None else active
     if cfg.learner != "actor_critic":  # X3: ε-greedy on Q; SARSA takes the action it bootstrapped on
         action = epsilon_greedy(agent.tables.row(state)[0], u, hyper.epsilon)
         if agent.next_action is not None:
             action = jnp.where(agent.next_action >= 0, agent.next_action, action)
-        return action, jnp.bool_(True) if active is None else active
+        if route:
+            return action, active, StepRoute(active, jnp.zeros_like(active), jnp.zeros_like(active), active)
+        return action, active
     logits = agent.tables.row(state)[0] / hyper.temperature
     n_actions = logits.shape[0]
     allowed = jnp.ones((n_actions,), bool)
@@ -178,7 +193,12 @@ def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, a
     if cfg.success_memory:
         remembered = agent.memory.success_action(state, agent.trial, agent.outcomes)
     action, from_memory = memory_choice(cfg, sample_softmax(logits, allowed, u), remembered, restricted)
-    return action, learns(cfg, from_memory, jnp.bool_(True) if active is None else active)
+    learn = learns(cfg, from_memory, active)
+    if not route:
+        return action, learn
+    has_success = active & (remembered >= 0) if remembered is not None else jnp.zeros_like(active)
+    by_flags = active & restricted & ~has_success if restricted is not None else jnp.zeros_like(active)
+    return action, learn, StepRoute(active, has_success, by_flags, learn)
 
 
 def epsilon_greedy(q: jax.Array, u: jax.Array, epsilon) -> jax.Array:

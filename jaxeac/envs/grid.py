@@ -285,6 +285,15 @@ def shortest_steps(grid_map: GridMap) -> np.ndarray:
     return dist
 
 
+def shortest_actions(grid_map: GridMap) -> np.ndarray:
+    """bool [S, A]: the actions (G2) that move a cell one step closer to the goal along a shortest
+    path (`shortest_steps` one less at the cell reached): the best actions of E8. None at the goal,
+    on obstacles and on cells that cannot reach the goal."""
+    dist = shortest_steps(grid_map)
+    nxt = transition_tables(grid_map)[0]
+    return (dist[:, None] > 0) & (dist[nxt] == dist[:, None] - 1)
+
+
 def transition_tables(grid_map: GridMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tabulate G4 for every (cell, action): next cell, reward, bumped."""
     h, w = grid_map.height, grid_map.width

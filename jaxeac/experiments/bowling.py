@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.algorithm.agent import AgentState, end_trial, init_agent
+from jaxeac.algorithm.agent import AgentState, StepRoute, end_trial, init_agent
 from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.envs.bowling import BowlingConfig, SolverSettings, initial_pins, throw, throw_noise
 from jaxeac.envs.bowling import angles as angle_grid
@@ -105,11 +105,48 @@ class BowlingRecord:
     knocked: jax.Array
     success: jax.Array
     standing: jax.Array
+    diagnostics: BowlingDiagnostics | None = None  # E8, per seed
 
 
-def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active=True):
-    """E1 at `state` with the uniform of (trial, chance) (`jaxeac.running.loops.choose`)."""
-    return choose_action(cfg, agent, state, words, hyper, CHANCES, jnp.asarray(active))
+@pytree_dataclass
+class BowlingDiagnostics:
+    """E8 per seed: per chance, throws taken / chosen by E1(a) / restricted by E1(b) / learnt
+    (int32 [2] each, summed over trials); E6 flags when the run ends, over every state and at
+    the full rack (chance 1's state)."""
+
+    routes: StepRoute
+    flags: jax.Array  # int32 []
+    rack_flags: jax.Array  # bool [K]
+
+
+def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active=True, diagnose: bool = False):
+    """E1 at `state` with the uniform of (trial, chance) (`jaxeac.running.loops.choose`); with
+    `diagnose`, the throw's `StepRoute` (E8) as a third value."""
+    return choose_action(cfg, agent, state, words, hyper, CHANCES, jnp.asarray(active), diagnose)
+
+
+def throw_routes(cfg: RunConfig, agents: AgentState, words, state, hyper: Hyper, active) -> StepRoute:
+    """E8: each seed's `StepRoute` of the throw `choose` picks (agents, words, state, active [M])."""
+    return jax.vmap(lambda a, w, s, act: choose(cfg, a, w, s, hyper, act, diagnose=True)[2])(
+        agents, words, state, active)
+
+
+def end_flags(cfg: RunConfig, agent: AgentState, n_angles: int,
+              rules: TrialRules = PAPER_RULES) -> tuple[jax.Array, jax.Array]:
+    """E8: (flags over every state, flags at chance 1's state — the full rack [K]) of one seed's
+    failure memory."""
+    from jaxeac.running.diagnostics import failure_pairs
+
+    states, actions, held = failure_pairs(cfg.agent, agent, rules.n_states(n_angles), n_angles)
+    rack = jnp.where(held & (states == rules.first_state), actions, n_angles)  # other pairs: dropped writes
+    return held.sum(dtype=jnp.int32), jnp.zeros((n_angles,), bool).at[rack].set(True, mode="drop")
+
+
+@functools.lru_cache(maxsize=8)
+def _diagnostic_steps(cfg: RunConfig, n_angles: int, rules: TrialRules):
+    """jit versions of `throw_routes` and `end_flags` (vmapped over seeds)."""
+    return (jax.jit(functools.partial(throw_routes, cfg)),
+            jax.jit(jax.vmap(functools.partial(end_flags, cfg, n_angles=n_angles, rules=rules))))
 
 
 def learn_from_throw(cfg: RunConfig, agent: AgentState, state, action, learns, knocked, next_state,
@@ -152,6 +189,8 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
     action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
     knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
     standing_rec = np.full((m, cfg.trials, CHANCES), -1, np.int16)
+    routes, flags_of = _diagnostic_steps(cfg, phys.n_angles, rules)
+    counts = StepRoute(*(np.zeros((m, CHANCES), np.int32) for _ in range(4)))  # E8
     for t in range(cfg.trials):
         pins = initial_pins(m, phys.scene)
         state = np.full(m, rules.first_state, np.int32)
@@ -161,6 +200,9 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
         for c in range(CHANCES):
             chosen = pick(agents, words, jnp.asarray(state), hyper, jnp.asarray(active))
             action, learns = jax.device_get(chosen)
+            route = jax.device_get(routes(agents, words, jnp.asarray(state), hyper, jnp.asarray(active)))
+            for total, x in zip(jax.tree.leaves(counts), jax.tree.leaves(route), strict=True):
+                total[:, c] += x
             eps = np.asarray(noise(keys, t, c))
             knocked = np.zeros(m, np.int32)
             after = state.copy()
@@ -183,7 +225,9 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
                            jnp.asarray(active), hyper)
             active &= ~cleared
             state = after
-    return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes), standing_rec)
+    flags, rack_flags = jax.device_get(flags_of(agents))
+    return BowlingRecord(action_rec, knocked_rec, np.asarray(agents.outcomes), standing_rec,
+                         BowlingDiagnostics(counts, flags, rack_flags))
 
 
 def _set_rows(full, rows, part):
@@ -217,10 +261,11 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
             state = jnp.full((m,), rules.first_state, jnp.int32)
             pins_so_far = jnp.zeros((m,), jnp.int32)
             active = jnp.ones((m,), bool)
-            actions, knocks, masks = [], [], []
+            actions, knocks, masks, routes = [], [], [], []
             for c in range(CHANCES):
                 action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None, 0))(cfg, agents, words, state,
                                                                                      hyper, active)
+                routes.append(throw_routes(cfg, agents, words, state, hyper, active))  # E8
                 res = physics(pins, action, keys, t, c)
                 knocked = jnp.where(active, res.knocked, 0)
                 after = jnp.where(active, rules.next_state(res.standing, action), state)
@@ -235,12 +280,15 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
                 pins = res.pins_after
                 active = active & ~cleared
                 state = after
-            return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1), jnp.stack(masks, -1))
+            routes = jax.tree.map(lambda *x: jnp.stack(x, -1).astype(jnp.int32), *routes)
+            return agents, (jnp.stack(actions, -1), jnp.stack(knocks, -1), jnp.stack(masks, -1), routes)
 
-        agents, (actions, knocks, masks) = jax.lax.scan(trial_step, agents, jnp.arange(cfg.trials))
+        agents, (actions, knocks, masks, routes) = jax.lax.scan(trial_step, agents, jnp.arange(cfg.trials))
+        flags, rack_flags = jax.vmap(lambda a: end_flags(cfg, a, phys.n_angles, rules))(agents)
+        diagnostics = BowlingDiagnostics(jax.tree.map(lambda x: x.sum(axis=0), routes), flags, rack_flags)
         return BowlingRecord(jnp.swapaxes(actions, 0, 1).astype(jnp.int8),
                              jnp.swapaxes(knocks, 0, 1).astype(jnp.int8), agents.outcomes,
-                             jnp.swapaxes(masks, 0, 1).astype(jnp.int16))
+                             jnp.swapaxes(masks, 0, 1).astype(jnp.int16), diagnostics)
 
     return jax.jit(batch)
 
@@ -309,6 +357,7 @@ class BowlingResult:
     compile_seconds: float
     run_seconds: float
     standing: np.ndarray | None = None  # int16 [N, T, 2]: pins standing after each chance (mask), −1 not thrown
+    diagnostics: BowlingDiagnostics | None = None  # E8, numpy leaves [N, ...]
 
     @property
     def returns(self) -> np.ndarray:
@@ -345,7 +394,15 @@ class BowlingResult:
         standing = None if parts[0].standing is None else np.concatenate([p.standing for p in parts])
         return cls(np.concatenate([p.action for p in parts]), np.concatenate([p.knocked for p in parts]),
                    np.concatenate([p.success for p in parts]), parts[0].angles,
-                   parts[0].compile_seconds, sum(p.run_seconds for p in parts), standing)
+                   parts[0].compile_seconds, sum(p.run_seconds for p in parts), standing,
+                   _concatenate_diagnostics([p.diagnostics for p in parts]))
+
+
+def _concatenate_diagnostics(parts: list[BowlingDiagnostics | None]) -> BowlingDiagnostics | None:
+    """Consecutive batches' E8 counts as one (None if a batch has none)."""
+    if any(p is None for p in parts):
+        return None
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
 _MJX_COMPILED: dict = {}  # (config, physics, backend, chunk) -> compiled run
@@ -387,7 +444,7 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
     elapsed = time.perf_counter() - t0
     cat = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     return BowlingResult(cat.action, cat.knocked, cat.success.astype(bool), angle_grid(phys),
-                         compile_seconds, elapsed - compiled_now, cat.standing.astype(np.int16))
+                         compile_seconds, elapsed - compiled_now, cat.standing.astype(np.int16), cat.diagnostics)
 
 
 @dataclasses.dataclass
@@ -414,7 +471,45 @@ def summarize_bowling(run: BowlingRun) -> dict:
             "mean_successes": float(r.success.sum(axis=1).mean()), "throws": r.throws,
             "throws_per_second": r.throws / r.run_seconds if r.run_seconds > 0 else None,
         }
+    out |= bowling_diagnostics(run)  # E8
     return out | {"physics": dataclasses.asdict(run.settings.physics()), "paper_totals": BOWLING_PINS}
+
+
+def rack_means(results: dict[str, BowlingResult]) -> np.ndarray:
+    """float [K]: mean pins of a chance-1 throw (from the full rack) per angle, over every seed and
+    trial of every algorithm of the run; NaN for an angle never thrown from it (E8)."""
+    k = next(iter(results.values())).angles.size
+    pins, throws = np.zeros(k), np.zeros(k)
+    for r in results.values():
+        action, knocked = r.action[:, :, 0].ravel(), r.knocked[:, :, 0].ravel()
+        thrown = action >= 0
+        throws += np.bincount(action[thrown], minlength=k)
+        pins += np.bincount(action[thrown], weights=knocked[thrown], minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(throws > 0, pins / throws, np.nan)
+
+
+def bowling_diagnostics(run: BowlingRun) -> dict:
+    """summary.json's ``diagnostics_seeds``, ``rack_mean_pins``, ``best_rack_actions`` and
+    ``memory_diagnostics`` (E8), over every seed: per chance, the share of throws E1(a) chose; the
+    shares E1(b) restricted and that learnt (E2); the E6 flags, and of the flags at the full rack
+    the share on a best angle (the highest `rack_means`)."""
+    from jaxeac.running.diagnostics import diagnostics_block
+
+    means = rack_means(run.results)
+    best = means == np.nanmax(means) if np.isfinite(means).any() else np.zeros(means.size, bool)
+    blocks = {}
+    for algo, r in run.results.items():
+        d = r.diagnostics
+        if d is None:
+            continue
+        judged = int(d.rack_flags.sum())
+        blocks[algo] = diagnostics_block(d.routes, int(d.flags.sum()), flags_judged=judged,
+                                         flags_on_best=int(d.rack_flags[:, best].sum()),
+                                         best_at_flags=judged * best.sum() / best.size)
+    return {"diagnostics_seeds": run.settings.seeds,
+            "rack_mean_pins": [None if np.isnan(x) else float(x) for x in means],
+            "best_rack_actions": np.flatnonzero(best).tolist(), "memory_diagnostics": blocks}
 
 
 def table_one(run: BowlingRun, seed: int = 0) -> str:

@@ -282,6 +282,28 @@ def summarize(run: GridRun) -> dict:
     return out
 
 
+def memory_diagnostics(run: GridRun, max_seeds: int | None = None) -> dict:
+    """summary.json's ``diagnostics_seeds``, ``diagnostics_seconds`` and ``memory_diagnostics`` (E8):
+    per algorithm, the first min(N, `max_seeds`, default `DIAGNOSTIC_SEEDS`) seeds of the run
+    again through the `trials` loop, counting E1's branches, E2's learning steps and the E6 flags
+    on a best action (G2 moves along a shortest path, `shortest_actions`; none known off a grid
+    map). ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
+    from jaxeac.envs.grid import shortest_actions
+    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS, diagnose_seeds, seeds_block
+
+    t0 = time.perf_counter()
+    settings, env = run.settings, run.settings.make_env()
+    best = shortest_actions(run.grid_map) if run.grid_map is not None else None
+    n = min([DIAGNOSTIC_SEEDS if max_seeds is None else max_seeds] + [len(r.seeds) for r in run.results.values()])
+    blocks = {}
+    for algo, r in run.results.items():
+        d = diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=r.seeds[:n], best=best)
+        blocks[algo] = seeds_block(d, best is not None) | {
+            "successes_match_run": bool(np.array_equal(d.success.sum(axis=1), r.successes[:n]))}
+    return {"diagnostics_seeds": int(n), "diagnostics_seconds": time.perf_counter() - t0,
+            "memory_diagnostics": blocks}
+
+
 def summary_table(summary: dict) -> str:
     """The short text table printed at the end of `jaxeac grid`."""
     lines = [f"{'algo':<18}{'seeds':>7}{'mean successes':>16}   95% CI          sd",]
@@ -320,6 +342,7 @@ def per_seed_csv(run: GridRun) -> str:
 def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool) -> dict:
     """Everything of a run folder but results.parquet, into the staging folder."""
     summary["outputs"] = dataclasses.asdict(options)
+    summary |= memory_diagnostics(run)
     if options.per_seed_csv:
         (stage / "per_seed.csv").write_text(per_seed_csv(run))
     if figures:

@@ -1,4 +1,5 @@
-"""Running many seeds: `RunConfig` (resolved once), the per-seed loops, the fused GPU kernel, chunks.
+"""Running many seeds: `RunConfig` (resolved once), the per-seed loops, the fused GPU kernel, chunks,
+and the memory diagnostics of a run's seeds (`jaxeac.running.diagnostics`, SPEC E8).
 
 See docs/ARCHITECTURE.md for the flow of one run.
 """

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 
 from jaxeac.algorithm.agent import (
     AgentState,
+    StepRoute,
     end_trial,
     failure_slot,
     greedy_policy,
@@ -53,13 +54,16 @@ class TrialRecord:
     rtilde: jax.Array  # float [C]
     length: jax.Array  # int32 [], chances actually used
     success: jax.Array  # bool []
+    route: StepRoute | None = None  # per chance [C], with `diagnose` only: how E1 chose (E8)
 
 
-def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chances: int, active):
-    """E1 at `state` with the uniform of (trial, chance) of this seed (R1); (action, learns) (E2)."""
+def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chances: int, active,
+           diagnose: bool = False):
+    """E1 at `state` with the uniform of (trial, chance) of this seed (R1); (action, learns) (E2),
+    and with `diagnose` (static) the step's `StepRoute` (E8) as a third value."""
     trial = jnp.minimum(agent.trial, cfg.trials - 1)
     u = action_uniform(words, trial, agent.chance, n_chances)
-    return select_action(cfg.agent, agent, state, u, hyper, active)
+    return select_action(cfg.agent, agent, state, u, hyper, active, route=diagnose)
 
 
 def learn_and_record(cfg: RunConfig, agent: AgentState, state, action, learns, reward, next_state,
@@ -80,13 +84,14 @@ def learn_and_record(cfg: RunConfig, agent: AgentState, state, action, learns, r
 
 
 def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, hyper: Hyper, active,
-                before=None):
+                before=None, diagnose: bool = False):
     """Alg. 1 lines 4–14 for one chance, if `active`: E1 choice, move, (2)–(4), r̃ (E5), records.
 
-    Returns (agent, step, state, action, r̃). `before`: the r̃ E6 compares with, if not its slot's.
+    Returns (agent, step, state, action, r̃), and with `diagnose` (static) the chance's
+    `StepRoute` (E8) last. `before`: the r̃ E6 compares with, if not its slot's.
     """
     s = env.observation(env_state)
-    action, learns = choose(cfg, agent, s, words, hyper, env.n_chances, active)
+    action, learns, *route = choose(cfg, agent, s, words, hyper, env.n_chances, active, diagnose)
     step = env.move(env_state, action, words, jnp.minimum(agent.trial, cfg.trials - 1), agent.chance)
     s_next = env.observation(step.state)
     goal_known = agent.goal_known | (active & step.success)  # E5: this step included
@@ -97,7 +102,7 @@ def take_chance(env: Env, cfg: RunConfig, agent: AgentState, env_state, words, h
                                          env.n_chances)
     agent = learn_and_record(cfg, agent.replace(goal_known=goal_known), s, action, learns, step.reward,
                              s_next, step.terminated, rtilde, active, hyper, before, next_uniform)
-    return agent, step, s, action, rtilde
+    return agent, step, s, action, rtilde, *route
 
 
 # --- the `trials` loop: literal Algorithm 1 structure -----------------------------------------
@@ -110,34 +115,38 @@ class _ChanceCarry:
     done: jax.Array
 
 
-def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words):
-    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6."""
+def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, diagnose: bool = False):
+    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6.
+    With `diagnose` (static), the record also keeps each chance's `StepRoute` (E8)."""
     trial = agent.trial
     n_chances = env.n_chances
 
     def chance(carry: _ChanceCarry, c):
         live = ~carry.done
-        agent, step, s, action, rtilde = take_chance(env, cfg, carry.agent, carry.env_state, words, hyper,
-                                                     live)
+        agent, step, s, action, rtilde, *route = take_chance(env, cfg, carry.agent, carry.env_state, words,
+                                                             hyper, live, diagnose=diagnose)
         env_state = jax.tree.map(lambda new, old: jnp.where(live, new, old), step.state, carry.env_state)
         done = carry.done | step.terminated | step.truncated
-        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.success)
+        return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.success, *route)
 
     start = env.start(words, trial)
-    end, (states, actions, rtilde, live, reached) = jax.lax.scan(
+    end, (states, actions, rtilde, live, reached, *route) = jax.lax.scan(
         chance, _ChanceCarry(start, agent, jnp.bool_(False)), jnp.arange(n_chances)
     )
-    record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any())
+    record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any(), *route)
     agent = end_trial(cfg.agent, end.agent, record.success, jnp.bool_(True))
     return agent, record
 
 
-def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, TrialRecord]:
-    """One seed's run with the `trials` loop, keeping the final agent and every trial's record."""
+def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
+              diagnose: bool = False) -> tuple[AgentState, TrialRecord]:
+    """One seed's run with the `trials` loop, keeping the final agent and every trial's record
+    (with `diagnose`, static: each chance's `StepRoute` too, E8)."""
     cfg = cfg.resolve(env)
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
     words = seed_words(key)
-    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words), agent, None, length=cfg.trials)
+    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words, diagnose), agent, None,
+                        length=cfg.trials)
 
 
 def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResult]:

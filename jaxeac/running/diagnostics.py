@@ -1,0 +1,186 @@
+"""Memory diagnostics (SPEC E8): which branch of E1 chose each step, how many steps learnt (E2),
+and where the failure flags (E6) landed: the numbers that explain a result.
+
+The run loops count nothing (their per-seed results and speed stay as they are). A grid run's
+diagnostics re-run its first seeds (`DIAGNOSTIC_SEEDS` at most) through the `trials` loop with
+``diagnose=True``, which keeps each chance's `StepRoute` from the agent's own `select_action`.
+Seed i uses ``fold_in(root, i)`` in every loop (R1) and the loops agree bit for bit (R2), so the
+diagnosed seeds are the run's own; `diagnose_seeds` returns their successes to show it. Bowling
+gathers the same `StepRoute` of every throw during its run (`jaxeac.experiments.bowling`).
+
+Shares are pooled over the diagnosed seeds' steps (a ratio of sums, not a mean of per-seed
+ratios); `diagnostics_block` writes them for summary.json.
+SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxeac.algorithm.agent import AgentState, StepRoute
+from jaxeac.algorithm.buffer import BufferMemory
+from jaxeac.algorithm.config import AgentConfig, Hyper
+from jaxeac.pytree import pytree_dataclass
+from jaxeac.rng import seed_key
+from jaxeac.running.config import RunConfig
+from jaxeac.running.loops import Env, state_bytes_per_seed, trace_run
+
+#: A grid run diagnoses its first min(N, DIAGNOSTIC_SEEDS) seeds (summary.json: ``diagnostics_seeds``).
+DIAGNOSTIC_SEEDS = 1000
+#: Device bytes one chunk of diagnosed seeds may hold (their agents and per-chance routes).
+CHUNK_BYTES = 1 << 28
+
+
+@pytree_dataclass
+class SeedDiagnostics:
+    """E8's counts for one seed (leaves get a leading seed axis over many)."""
+
+    routes: StepRoute  # int32 [C] each: per chance index, steps taken, chosen by E1(a), restricted by E1(b), learnt
+    flags: jax.Array  # int32 []: (state, action) pairs flagged failed when the run ends (E6)
+    flags_on_best: jax.Array  # int32 []: of those, the pairs whose action is a best action at its state
+    best_at_flags: jax.Array  # float []: Σ over flagged pairs of (best actions at the state) / A
+    success: jax.Array  # bool [T]: the run's per-trial successes
+
+
+def failure_pairs(cfg: AgentConfig, agent: AgentState, n_states: int, n_actions: int
+                  ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(states, actions, held), int32/int32/bool [P]: the (state, action) pairs the failure memory
+    holds after the agent's last trial (E6 only adds flags, so every pair flagged during the run;
+    an E7 buffer that overflowed keeps its latest K). Dense layout: every pair of the table
+    (P = S·A, held where flagged); buffer: its K slots (held where filled; no pair twice), read
+    directly, so that no per-state search over the slots runs. Nothing held without a failure memory."""
+    if not cfg.failure_memory:
+        none = jnp.zeros((0,), jnp.int32)
+        return none, none, jnp.zeros((0,), bool)
+    memory = agent.memory
+    if isinstance(memory, BufferMemory):  # slots below the insertion count are filled (FIFO)
+        held = jnp.arange(memory.failure_states.shape[0]) < memory.failure_count
+        return memory.failure_states, memory.failure_actions, held
+    table = jax.vmap(lambda s: memory.failure_flags(s, agent.trial, agent.outcomes))(jnp.arange(n_states))
+    states, actions = jnp.divmod(jnp.arange(n_states * n_actions, dtype=jnp.int32), n_actions)
+    return states, actions, table.reshape(-1)
+
+
+def flag_counts(pairs: tuple[jax.Array, jax.Array, jax.Array], best: jax.Array | None
+                ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(flags, flags on a best action, Σ over flags of the share of best actions at their state)
+    of one seed's `failure_pairs`, given the best actions `best` [S, A] (None: none known)."""
+    states, actions, held = pairs
+    n = held.sum(dtype=jnp.int32)
+    if best is None:
+        return n, jnp.int32(0), jnp.float32(0.0)
+    best = jnp.asarray(best, bool)
+    states = jnp.clip(states, 0, best.shape[0] - 1)  # an empty buffer slot holds −1 (not held)
+    on_best = held & best[states, jnp.clip(actions, 0, best.shape[1] - 1)]
+    share = best.sum(axis=1) / best.shape[1]
+    return n, on_best.sum(dtype=jnp.int32), jnp.where(held, share[states], 0.0).sum(dtype=jnp.float32)
+
+
+def route_sums(route: StepRoute, axis: int = 0) -> StepRoute:
+    """int32 counts of a `StepRoute` of bools, summed over `axis` (trials, seeds)."""
+    return jax.tree.map(lambda x: jnp.asarray(x).sum(axis=axis, dtype=jnp.int32), route)
+
+
+def trials_config(env: Env, cfg: RunConfig) -> RunConfig:
+    """`cfg` in the literal `trials` loop (no memory jumps, XLA ops): the loop `diagnose` runs in."""
+    return dataclasses.replace(cfg, loop="trials", kernel="auto", jump="auto", lanes=None).resolve(env)
+
+
+def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
+                     best: jax.Array | None = None) -> SeedDiagnostics:
+    """One seed's run in the `trials` loop with ``diagnose=True``, reduced to its E8 counts."""
+    cfg = trials_config(env, cfg)
+    agent, records = trace_run(env, cfg, key, hyper, diagnose=True)
+    pairs = failure_pairs(cfg.agent, agent, env.n_states, env.n_actions)
+    return SeedDiagnostics(route_sums(records.route), *flag_counts(pairs, best), records.success)
+
+
+@functools.lru_cache(maxsize=16)
+def _program(env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
+    """jit over a chunk of seeds: ``(root, seeds [M], hyper, best) -> SeedDiagnostics [M]``,
+    split over `n_devices` local devices (seeds are independent, R1)."""
+    def batch(root, seeds, hyper, best):
+        keys = jax.vmap(seed_key, in_axes=(None, 0))(root, seeds)
+        return jax.vmap(lambda k: seed_diagnostics(env, cfg, k, hyper, best if has_best else None))(keys)
+
+    if n_devices > 1:
+        from jax.sharding import PartitionSpec
+
+        from jaxeac.running.batch import SEEDS_AXIS, seed_mesh
+
+        mesh = seed_mesh(jax.local_devices()[:n_devices])
+        batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(SEEDS_AXIS),
+                                                          PartitionSpec(), PartitionSpec()),
+                              out_specs=PartitionSpec(SEEDS_AXIS), check_vma=False)
+    return jax.jit(batch)
+
+
+def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
+                   best: np.ndarray | None = None, hyper: Hyper | None = None) -> SeedDiagnostics:
+    """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
+    seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
+    `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
+    hold `CHUNK_BYTES` and split over the local devices."""
+    seeds = np.asarray(seeds, np.int64)
+    if seeds.size == 0:
+        raise ValueError("no seeds to diagnose")
+    cfg = trials_config(env, cfg)
+    hyper = cfg.hyper() if hyper is None else hyper
+    n_devices = min(len(jax.local_devices()), seeds.size)
+    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * env.n_chances * 8 + env.n_states * env.n_actions
+    chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
+    chunk = -(-chunk // n_devices) * n_devices
+    program = _program(env, cfg, best is not None, n_devices)
+    best_arg = jnp.asarray(best, bool) if best is not None else jnp.zeros((), bool)
+    root = jax.random.key(root_key)
+    parts = []
+    for start in range(0, seeds.size, chunk):
+        part = seeds[start:start + chunk]
+        padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
+        out = jax.device_get(program(root, padded, hyper, best_arg))
+        parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def _share(part, whole) -> float | None:
+    return float(part) / float(whole) if whole else None
+
+
+def diagnostics_block(routes: StepRoute, flags: int, *, flags_judged: int | None = None,
+                      flags_on_best: int | None = None, best_at_flags: float | None = None) -> dict:
+    """summary.json's ``memory_diagnostics`` entry of one algorithm (E8), from per-chance counts
+    `routes` (int [C] or [N, C], summed over seeds) and the run's flag count `flags`. The best-action
+    shares are over `flags_judged` flags (default: all of them); None where no best action is known.
+    Shares are None where their denominator is 0."""
+    taken, remembered, restricted, learns = (np.asarray(x).reshape(-1, np.shape(x)[-1]).sum(axis=0)
+                                             for x in (routes.taken, routes.remembered, routes.restricted,
+                                                       routes.learns))
+    judged = flags if flags_judged is None else flags_judged
+    known = flags_on_best is not None
+    return {
+        "steps": int(taken.sum()),
+        "steps_per_chance": taken.astype(int).tolist(),
+        "hit_rate_per_chance": [_share(h, n) for h, n in zip(remembered, taken, strict=True)],
+        "hit_rate": _share(remembered.sum(), taken.sum()),
+        "restricted_share": _share(restricted.sum(), taken.sum()),
+        "learning_share": _share(learns.sum(), taken.sum()),
+        "flags": int(flags),
+        "flags_judged": int(judged) if known else 0,
+        "flags_on_best_share": _share(flags_on_best, judged) if known else None,
+        "flags_on_best_chance": _share(best_at_flags, judged) if known else None,
+    }
+
+
+def seeds_block(d: SeedDiagnostics, best_known: bool) -> dict:
+    """`diagnostics_block` of `diagnose_seeds`'s counts."""
+    flags = int(d.flags.sum())
+    if not best_known:
+        return diagnostics_block(d.routes, flags)
+    return diagnostics_block(d.routes, flags, flags_on_best=int(d.flags_on_best.sum()),
+                             best_at_flags=float(d.best_at_flags.sum(dtype=np.float64)))
