@@ -14,7 +14,6 @@ throws of at most 7 pins; all ten down once in 20 trials).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -29,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from jaxeac import paper  # noqa: E402
 from jaxeac.envs.bowling import SCENES, BowlingConfig, Scene, angles, initial_pins, throw  # noqa: E402
 from jaxeac.experiments.grid import versions  # noqa: E402
+from jaxeac.io import atomic_write_json  # noqa: E402
 
 
 def parse_scene(text: str) -> tuple[str, Scene]:
@@ -111,9 +111,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{100 * r['strike_rate']:.1f} % | {100 * r['share_over_7']:.1f} % | {r['best_trial_mean']:.2f} | "
               f"{100 * r['best_trial_all_ten']:.1f} % |", flush=True)
     if args.out:
-        tmp = args.out.with_name(args.out.name + ".tmp")
-        tmp.write_text(json.dumps(record, indent=1))
-        tmp.replace(args.out)
+        atomic_write_json(args.out, record)
     return 0
 
 
