@@ -81,3 +81,18 @@ def test_stats_memory_runs_the_grid_data_path_and_reports_its_peak(tmp_path):
     assert "'summary and figures end'" in proc.stdout and "'calibrate end'" in proc.stdout
     for name in ("results.parquet", "summary.json", "stats.json", "report.md"):
         assert (out / name).is_file()
+
+
+def test_bowling_landscape_records_each_scene(tmp_path):
+    """scripts/bowling_landscape.py (SPEC B1a's measurement) at one throw per angle."""
+    out = tmp_path / "landscape.json"
+    proc = _script("scripts/bowling_landscape.py", "--scenes", "table1", "0.08:0.36", "--per-angle", "1",
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert rec["paper_table1"]["most_pins_one_throw"] == 7 and rec["paper_table1"]["trials"] == 20
+    assert list(rec["scenes"]) == ["table1", "0.08:0.36"]
+    r = rec["scenes"]["table1"]
+    assert (r["ball_radius"], r["pin_spacing"], r["throws"]) == (0.06, 0.4, 42)
+    assert max(r["chance1_mean_per_angle"]) == r["best_chance1_mean"] <= r["most_pins_one_throw"] <= 10
+    assert "| table1 | 0.06 | 0.4 |" in proc.stdout
