@@ -456,3 +456,14 @@ def test_bowl5_and_the_table1_scene_in_the_report(run):
     assert [x["id"] for x in rec["claims_table1"]] == ["BOWL-1", "BOWL-2", "BOWL-3", "BOWL-4", "BOWL-5"]
     for x in rec["claims_table1"]:
         assert x["headline"] in text
+
+
+def test_every_full_bowling_calibration_point_can_run():
+    """The full sweep's points are valid bowling settings (K within what EAC's memories hold)."""
+    from jaxeac.experiments.reproduce import FULL
+    from jaxeac.experiments.reproduce.bowling_calibration import point_settings, sweep_points
+
+    points = sweep_points(FULL.bowling_calibration_grid, FULL.bowling_calibration_lines)
+    assert len(points) == 16 + 7
+    for p in points:
+        point_settings(p, seeds=2, key=0, chunk=2, algos=("ac", "eac", *FULL.bowling_ablation_algos))

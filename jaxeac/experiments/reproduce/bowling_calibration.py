@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxeac import paper
+from jaxeac.cli_args import check_bowling_memory_layout
 from jaxeac.experiments.reproduce.measures import contrast, mean_ci, paper_position, sub_key
 from jaxeac.io import atomic_write_bytes, staged_dir
 
@@ -35,8 +36,9 @@ from jaxeac.io import atomic_write_bytes, staged_dir
 BOWLING_TOLERANCE = 3.0
 #: Swept together (the heatmap): β (actor step size) × θ_max (rad).
 BOWLING_GRID = (("beta", (0.03, 0.1, 0.3, 0.9)), ("theta_max", (0.1, 0.15, 0.2, 0.3)))
-#: Swept one at a time at the defaults: α, K angles, execution-noise scale (× the B3 defaults).
-BOWLING_LINES = (("alpha", (0.05, 0.2, 0.5)), ("angles", (11, 41)), ("noise", (0.0, 3.0)))
+#: Swept one at a time at the defaults: α, K angles (EAC's memories hold at most 24), execution-noise
+#: scale (× the B3 defaults).
+BOWLING_LINES = (("alpha", (0.05, 0.2, 0.5)), ("angles", (11, 23)), ("noise", (0.0, 3.0)))
 #: Run against AC at the calibrated point.
 BOWLING_ABLATIONS = ("eac_success_only", "eac_failure_only", "eac_within_trial")
 
@@ -68,6 +70,7 @@ def point_settings(point: dict, *, seeds: int, key: int, chunk: int, algos: tupl
                                noise_angle=base.noise_angle * scale, noise_speed=base.noise_speed * scale,
                                **fields)
     settings.validate()
+    check_bowling_memory_layout(settings)  # K within what EAC's memories hold
     return settings
 
 
