@@ -272,3 +272,19 @@ def bowling_calibration_section(bc: dict) -> list[str]:
                      f"{interval(v['diff_ci95'], 2, sign=True)} | {number(v['hedges_g'], 3)} | "
                      f"{p_value(v['p_holm'])} |")
     return L + [""]
+
+
+def bowling_calibration_answer(bc: dict) -> str:
+    """The bowling calibration in two sentences, for the report's plain words."""
+    from jaxeac.fmt import interval, number
+
+    c, near = bc["calibrated"], bc["near"]
+    k = c["contrast"]
+    text = (f"Calibrated as the grid was (AC closest to the paper's {paper.BOWLING_PINS['ac']} pins: "
+            f"{_where(c).removesuffix(' (the rest at their defaults)')}, AC {number(c['ac'])}), EAC − AC is "
+            f"{number(k['diff'], 2, sign=True)} {interval(k['diff_ci95'], 2, sign=True)} pins")
+    if near["count"] > 1:
+        text += (f", and over the {near['count']} settings with AC within ±{bc['tolerance']:g} it ranges over "
+                 f"{interval(near['diff_range'], 2, sign=True)}")
+    return (text + f"; over the whole bowling sweep EAC is reliably better at {len(bc['points_eac_better'])} "
+            f"and reliably worse at {len(bc['points_eac_worse'])} of {len(bc['points'])} settings.")

@@ -12,7 +12,10 @@ import shutil
 from pathlib import Path
 
 from jaxeac import paper
-from jaxeac.experiments.reproduce.bowling_calibration import bowling_calibration_section
+from jaxeac.experiments.reproduce.bowling_calibration import (
+    bowling_calibration_answer,
+    bowling_calibration_section,
+)
 from jaxeac.experiments.reproduce.claims import VERDICT_RULES, supported
 from jaxeac.fmt import interval, number, p_value, size_word
 from jaxeac.io import atomic_write_text
@@ -71,7 +74,9 @@ def render_report(rec: dict, out: Path) -> str:
         L.append(f"| {c['id']} | {c['claim']} | {c['paper']} | {c['headline']} | **{c['verdict']}** |")
     L += ["", f"{counts['holds']} hold, {counts['partly holds']} partly hold, "
           f"{counts['does not hold']} do not hold.",
-          "", VERDICT_RULES, "", "## In plain words", "", rec["plain"], ""]
+          "", VERDICT_RULES, "", "## In plain words", "", rec["plain"]
+          + ("" if "bowling_calibration" not in rec else " " + bowling_calibration_answer(rec["bowling_calibration"])),
+          ""]
 
     # ---- grid
     gp = cl["GRID-1"]["stats"]
