@@ -417,6 +417,8 @@ def test_bowling_calibration_record_and_report(run):
     k = rec["calibrated"]["contrast"]
     assert f"EAC − AC {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}]" in text
     assert "eac_success_only" in text and "heatmap.png" in text
+    plain = section(report.read_text(), "## In plain words")
+    assert f"EAC − AC is {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}] pins" in plain
 
 
 # ---------------------------------------------------------------- BOWL-5 and the table1 scene
