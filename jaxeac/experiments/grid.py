@@ -18,6 +18,7 @@ import dataclasses
 import io
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -295,11 +296,14 @@ def memory_diagnostics(run: GridRun, max_seeds: int | None = None) -> dict:
     settings, env = run.settings, run.settings.make_env()
     best = shortest_actions(run.grid_map) if run.grid_map is not None else None
     n = min([DIAGNOSTIC_SEEDS if max_seeds is None else max_seeds] + [len(r.seeds) for r in run.results.values()])
-    blocks = {}
-    for algo, r in run.results.items():
+    def one(algo: str) -> dict:
+        r = run.results[algo]
         d = diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=r.seeds[:n], best=best)
-        blocks[algo] = seeds_block(d, best is not None) | {
+        return seeds_block(d, best is not None) | {
             "successes_match_run": bool(np.array_equal(d.success.sum(axis=1), r.successes[:n]))}
+
+    with ThreadPoolExecutor(max_workers=len(run.results)) as pool:  # the algorithms' programs compile side by side
+        blocks = dict(zip(run.results, pool.map(one, run.results), strict=True))
     return {"diagnostics_seeds": int(n), "diagnostics_seconds": time.perf_counter() - t0,
             "memory_diagnostics": blocks}
 
