@@ -351,7 +351,7 @@ def test_no_sleep_flag_reaches_the_summary(tmp_path):
     from jaxeac.cli import main
 
     out = tmp_path / "b"
-    argv = ["bowling", "--seeds", "1", "--trials", "1", "--out", str(out), "--quiet", "--no-compare",
+    argv = ["bowling", "--seeds", "2", "--trials", "1", "--out", str(out), "--quiet", "--no-compare",
             "--no-sleep"]
     assert main(argv) == 0
     assert json.loads((out / "summary.json").read_text())["physics"]["solver"]["sleep"] is False
