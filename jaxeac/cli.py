@@ -83,8 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="s.d. of the angle noise in rad (B3)")
     b.add_argument("--noise-speed", type=finite_float, default=0.1, metavar="S",
                    help="s.d. of the release-speed noise in m/s (B3)")
-    b.add_argument("--backend", default="c", metavar="c|mjx|warp",
-                   help="physics backend (B7; default c; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
+    b.add_argument("--backend", default="auto", metavar="auto|c|mjx|warp",
+                   help="physics backend (B7; default auto: c on CPUs, warp on NVIDIA GPUs with warp-lang, else "
+                        "mjx; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
     add_solver_flags(b)
     b.add_argument("--scene", default="default", metavar="default|table1",
                    help="ball and pin deck (B1; table1: a smaller ball and wider deck whose first throws "
@@ -109,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--angles", nargs="+", type=finite_float, required=True, metavar="A",
                    help="shoulder angles in rad, within ±theta-max")
     t.add_argument("--noise", type=finite_float, default=0.0, help="noise scale (0: deterministic)")
-    t.add_argument("--backend", default="c", metavar="c|mjx|warp")
+    t.add_argument("--backend", default="auto", metavar="auto|c|mjx|warp", help="physics backend (B7; default auto)")
     add_solver_flags(t)
     t.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X")
     t.add_argument("--scene", default="default", metavar="default|table1", help="ball and pin deck (B1, B1a)")
@@ -427,6 +428,7 @@ def cmd_bowling(args: argparse.Namespace) -> int:
         success_pins=args.success_pins,
     )
     settings.validate()
+    settings = settings.resolved()  # the backend `auto` picks here, recorded in summary.json
     check_bowling_memory_layout(settings)
     from jaxeac.experiments.common import check_bowling_resources
 

@@ -228,3 +228,16 @@ def test_bad_trial_rules_exit_2(tmp_path, capsys, argv, message):
     assert main([*argv, "--out", str(out), "--seeds", "2"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and not out.exists()
+
+
+def test_backend_auto_picks_the_c_engine_on_cpus(tmp_path):
+    """B7: `auto` (the default) is the C engine where JAX runs on CPUs, and summary.json records
+    the engine picked, not `auto`."""
+    from jaxeac.envs.bowling.scene import check_backend, default_backend
+
+    assert jax.default_backend() == "cpu"
+    assert default_backend() == check_backend("auto") == "c"
+    assert BowlingSettings().backend == "auto" and BowlingSettings().resolved().backend == "c"
+    out = tmp_path / "b"
+    assert main(["bowling", "--seeds", "2", "--trials", "1", "--out", str(out), "--quiet", "--no-compare"]) == 0
+    assert json.loads((out / "summary.json").read_text())["config"]["backend"] == "c"

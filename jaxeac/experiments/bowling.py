@@ -303,7 +303,7 @@ class BowlingSettings:
     theta_max: float = 0.1
     noise_angle: float = 0.003
     noise_speed: float = 0.1
-    backend: str = "c"
+    backend: str = "auto"  # B7: c on CPUs, warp (else mjx) on accelerators; `resolved`
     algos: tuple[str, ...] = ("ac", "eac")
     key: int = 0
     chunk_size: int = 1000
@@ -334,6 +334,10 @@ class BowlingSettings:
 
     def rules(self) -> TrialRules:
         return TrialRules(self.state, self.success_pins)
+
+    def resolved(self) -> BowlingSettings:
+        """These settings with the backend ``auto`` replaced by the one it picks here (B7)."""
+        return dataclasses.replace(self, backend=check_backend(self.backend))
 
     def physics(self) -> BowlingConfig:
         return BowlingConfig(n_angles=self.angles, theta_max=self.theta_max,
@@ -413,6 +417,7 @@ def run_bowling_algo(settings: BowlingSettings, algo: str, *,
                      n_seeds: int | None = None) -> BowlingResult:
     """Seeds first_seed … first_seed+n−1 (default all N) of one algorithm (R1: seed i uses
     fold_in(root, i)), in chunks; an MJX program is compiled once per chunk shape."""
+    settings = settings.resolved()
     cfg, phys = settings.run_config(algo), settings.physics()
     hyper = cfg.hyper()
     root = jax.random.key(settings.key)
@@ -456,7 +461,9 @@ class BowlingRun:
 
 
 def run_bowling(settings: BowlingSettings, *, progress: Callable[[int], None] | None = None) -> BowlingRun:
-    """Run every algorithm of (validated) `settings`."""
+    """Run every algorithm of (validated) `settings`; the run keeps them `resolved` (the backend `auto`
+    picked)."""
+    settings = settings.resolved()
     return BowlingRun(settings, {a: run_bowling_algo(settings, a, progress=progress) for a in settings.algos})
 
 

@@ -97,8 +97,9 @@ STEPS_PER_SECOND = {"cpu": 1e8, "default": 5e10}
 #: lane's r̃ [chances] (measured: ~0.12 ns per chance and step on a CPU core), so its cost grows
 #: with --chances.
 BYTES_PER_SECOND = {"cpu": 3e10, "default": 3e12}
-#: Optimistic bowling throws/s: C engine per core (measured ~57), MJX per GPU (measured ~1e4).
-THROWS_PER_SECOND = {"c": 250.0, "default": 1e5}
+#: Optimistic bowling throws/s: C engine per core (measured ~130 with sleeping pins), MJX per GPU
+#: (measured ~1e4).
+THROWS_PER_SECOND = {"c": 500.0, "default": 1e5}
 #: Statistics (`jaxeac compare`): host bytes per bootstrap/permutation resample and trial, a lower
 #: bound (measured ~135-150 bytes with 20-200 trials).
 COMPARE_BYTES_PER_RESAMPLE_TRIAL = 64

@@ -63,7 +63,7 @@ def throw(
     key_or_noise: one PRNG key (split into B), B keys, or standard normals (B, 2)
     [angle, speed] scaled by cfg.noise_angle / cfg.noise_speed (B3).
     """
-    check_backend(backend)
+    backend = check_backend(backend)  # "auto": the engine B7 picks here
     pins, unbatched = _check_pins(pins)
     batch = pins.standing.shape[0]
     a = check_angles(angle, cfg)

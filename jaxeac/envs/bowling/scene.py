@@ -212,10 +212,25 @@ def angles(cfg: BowlingConfig) -> np.ndarray:
     return np.linspace(-cfg.theta_max, cfg.theta_max, cfg.n_angles)
 
 
+def default_backend() -> str:
+    """B7's ``auto``: the fastest maintained engine where JAX runs: the C engine on CPUs; on
+    accelerators MJX with its Warp implementation when warp-lang is installed, else MJX in JAX."""
+    import jax
+
+    if jax.default_backend() == "cpu":
+        return "c"
+    try:
+        return check_backend("warp")
+    except UsageError:
+        return "mjx"
+
+
 def check_backend(backend: str) -> str:
-    """Return backend if known, else raise UsageError (B7)."""
+    """Return backend if known (``auto``: `default_backend`), else raise UsageError (B7)."""
+    if backend == "auto":
+        return default_backend()
     if backend not in BACKENDS:
-        raise UsageError(f"unknown bowling backend {backend!r}: use one of {', '.join(BACKENDS)}")
+        raise UsageError(f"unknown bowling backend {backend!r}: use one of auto, {', '.join(BACKENDS)}")
     if backend in MJX_IMPL:
         from .backend_mjx import check_impl  # imports MJX; only when an MJX backend is asked for
 

@@ -31,7 +31,7 @@ def throw_command(
 
     With several angles and a render path, throw i is saved as ``<stem>_<i><suffix>``.
     """
-    check_backend(backend)
+    backend = check_backend(backend)
     if not angles:
         raise UsageError("no angles given: pass at least one shoulder angle (rad)")
     if not math.isfinite(noise) or noise < 0:
