@@ -285,3 +285,28 @@ def test_sequential_bowling_keeps_the_counters():
     joined = BowlingResult.concatenate([part(2), part(3)])
     assert joined.diagnostics.flags.tolist() == [0, 1, 0, 1, 2] and joined.diagnostics.routes.taken.shape == (5, 2)
     assert BowlingResult.concatenate([part(2), dataclasses.replace(part(1), diagnostics=None)]).diagnostics is None
+
+
+def test_counts_beside_the_run_equal_counts_after_it(tmp_path, monkeypatch):
+    """E8 on accelerators is computed while the device runs the seeds (`DIAGNOSE_BESIDE_THE_RUN`):
+    forced on the CPU, the summary's diagnostics equal those computed after the run."""
+    import json
+
+    import jaxeac.experiments.grid as grid
+    from jaxeac.cli import main
+
+    def diagnostics(out):
+        argv = ["grid", "--preset", "paper7", "--seeds", "12", "--trials", "20", "--out", str(out), "--quiet",
+                "--no-compare"]
+        assert main(argv) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        return summary["diagnostics_seeds"], summary["memory_diagnostics"]
+
+    after = diagnostics(tmp_path / "after")
+    monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    calls = []
+    diagnose = grid.diagnose_grid
+    monkeypatch.setattr(grid, "diagnose_grid", lambda *a: calls.append(1) or diagnose(*a))
+    beside = diagnostics(tmp_path / "beside")
+    assert calls == [1] and beside == after and after[0] == 12
+    assert all(block["successes_match_run"] for block in after[1].values())

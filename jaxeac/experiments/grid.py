@@ -21,6 +21,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from jaxeac.algorithm.config import algorithm
@@ -283,29 +284,57 @@ def summarize(run: GridRun) -> dict:
     return out
 
 
-def memory_diagnostics(run: GridRun, max_seeds: int | None = None) -> dict:
-    """summary.json's ``diagnostics_seeds``, ``diagnostics_seconds`` and ``memory_diagnostics`` (E8):
-    per algorithm, the first min(N, `max_seeds`, default `DIAGNOSTIC_SEEDS`) seeds of the run
-    again through the `trials` loop, counting E1's branches, E2's learning steps and the E6 flags
-    on a best action (G2 moves along a shortest path, `shortest_actions`; none known off a grid
-    map). ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
+#: Per JAX backend: compute E8's counts beside the run (`run_grid_to_folder`) rather than after it.
+DIAGNOSE_BESIDE_THE_RUN = {"gpu": True, "tpu": True}
+
+
+def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[str, np.ndarray]
+                  ) -> tuple[dict, float]:
+    """({algo: E8 counts of its seeds `seeds[algo]`}, seconds): those seeds again through the `trials`
+    loop, counting E1's branches, E2's learning steps and the E6 flags on a best action (G2 moves
+    along a shortest path, `shortest_actions`; none known off a grid map). The algorithms' programs
+    compile and run side by side."""
     from jaxeac.envs.grid import shortest_actions
-    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS, diagnose_seeds, seeds_block
+    from jaxeac.running.diagnostics import diagnose_seeds
 
     t0 = time.perf_counter()
-    settings, env = run.settings, run.settings.make_env()
-    best = shortest_actions(run.grid_map) if run.grid_map is not None else None
-    n = min([DIAGNOSTIC_SEEDS if max_seeds is None else max_seeds] + [len(r.seeds) for r in run.results.values()])
-    def one(algo: str) -> dict:
-        r = run.results[algo]
-        d = diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=r.seeds[:n], best=best)
-        return seeds_block(d, best is not None) | {
-            "successes_match_run": bool(np.array_equal(d.success.sum(axis=1), r.successes[:n]))}
+    env = settings.make_env()
+    best = shortest_actions(grid_map) if grid_map is not None else None
 
-    with ThreadPoolExecutor(max_workers=len(run.results)) as pool:  # the algorithms' programs compile side by side
-        blocks = dict(zip(run.results, pool.map(one, run.results), strict=True))
-    return {"diagnostics_seeds": int(n), "diagnostics_seconds": time.perf_counter() - t0,
-            "memory_diagnostics": blocks}
+    def one(algo: str):
+        return diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=seeds[algo], best=best)
+
+    with ThreadPoolExecutor(max_workers=len(seeds)) as pool:
+        counts = dict(zip(seeds, pool.map(one, seeds), strict=True))
+    return counts, time.perf_counter() - t0
+
+
+def diagnostic_seeds(settings: GridSettings) -> dict[str, np.ndarray]:
+    """The seeds E8 counts of a run of `settings` from seed 0: its first `DIAGNOSTIC_SEEDS`."""
+    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS
+
+    return {a: np.arange(min(DIAGNOSTIC_SEEDS, settings.seeds), dtype=np.int64) for a in settings.algos}
+
+
+def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tuple[dict, float] | None = None
+                       ) -> dict:
+    """summary.json's ``diagnostics_seeds``, ``diagnostics_seconds`` and ``memory_diagnostics`` (E8):
+    per algorithm, the counts of the run's first min(N, `max_seeds`, default `DIAGNOSTIC_SEEDS`) seeds
+    (`diagnose_grid`; `diagnosed`: its result for those seeds, computed earlier, e.g. beside the run).
+    ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
+    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS, seeds_block
+
+    n = min([DIAGNOSTIC_SEEDS if max_seeds is None else max_seeds] + [len(r.seeds) for r in run.results.values()])
+    seeds = {a: r.seeds[:n] for a, r in run.results.items()}
+    counts, seconds = diagnosed or diagnose_grid(run.settings, run.grid_map, seeds)
+    blocks = {}
+    for algo, r in run.results.items():
+        d = counts[algo]
+        if len(d.success) != n:
+            raise ValueError(f"diagnosed {len(d.success)} seeds of {algo}, expected {n}")
+        blocks[algo] = seeds_block(d, run.grid_map is not None) | {
+            "successes_match_run": bool(np.array_equal(d.success.sum(axis=1), r.successes[:n]))}
+    return {"diagnostics_seeds": int(n), "diagnostics_seconds": seconds, "memory_diagnostics": blocks}
 
 
 def summary_table(summary: dict) -> str:
@@ -343,10 +372,11 @@ def per_seed_csv(run: GridRun) -> str:
     return buf.getvalue()
 
 
-def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool) -> dict:
+def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool,
+                   diagnosed: tuple[dict, float] | None = None) -> dict:
     """Everything of a run folder but results.parquet, into the staging folder."""
     summary["outputs"] = dataclasses.asdict(options)
-    summary |= memory_diagnostics(run)
+    summary |= memory_diagnostics(run, diagnosed=diagnosed)
     if options.per_seed_csv:
         (stage / "per_seed.csv").write_text(per_seed_csv(run))
     if figures:
@@ -381,6 +411,20 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
     seeds = np.arange(settings.seeds, dtype=np.int64)
+    pool = ThreadPoolExecutor(max_workers=1)
+    # On accelerators E8's programs compile (and run) while the device runs the seeds; on CPUs the
+    # run has every core, and they follow it.
+    early = (pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
+             if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False) else None)
+    try:
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
+              seeds: np.ndarray, early) -> tuple[GridRun, dict]:
+    """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             algos = settings.algos
@@ -391,7 +435,8 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
                                   collectors=collectors)
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
-        return run, _finish_folder(run, stage, summarize(run), options, figures)
+        return run, _finish_folder(run, stage, summarize(run), options, figures,
+                                   diagnosed=early.result() if early is not None else None)
 
 
 
