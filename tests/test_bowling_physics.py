@@ -489,3 +489,29 @@ def test_bad_scene_is_refused():
     with pytest.raises(UsageError, match="pins must not touch"):
         Scene(pin_spacing=0.1)
     assert main(["throw", "--angles", "0", "--scene", "wide"]) == 2
+
+
+def test_pin_rest_height_is_where_the_rack_settles():
+    """B7: the sleeping engine starts an upright pin at `PIN_REST_Z`, the height the rack settles to
+    on its own; from there the pins fall asleep within MuJoCo's 10 quiet steps, and the rack does
+    not move."""
+    import mujoco
+
+    from jaxeac.envs.bowling.backend_c import PIN_REST_Z, load_model
+    from jaxeac.envs.bowling.scene import upright_qpos
+
+    m = load_model()
+    d = mujoco.MjData(m)
+    rack = upright_qpos()
+    d.qpos[:7] = (-5.0, 0.0, 0.11, 1.0, 0.0, 0.0, 0.0)  # the ball far from the pins
+    d.qpos[7:] = rack.reshape(-1)
+    mujoco.mj_step(m, d, nstep=60)
+    settled = d.qpos[9::7]
+    np.testing.assert_allclose(settled, PIN_REST_Z, atol=2e-6)
+    d2 = mujoco.MjData(m)
+    d2.qpos[:7] = (-5.0, 0.0, 0.11, 1.0, 0.0, 0.0, 0.0)
+    rack[:, 2] = PIN_REST_Z
+    d2.qpos[7:] = rack.reshape(-1)
+    mujoco.mj_step(m, d2, nstep=12)
+    assert np.all(d2.tree_asleep[1:] >= 0)
+    np.testing.assert_allclose(d2.qpos[9::7], PIN_REST_Z, atol=1e-5)
