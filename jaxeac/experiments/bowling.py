@@ -125,10 +125,16 @@ def choose(cfg: RunConfig, agent: AgentState, words, state, hyper: Hyper, active
     return choose_action(cfg, agent, state, words, hyper, CHANCES, jnp.asarray(active), diagnose)
 
 
+def choose_throws(cfg: RunConfig, agents: AgentState, words, state, hyper: Hyper, active):
+    """`choose` for every seed (agents, words, state, active [M]): (actions, learns, the throws'
+    `StepRoute`s, E8), one computation for the throw and its count."""
+    return jax.vmap(lambda a, w, s, act: choose(cfg, a, w, s, hyper, act, diagnose=True))(
+        agents, words, state, active)
+
+
 def throw_routes(cfg: RunConfig, agents: AgentState, words, state, hyper: Hyper, active) -> StepRoute:
     """E8: each seed's `StepRoute` of the throw `choose` picks (agents, words, state, active [M])."""
-    return jax.vmap(lambda a, w, s, act: choose(cfg, a, w, s, hyper, act, diagnose=True)[2])(
-        agents, words, state, active)
+    return choose_throws(cfg, agents, words, state, hyper, active)[2]
 
 
 def end_flags(cfg: RunConfig, agent: AgentState, n_angles: int,
@@ -168,8 +174,8 @@ def noise_normals(key: jax.Array, trial, chance) -> jax.Array:
 
 @functools.lru_cache(maxsize=8)
 def _learning_steps(cfg: RunConfig):
-    """jit(vmap) versions of `choose`, `learn_from_throw` and `noise_normals` over seeds."""
-    pick = jax.jit(jax.vmap(functools.partial(choose, cfg), in_axes=(0, 0, 0, None, 0)))
+    """jit(vmap) versions of `choose` (`choose_throws`), `learn_from_throw` and `noise_normals` over seeds."""
+    pick = jax.jit(functools.partial(choose_throws, cfg))  # actions, learns and E8 routes
     learn = jax.jit(jax.vmap(functools.partial(learn_from_throw, cfg),
                              in_axes=(0, 0, 0, 0, 0, 0, 0, 0, None, 0, None)))
     noise = jax.jit(jax.vmap(noise_normals, in_axes=(0, None, None)))
@@ -189,7 +195,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
     action_rec = np.full((m, cfg.trials, CHANCES), -1, np.int8)
     knocked_rec = np.zeros((m, cfg.trials, CHANCES), np.int8)
     standing_rec = np.full((m, cfg.trials, CHANCES), -1, np.int16)
-    routes, flags_of = _diagnostic_steps(cfg, phys.n_angles, rules)
+    _, flags_of = _diagnostic_steps(cfg, phys.n_angles, rules)
     counts = StepRoute(*(np.zeros((m, CHANCES), np.int32) for _ in range(4)))  # E8
     for t in range(cfg.trials):
         pins = initial_pins(m, phys.scene)
@@ -199,8 +205,7 @@ def run_chunk_c(cfg: RunConfig, phys: BowlingConfig, keys: jax.Array, hyper: Hyp
         active = np.ones(m, bool)
         for c in range(CHANCES):
             chosen = pick(agents, words, jnp.asarray(state), hyper, jnp.asarray(active))
-            action, learns = jax.device_get(chosen)
-            route = jax.device_get(routes(agents, words, jnp.asarray(state), hyper, jnp.asarray(active)))
+            action, learns, route = jax.device_get(chosen)
             for total, x in zip(jax.tree.leaves(counts), jax.tree.leaves(route), strict=True):
                 total[:, c] += x
             eps = np.asarray(noise(keys, t, c))
@@ -263,9 +268,8 @@ def make_run_mjx(cfg: RunConfig, phys: BowlingConfig, impl: str = "jax",
             active = jnp.ones((m,), bool)
             actions, knocks, masks, routes = [], [], [], []
             for c in range(CHANCES):
-                action, learns = jax.vmap(choose, in_axes=(None, 0, 0, 0, None, 0))(cfg, agents, words, state,
-                                                                                     hyper, active)
-                routes.append(throw_routes(cfg, agents, words, state, hyper, active))  # E8
+                action, learns, route = choose_throws(cfg, agents, words, state, hyper, active)
+                routes.append(route)  # E8
                 res = physics(pins, action, keys, t, c)
                 knocked = jnp.where(active, res.knocked, 0)
                 after = jnp.where(active, rules.next_state(res.standing, action), state)

@@ -14,15 +14,18 @@ happens in 10 trials, how often chance 1 strikes, and how often E6's failure con
 r̃(c | t) < r̃(c | t − 1) holds in a failed trial.
 
 Layout of the step's folder: ``points/point_<i>.npz`` per sweep point (per-seed totals,
-successes, strikes, failure-rule counts of each algorithm; written atomically as each point
-finishes, so a killed run resumes point by point), ``ablations/<algo>.npz`` likewise, and
+successes, strikes, failure-rule counts of each algorithm, and the settings they ran with;
+written atomically as each point finishes, so a killed run resumes point by point and a point of
+other settings runs again), ``ablations/point_<i>.npz`` likewise, and
 ``heatmap.png``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import itertools
+import json
 from pathlib import Path
 
 import numpy as np
@@ -97,17 +100,22 @@ def seed_measures(result) -> dict[str, np.ndarray]:
 
 
 def _run_measures(path: Path, settings, progress) -> dict[str, dict[str, np.ndarray]]:
-    """{algo: seed_measures} of a bowling run, from `path` if an earlier call saved it, else run
-    and save it atomically."""
+    """{algo: seed_measures} of a bowling run, from `path` if an earlier call saved it for the same
+    settings, else run and save it (with its settings) atomically."""
     from jaxeac.experiments.bowling import run_bowling
+    from jaxeac.experiments.common import plain_json
 
+    said = json.dumps(plain_json(dataclasses.asdict(settings)), sort_keys=True)
     if path.is_file():
         with np.load(path) as z:
-            return _unflatten(dict(z))
+            saved = dict(z)
+        if str(saved.pop("settings", "")) == said:
+            return _unflatten(saved)
     run = run_bowling(settings, progress=progress)
     measures = {a: seed_measures(r) for a, r in run.results.items()}
     buf = io.BytesIO()
-    np.savez_compressed(buf, **{f"{a}/{k}": v for a, m in measures.items() for k, v in m.items()})
+    np.savez_compressed(buf, settings=np.array(said),
+                        **{f"{a}/{k}": v for a, m in measures.items() for k, v in m.items()})
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, buf.getvalue())
     return measures

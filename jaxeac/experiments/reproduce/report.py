@@ -180,8 +180,7 @@ def render_report(rec: dict, out: Path) -> str:
           "paper-layout presets).", "",
           f"- Closest to AC = {ac}: {where(cc)} — AC {number(cc['ac'])} {interval(cc['ac_ci95'])}, "
           f"EAC {number(cc['eac'])} {interval(cc['eac_ci95'])}, "
-          f"EAC − AC {number(cc['contrast']['diff'], 2, sign=True)} "
-          f"{interval(cc['contrast']['diff_ci95'], 2, sign=True)}, "
+          f"EAC − AC {_diff(cc['contrast'])}, "
           f"g {number(cc['contrast']['hedges_g'], 3)}, "
           f"A12 {number(cc['contrast']['a12'], 3)}; the paper's {eac} lies at EAC's "
           f"percentile {cc['eac_paper_position']['percentile']:.1f} there "
@@ -379,15 +378,20 @@ def _position_line(algo: str, s: dict, pp: dict) -> str:
             f"({100 * pp['share_at_least']:.1f} % of seeds reach at least {pp['value']}).")
 
 
+def _diff(s: dict, nd: int = 2) -> str:
+    """A comparison's difference with its 95 % CI, signed (`diff`, `diff_ci95`)."""
+    return f"{number(s['diff'], nd, sign=True)} {interval(s['diff_ci95'], nd, sign=True)}"
+
+
 def headline(c: dict) -> str:
     """What we find for claim `c`, in one line (the "we find" column of the verdicts table)."""
     s = c["stats"]
     if c["id"] in ("GRID-1", "BOWL-1"):
         return (f"EAC {number(s['mean_treatment'])}, AC {number(s['mean_baseline'])}; "
-                f"EAC − AC {number(s['diff'], 2, sign=True)} {interval(s['diff_ci95'], 2, sign=True)}, "
+                f"EAC − AC {_diff(s)}, "
                 f"g {number(s['hedges_g'], 2)}, A12 {number(s['a12'], 2)}")
     if c["id"] == "GRID-2":
-        return (f"AUC EAC − AC {number(s['diff'], 3, sign=True)} {interval(s['diff_ci95'], 3, sign=True)}, "
+        return (f"AUC EAC − AC {_diff(s, 3)}, "
                 f"g {number(s['hedges_g'], 2)}; "
                 f"first success {number(c['first_success']['mean_treatment'], 1)} vs "
                 f"{number(c['first_success']['mean_baseline'], 1)}")
@@ -404,12 +408,11 @@ def headline(c: dict) -> str:
         r, o = s["contrast_ratio"], s["contrast_optimal"]
         w0, w1 = s["window"]
         return (f"trials {w0}–{w1}: path / shortest EAC {number(r['mean_treatment'], 3)} vs AC "
-                f"{number(r['mean_baseline'], 3)}, EAC − AC {number(r['diff'], 3, sign=True)} "
-                f"{interval(r['diff_ci95'], 3, sign=True)}; shortest paths "
+                f"{number(r['mean_baseline'], 3)}, EAC − AC {_diff(r, 3)}; shortest paths "
                 f"{100 * o['mean_treatment']:.1f} % vs {100 * o['mean_baseline']:.1f} %")
     if c["id"] == "BOWL-4":
         return (f"chance-2 share EAC {number(s['mean_treatment'], 3)}, AC {number(s['mean_baseline'], 3)}; "
-                f"EAC − AC {number(s['diff'], 3, sign=True)} {interval(s['diff_ci95'], 3, sign=True)}, "
+                f"EAC − AC {_diff(s, 3)}, "
                 f"g {number(s['hedges_g'], 2)}")
     if c["id"] == "BOWL-5":
         return (f"chance-2 throws aimed at the standing pins' side: EAC {100 * s['mean_treatment']:.1f} %, "
