@@ -21,9 +21,9 @@ def _interrupted_while_starting(signum, frame) -> None:
 def run() -> int:
     """Import the command line and run it (see the module docstring for Ctrl-C)."""
     signal.signal(signal.SIGINT, _interrupted_while_starting)
-    from jaxeac.cli import main, use_all_cpu_cores
+    from jaxeac.cli import configure_xla, main
 
-    use_all_cpu_cores()  # XLA's flags, before JAX is imported
+    configure_xla()  # XLA's flags, before JAX is imported
     import jax  # noqa: F401  (the heaviest imports, still under the start-up handler)
 
     import jaxeac.running.cache  # noqa: F401

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxeac.cli import use_all_cpu_cores
+from jaxeac.cli import configure_xla
 
-use_all_cpu_cores()  # before JAX starts: one host device per core, as `jaxeac` does
+configure_xla()  # before JAX starts: one host device per core, as `jaxeac` does
 
 
 def environment() -> dict:

@@ -18,9 +18,9 @@ import json
 import sys
 from pathlib import Path
 
-from jaxeac.cli import use_all_cpu_cores
+from jaxeac.cli import configure_xla
 
-use_all_cpu_cores()  # before JAX starts, as `jaxeac` does
+configure_xla()  # before JAX starts, as `jaxeac` does
 
 ALGOS = ("ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only")
 

@@ -7,11 +7,13 @@ each phase: JAX and its devices ready, imports done, each program compiled, each
 back and collected, the statistics' pieces, the figures, the end. Each line holds the
 seconds since start and the process's resident memory from /proc/self/status (Linux):
 VmRSS, its peak VmHWM, and its parts RssAnon (heap), RssFile (mapped files, e.g. the CUDA
-libraries) and RssShmem. Lines ('rss', seconds, GiB) mark every 0.5 GiB of growth.
+libraries) and RssShmem. Lines ('rss', seconds, GiB) mark every 0.5 GiB of growth of the
+peak (``MEMORY_TIMELINE_STEP=0.1`` for finer marks).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -50,13 +52,15 @@ def wrap(owner, name: str, label: str | None = None) -> None:
 def main() -> int:
     import jaxeac.cli as cli
 
-    cli.use_all_cpu_cores()
+    cli.configure_xla()
     import jax
 
     jax.devices()
     mark("jax and devices")
+    import jaxeac.experiments.grid as grid
     import jaxeac.running.batch as batch
     import jaxeac.running.outputs as outputs
+    import jaxeac.stats.large as large
     import jaxeac.stats.run as stats_run
 
     mark("imports")
@@ -78,12 +82,16 @@ def main() -> int:
     outputs.CompactCollector.add = add_marked
     for name in ("per_seed_measures", "_analyse", "calibrate", "write_figures"):
         wrap(stats_run, name)
+    for name in ("diagnose_grid", "_finish_folder"):  # E8 beside the run (GPUs); the run's folder
+        wrap(grid, name)
+    wrap(large, "compile_ahead")  # the comparison's programs, compiled while the run computes (GPUs)
+    step = float(os.environ.get("MEMORY_TIMELINE_STEP", "0.5"))
 
     def sample() -> None:
         peak = 0.0
         while True:
             rss = memory()["VmRSS"]
-            if rss > peak + 0.5:
+            if rss > peak + step:
                 peak = rss
                 print(("rss", round(time.perf_counter() - T0, 2), rss), flush=True)
             time.sleep(0.05)

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxeac.cli import use_all_cpu_cores
+from jaxeac.cli import configure_xla
 
-use_all_cpu_cores()  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
+configure_xla()  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
 
 import jax  # noqa: E402
 

@@ -130,7 +130,7 @@ def main() -> int:
 
     import jaxeac.cli as cli
 
-    cli.use_all_cpu_cores()
+    cli.configure_xla()
     import jax
 
     jax.devices()

@@ -143,6 +143,19 @@ def test_command_uses_every_cpu_core(tmp_path):
     assert len(devices) == len(os.sched_getaffinity(0))
 
 
+def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
+    """`configure_xla` (run by `jaxeac` before JAX starts) turns JAX's up-front reservation of
+    GPU memory off (it held ~1.9 GiB of host memory, BENCHMARKS.md) unless the user set it."""
+    code = ("import os; from jaxeac.cli import configure_xla; configure_xla(); "
+            "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'], 'command_buffer' in os.environ['XLA_FLAGS'])")
+    base = {k: v for k, v in os.environ.items() if k not in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_FLAGS")}
+    for env, expected in (({}, "false True"), ({"XLA_PYTHON_CLIENT_PREALLOCATE": "true"}, "true True")):
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=base | env,
+                              timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.split() == expected.split()
+
+
 def test_compilation_cache_is_kept_and_changes_no_result(tmp_path):
     """`jaxeac` keeps compiled programs in JAXEAC_COMPILATION_CACHE (XDG_CACHE_HOME/jaxeac/xla by
     default); a rerun that loads them writes the same results, and ``off`` writes no cache."""
