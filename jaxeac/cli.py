@@ -27,7 +27,6 @@ from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from he
     add_output_flags,
     add_sequential_flags,
     add_solver_flags,
-    check_bowling_memory_layout,
     check_compare_size,
     finite_float,
     fit_grid,
@@ -429,7 +428,6 @@ def cmd_bowling(args: argparse.Namespace) -> int:
     )
     settings.validate()
     settings = settings.resolved()  # the backend `auto` picks here, recorded in summary.json
-    check_bowling_memory_layout(settings)
     from jaxeac.experiments.common import check_bowling_resources
 
     check_bowling_resources(settings)  # sizes that cannot fit or finish fail here, with the numbers

@@ -272,23 +272,6 @@ def check_compare_size(run_dir, resamples: int) -> None:
     check_compare_resources(resamples, trials)
 
 
-def check_bowling_memory_layout(settings) -> None:
-    """EAC's memories (dense layout: bowling has no other) hold at most 24 actions and, with K
-    angles, fewer than min(2^(31-K), 32767) trials: say so in the bowling flags' terms."""
-    from jaxeac.algorithm.config import algorithm
-    from jaxeac.algorithm.memory import MAX_DENSE_ACTIONS
-
-    if not any(algorithm(a).uses_memory for a in settings.algos):
-        return
-    if settings.angles > MAX_DENSE_ACTIONS:
-        raise UsageError(f"--angles {settings.angles}: EAC's memories hold at most {MAX_DENSE_ACTIONS} "
-                         f"angles; use --angles {MAX_DENSE_ACTIONS} or fewer (or --algos ac)")
-    most = min(1 << (31 - settings.angles), 32_767) - 1
-    if settings.trials > most:
-        raise UsageError(f"--trials {settings.trials}: with {settings.angles} angles EAC's memories hold "
-                         f"at most {most:,} trials; use --trials {most:,} or fewer (or fewer angles)")
-
-
 def render_targets(path, n_throws: int) -> list:
     """The files `throw_command` draws for `n_throws` throws into `path` (`<stem>_<i>.png` for several)."""
     from pathlib import Path

@@ -197,6 +197,20 @@ def test_bowling_sizes_and_caps(flags, match, tmp_path, capsys):
     refused(capsys, ["bowling", "--seeds", "2", "--out", str(tmp_path / "out"), *flags], tmp_path, match)
 
 
+def test_bowling_settings_check_what_eacs_memories_hold():
+    """`BowlingSettings.validate` (the CLI, reproduce and library callers alike) refuses K and T beyond
+    EAC's dense memories, naming the setting and the limit; AC alone has no such limit."""
+    from jaxeac.errors import UsageError
+    from jaxeac.experiments.bowling import BowlingSettings
+
+    with pytest.raises(UsageError, match=r"^angles 25: EAC's memories hold at most 24 angles; use 24 angles or fewer"):
+        BowlingSettings(angles=25).validate()
+    with pytest.raises(UsageError, match=r"^trials 1024: with 21 angles EAC's memories hold at most 1,023 trials"):
+        BowlingSettings(trials=1024).validate()
+    BowlingSettings(angles=25, trials=1024, algos=("ac",)).validate()
+    BowlingSettings(trials=1023).validate()
+
+
 def test_compare_resamples_that_cannot_fit(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()

@@ -333,8 +333,24 @@ class BowlingSettings:
         check_rate("gamma", self.gamma, upper=1.0)
         check_rate("temperature", self.temperature, positive=True)
         check_algos(self.algos)
+        self.check_memory_layout()
         self.physics()  # BowlingConfig validates θ_max and the noise levels
         self.rules()
+
+    def check_memory_layout(self) -> None:
+        """EAC's memories (dense layout: bowling has no other) hold at most 24 actions and, with K
+        angles, fewer than min(2^(31-K), 32767) trials."""
+        from jaxeac.algorithm.memory import MAX_DENSE_ACTIONS
+
+        if not any(algorithm(a).uses_memory for a in self.algos):
+            return
+        if self.angles > MAX_DENSE_ACTIONS:
+            raise UsageError(f"angles {self.angles}: EAC's memories hold at most {MAX_DENSE_ACTIONS} angles; "
+                             f"use {MAX_DENSE_ACTIONS} angles or fewer (or AC alone)")
+        most = min(1 << (31 - self.angles), 32_767) - 1
+        if self.trials > most:
+            raise UsageError(f"trials {self.trials}: with {self.angles} angles EAC's memories hold at most "
+                             f"{most:,} trials; use {most:,} trials or fewer (or fewer angles)")
 
     def rules(self) -> TrialRules:
         return TrialRules(self.state, self.success_pins)
