@@ -310,3 +310,15 @@ def test_counts_beside_the_run_equal_counts_after_it(tmp_path, monkeypatch):
     beside = diagnostics(tmp_path / "beside")
     assert calls == [1] and beside == after and after[0] == 12
     assert all(block["successes_match_run"] for block in after[1].values())
+
+
+def test_diagnostic_seed_count_bounds_the_trials_loop_work():
+    """E8 re-runs at most 1000 seeds and at most 10^7 chance evaluations (T × C a seed), never fewer
+    than 100 seeds nor more than the run has: 1000 on the paper grid, 100 on Four Rooms (C = 500)."""
+    from jaxeac.running.diagnostics import diagnostic_seed_count
+
+    assert diagnostic_seed_count(10_000, 200, 40) == 1000  # 10^7 // 8000 = 1250, capped at 1000
+    assert diagnostic_seed_count(10_000, 200, 100) == 500
+    assert diagnostic_seed_count(10_000, 200, 500) == 100
+    assert diagnostic_seed_count(10_000, 2000, 5000) == 100  # the floor
+    assert diagnostic_seed_count(7, 200, 500) == 7

@@ -310,21 +310,25 @@ def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[
 
 
 def diagnostic_seeds(settings: GridSettings) -> dict[str, np.ndarray]:
-    """The seeds E8 counts of a run of `settings` from seed 0: its first `DIAGNOSTIC_SEEDS`."""
-    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS
+    """The seeds E8 counts of a run of `settings` from seed 0: its first `diagnostic_seed_count`."""
+    from jaxeac.running.diagnostics import diagnostic_seed_count
 
-    return {a: np.arange(min(DIAGNOSTIC_SEEDS, settings.seeds), dtype=np.int64) for a in settings.algos}
+    n = diagnostic_seed_count(settings.seeds, settings.trials, settings.make_env().n_chances)
+    return {a: np.arange(n, dtype=np.int64) for a in settings.algos}
 
 
 def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tuple[dict, float] | None = None
                        ) -> dict:
     """summary.json's ``diagnostics_seeds``, ``diagnostics_seconds`` and ``memory_diagnostics`` (E8):
-    per algorithm, the counts of the run's first min(N, `max_seeds`, default `DIAGNOSTIC_SEEDS`) seeds
+    per algorithm, the counts of the run's first min(N, `max_seeds`, default `diagnostic_seed_count`) seeds
     (`diagnose_grid`; `diagnosed`: its result for those seeds, computed earlier, e.g. beside the run).
     ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
-    from jaxeac.running.diagnostics import DIAGNOSTIC_SEEDS, seeds_block
+    from jaxeac.running.diagnostics import diagnostic_seed_count, seeds_block
 
-    n = min([DIAGNOSTIC_SEEDS if max_seeds is None else max_seeds] + [len(r.seeds) for r in run.results.values()])
+    shortest = min(len(r.seeds) for r in run.results.values())
+    s = run.settings
+    n = (diagnostic_seed_count(shortest, s.trials, s.make_env().n_chances) if max_seeds is None
+         else min(max_seeds, shortest))
     seeds = {a: r.seeds[:n] for a, r in run.results.items()}
     counts, seconds = diagnosed or diagnose_grid(run.settings, run.grid_map, seeds)
     blocks = {}

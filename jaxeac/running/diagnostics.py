@@ -2,7 +2,7 @@
 and where the failure flags (E6) landed: the numbers that explain a result.
 
 The run loops count nothing (their per-seed results and speed stay as they are). A grid run's
-diagnostics re-run its first seeds (`DIAGNOSTIC_SEEDS` at most) through the `trials` loop with
+diagnostics re-run its first seeds (`diagnostic_seed_count`) through the `trials` loop with
 ``diagnose=True``, which keeps each chance's `StepRoute` from the agent's own `select_action`.
 Seed i uses ``fold_in(root, i)`` in every loop (R1) and the loops agree bit for bit (R2), so the
 diagnosed seeds are the run's own; `diagnose_seeds` returns their successes to show it. Bowling
@@ -31,8 +31,20 @@ from jaxeac.rng import seed_key
 from jaxeac.running.config import RunConfig
 from jaxeac.running.loops import Env, state_bytes_per_seed, trace_run
 
-#: A grid run diagnoses its first min(N, DIAGNOSTIC_SEEDS) seeds (summary.json: ``diagnostics_seeds``).
+#: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
+#: at most DIAGNOSTIC_SEEDS, and at most DIAGNOSTIC_STEPS chance evaluations (T × C a seed in the
+#: trials loop, which takes every chance) but never fewer than MIN_DIAGNOSTIC_SEEDS.
 DIAGNOSTIC_SEEDS = 1000
+DIAGNOSTIC_STEPS = 10_000_000
+MIN_DIAGNOSTIC_SEEDS = 100
+
+
+def diagnostic_seed_count(n_seeds: int, trials: int, chances: int) -> int:
+    """How many of a run's first seeds E8 re-runs: 1000 on the paper grid (T·C = 8000), 100 on Four
+    Rooms (C = 500), where 1000 took a quarter of `jaxeac study`'s time on the 2-core CPU."""
+    budget = max(MIN_DIAGNOSTIC_SEEDS, DIAGNOSTIC_STEPS // max(1, trials * chances))
+    return int(min(n_seeds, DIAGNOSTIC_SEEDS, budget))
+
 #: Device bytes one chunk of diagnosed seeds may hold (their agents and per-chance routes).
 CHUNK_BYTES = 1 << 28
 
