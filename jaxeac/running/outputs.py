@@ -128,7 +128,9 @@ class SeedsResult:
         return self.policy[i]
 
 
-UNPACK_ROWS = 1 << 13  # rows per host thread when unpacking a chunk's results (~20 B per entry each: small blocks bound the threads' memory, and ran faster than 2^15)
+#: Rows per host thread when unpacking a chunk's results (~20 bytes of temporaries per entry):
+#: small blocks bound what the threads hold together, and ran faster than 2^15 on the CPU.
+UNPACK_ROWS = 1 << 13
 
 
 def _row_blocks(size: int) -> list[slice]:
