@@ -562,11 +562,11 @@ def configure_xla() -> None:
 
     XLA runs one computation on one thread; with ``n`` host devices the runner splits each
     chunk of seeds over ``n`` threads (results are identical, SPEC R1). On GPUs JAX by default
-    reserves 75 % of the device's memory at its first allocation, and that reservation alone
-    held ~1.9 GiB of *host* memory and took ~2 s on an H100 (BENCHMARKS.md, *Host memory of
-    the GPU process*); jaxeac lets the allocator grow instead (`GPU_PREALLOCATE`), the same
-    speed there. Settings already in the environment are kept; nothing changes once JAX has
-    started.
+    reserves 75 % of the device's memory at its first allocation, and that reservation held
+    ~1.5 GiB of *host* memory before any result on an H100 and doubled the peak of a 10^6-seed
+    run (BENCHMARKS.md, *Host memory of the GPU process*); jaxeac lets the allocator grow
+    instead (`GPU_PREALLOCATE`), at the same speed there. Settings already in the environment
+    are kept; nothing changes once JAX has started.
     """
     if "jax" in sys.modules:
         return

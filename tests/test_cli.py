@@ -145,7 +145,7 @@ def test_command_uses_every_cpu_core(tmp_path):
 
 def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
     """`configure_xla` (run by `jaxeac` before JAX starts) turns JAX's up-front reservation of
-    GPU memory off (it held ~1.9 GiB of host memory, BENCHMARKS.md) unless the user set it."""
+    GPU memory off (it held ~1.5 GiB of host memory, BENCHMARKS.md) unless the user set it."""
     code = ("import os; from jaxeac.cli import configure_xla; configure_xla(); "
             "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'], 'command_buffer' in os.environ['XLA_FLAGS'])")
     base = {k: v for k, v in os.environ.items() if k not in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_FLAGS")}
