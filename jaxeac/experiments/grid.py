@@ -309,11 +309,16 @@ def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[
     return counts, time.perf_counter() - t0
 
 
-def diagnostic_seeds(settings: GridSettings) -> dict[str, np.ndarray]:
-    """The seeds E8 counts of a run of `settings` from seed 0: its first `diagnostic_seed_count`."""
+def _diagnosed_count(settings: GridSettings, n_seeds: int) -> int:
+    """How many of a run's first `n_seeds` seeds E8 counts (`diagnostic_seed_count` for its T and C)."""
     from jaxeac.running.diagnostics import diagnostic_seed_count
 
-    n = diagnostic_seed_count(settings.seeds, settings.trials, settings.make_env().n_chances)
+    return diagnostic_seed_count(n_seeds, settings.trials, settings.make_env().n_chances)
+
+
+def diagnostic_seeds(settings: GridSettings) -> dict[str, np.ndarray]:
+    """The seeds E8 counts of a run of `settings` from seed 0 (`_diagnosed_count`)."""
+    n = _diagnosed_count(settings, settings.seeds)
     return {a: np.arange(n, dtype=np.int64) for a in settings.algos}
 
 
@@ -323,12 +328,10 @@ def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tu
     per algorithm, the counts of the run's first min(N, `max_seeds`, default `diagnostic_seed_count`) seeds
     (`diagnose_grid`; `diagnosed`: its result for those seeds, computed earlier, e.g. beside the run).
     ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
-    from jaxeac.running.diagnostics import diagnostic_seed_count, seeds_block
+    from jaxeac.running.diagnostics import seeds_block
 
     shortest = min(len(r.seeds) for r in run.results.values())
-    s = run.settings
-    n = (diagnostic_seed_count(shortest, s.trials, s.make_env().n_chances) if max_seeds is None
-         else min(max_seeds, shortest))
+    n = _diagnosed_count(run.settings, shortest) if max_seeds is None else min(max_seeds, shortest)
     seeds = {a: r.seeds[:n] for a, r in run.results.items()}
     counts, seconds = diagnosed or diagnose_grid(run.settings, run.grid_map, seeds)
     blocks = {}
