@@ -30,8 +30,7 @@ def cumulative_counts(success, chunk: int = 1 << 12) -> np.ndarray:
 
     A block's temporaries take ~13 bytes per seed and trial (the rows, their int32 sums and
     bincount's int64 copy): 10 MiB at T = 200 per thread. Blocks of 2^15 seeds held 1.4 GiB
-    on a 16-core GPU host, the peak of `jaxeac grid` at 10^7 seeds (BENCHMARKS.md), and ran
-    slower on the CPU than blocks of 2^12."""
+    on a 16-core GPU host, the peak of `jaxeac grid` at 10^7 seeds (BENCHMARKS.md)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from jaxeac.running.outputs import SuccessBits

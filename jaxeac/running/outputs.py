@@ -129,7 +129,7 @@ class SeedsResult:
 
 
 #: Rows per host thread when unpacking a chunk's results (~20 bytes of temporaries per entry):
-#: small blocks bound what the threads hold together, and ran faster than 2^15 on the CPU.
+#: small blocks bound what the threads hold together.
 UNPACK_ROWS = 1 << 13
 
 
