@@ -240,6 +240,46 @@ def test_algorithms_in_one_pipeline_equal_separate_runs():
         assert got.settings["chunk_size"] == 4 and got.compile_seconds >= 0
 
 
+class _LoggedJob:
+    """A stand-in for a compiled program in `_run_chunks`: logs its dispatches and collections."""
+
+    def __init__(self, name: str, log: list, chunks: int, on_collect=None):
+        self.name, self.log, self.chunks, self.on_collect = name, log, chunks, on_collect
+        self.first_dispatch = self.last_collect = self.started_after = 0.0
+
+    def starts(self):
+        return range(self.chunks)
+
+    def dispatch(self, start):
+        self.log.append(f"dispatch {self.name}{start}")
+        return start, 1, None
+
+    def collect(self, start, size, out, pool, progress):
+        self.log.append(f"collect {self.name}{start}")
+        if self.on_collect is not None:
+            self.on_collect()
+
+
+def test_a_program_runs_while_the_next_one_compiles():
+    """`_run_chunks`: one chunk in flight while the one before comes back; a job still compiling
+    (a pending future) lets the last chunk come back first instead of waiting with it in flight."""
+    from concurrent.futures import Future
+
+    from jaxeac.running.batch import _run_chunks
+
+    log: list[str] = []
+    ready = Future()
+    ready.set_result(_LoggedJob("b", log, 1))
+    _run_chunks([_LoggedJob("a", log, 2), ready], None)
+    assert log == ["dispatch a0", "dispatch a1", "collect a0", "dispatch b0", "collect a1", "collect b0"]
+    log.clear()
+    compiling = Future()  # compiles until a's last chunk is back
+    first = _LoggedJob("a", log, 2, on_collect=lambda: log[-1] == "collect a1" and compiling.set_result(
+        _LoggedJob("b", log, 1)))
+    _run_chunks([first, compiling], None)
+    assert log == ["dispatch a0", "dispatch a1", "collect a0", "collect a1", "dispatch b0", "collect b0"]
+
+
 def _iterations_until_done(env, cfg, n_seeds=16):
     """Run the flat loop one chance per call with a lane per seed; (lane iterations until each
     seed was done, final agents)."""

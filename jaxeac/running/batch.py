@@ -191,33 +191,41 @@ class _Entries:
         return self.last_collect - max(self.first_dispatch, self.started_after)
 
 
-def _run_chunks(jobs: Sequence[_Entries], progress) -> None:
+def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
     """Every chunk of every job, in order, one in flight while the one before comes back:
     dispatch is asynchronous, so the device computes the next chunk (of the same job or the
-    next one) while the host collects this one."""
+    next one) while the host collects this one. A job may be a future of one still compiling
+    (`_prepare_all`): the jobs before it run meanwhile, and the last chunk in flight is
+    collected while it compiles. Returns the jobs."""
+    done: list[_Entries] = []
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         pending = None
-        for job in jobs:
+        for item in jobs:
+            if pending is not None and isinstance(item, Future) and not item.done():
+                pending[0].collect(*pending[1], pool, progress)  # nothing else to do until it compiles
+                pending = None
+            job = item.result() if isinstance(item, Future) else item
+            done.append(job)
             for start in job.starts():
                 running = job, job.dispatch(start)
                 if pending is not None:
                     pending[0].collect(*pending[1], pool, progress)
                 pending = running
         pending[0].collect(*pending[1], pool, progress)
-    for before, job in zip(jobs[:-1], jobs[1:], strict=True):  # time starts where the last job ended
+    for before, job in zip(done[:-1], done[1:], strict=True):  # time starts where the last job ended
         job.started_after = before.last_collect
     trim_host_memory()
+    return done
 
 
-def _prepare_all(make: Callable[[int], _Entries], count: int) -> list[_Entries]:
+def _prepare_all(make: Callable[[int], _Entries], count: int, progress) -> list[_Entries]:
     """`make(i)` for every job, the programs compiling side by side on threads (XLA compiles
-    with the GIL released)."""
-    if count == 1:
-        return [make(0)]
+    with the GIL released), each job's chunks starting as soon as its program is ready
+    (`_run_chunks`). Returns the jobs, run."""
     pool = ThreadPoolExecutor(max_workers=count)
     try:
-        return list(pool.map(make, range(count)))
-    finally:  # on Ctrl-C, do not wait for the other compiles to end
+        return _run_chunks([pool.submit(make, i) for i in range(count)], progress)
+    finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
         pool.shutdown(wait=False, cancel_futures=True)
 
 
@@ -279,8 +287,7 @@ def run_algorithms(
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
                         chunk_size=chunk_size, devices=devices, collector=collectors[i])
 
-    jobs = _prepare_all(make, len(cfgs))
-    _run_chunks(jobs, progress)
+    jobs = _prepare_all(make, len(cfgs), progress)
     results = []
     for cfg, job in zip(cfgs, jobs, strict=True):
         resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)
