@@ -4,11 +4,18 @@ The command line's modules (JAX, NumPy, ...) take a second or two to import. Unt
 are loaded nothing has been written, so Ctrl-C then ends the process at once with one
 line and exit code 130 (an interrupt inside an import would otherwise surface as an
 ImportError traceback); from `jaxeac.cli.main` on, its own handling takes over.
+
+When the command has finished, the process ends without the interpreter's teardown
+(`_end`): freeing JAX's client and the run's arrays object by object took 0.6–0.9 s
+after a 10^6-seed grid run, and by then every file the command wrote is closed.
 """
 
+import atexit
+import contextlib
 import os
 import signal
 import sys
+from typing import NoReturn
 
 
 def _interrupted_while_starting(signum, frame) -> None:
@@ -18,8 +25,8 @@ def _interrupted_while_starting(signum, frame) -> None:
         os._exit(130)
 
 
-def run() -> int:
-    """Import the command line and run it (see the module docstring for Ctrl-C)."""
+def run() -> NoReturn:
+    """Import the command line, run it and end the process (see the module docstring)."""
     signal.signal(signal.SIGINT, _interrupted_while_starting)
     from jaxeac.cli import configure_xla, main
 
@@ -29,8 +36,18 @@ def run() -> int:
     import jaxeac.running.cache  # noqa: F401
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # what `main` restores when it ends
-    return main()  # installs its own Ctrl-C handling while it runs
+    _end(main())  # `main` installs its own Ctrl-C handling while it runs
+
+
+def _end(code: int) -> NoReturn:
+    """End the process with `code`: the exit handlers run and stdout and stderr are flushed, as
+    at a normal exit, but the interpreter's teardown is skipped (see the module docstring)."""
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # e.g. a reader of stdout that has gone away
+            stream.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
-    sys.exit(run())
+    run()

@@ -103,4 +103,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from jaxeac.__main__ import _end
+
+    _end(main())  # as the command ends (no interpreter teardown)
