@@ -53,7 +53,10 @@ def breakdown(folder: Path, wall: float) -> dict:
         out["compare_statistics_s"] = timing["statistics_seconds"]
         out["compare_figures_s"] = timing.get("figures_seconds")
         out["compare_pieces_s"] = timing.get("pieces")
-    # the rest: interpreter and JAX start-up, device set-up, copies back, writing, the run's figures
+    # compile_s and run_s add up the algorithms' (their compiles overlap, and one's run overlaps the
+    # other's compile); compare_s is the comparison after the run's folder is written (its statistics
+    # start before, beside the run's figures). The rest, roughly: interpreter and JAX start-up, device
+    # set-up, copies back, writing, the run's figures
     out["start_write_figures_s"] = wall - sum(out[k] for k in ("compile_s", "run_s", "compare_s") if k in out)
     return out
 

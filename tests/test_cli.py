@@ -107,6 +107,27 @@ def test_cli_results_match_library_and_rerun(tmp_path):
     assert pq.read_table(a / "results.parquet").equals(pq.read_table(b / "results.parquet"))
 
 
+def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatch, capsys):
+    """`jaxeac grid` starts the comparison's statistics as soon as the results are in, beside the
+    run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as after them."""
+    import jaxeac.cli as cli
+
+    started = []
+    start = cli._start_statistics
+    monkeypatch.setattr(cli, "_start_statistics", lambda *a: started.append(1) or start(*a))
+    argv = ["grid", "--seeds", "6", "--trials", "8", "--chances", "12", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "beside")]) == 0 and started == [1]
+    monkeypatch.setattr(cli, "STATISTICS_BESIDE_FIGURES_SEEDS", 5)
+    assert main([*argv, "--out", str(tmp_path / "after")]) == 0 and started == [1]
+
+    def stats(name):
+        d = json.loads((tmp_path / name / "stats.json").read_text())
+        return {k: v for k, v in d.items() if k not in ("timing", "run_dir")}
+
+    assert stats("beside") == stats("after") and stats("beside")["primary"]["measure"] == "successes"
+    assert {"report.md", "fig3_cumulative_successes.png"} <= set(result_files(tmp_path / "beside"))
+
+
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, capsys):
     from jaxeac import plots
 

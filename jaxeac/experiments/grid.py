@@ -15,6 +15,7 @@ form that stays within a few GiB at 10^7 seeds.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import io
 import time
 from collections.abc import Callable
@@ -407,30 +408,35 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
 
 
 def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
-                       figures: bool = True, progress: Callable[[int], None] | None = None
-                       ) -> tuple[GridRun, dict]:
+                       figures: bool = True, progress: Callable[[int], None] | None = None,
+                       on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
     run goes (`run_algorithms`: the programs compile side by side, one pipeline of chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
-    midway leaves it as it was). Returns the run and its summary.json content.
+    midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before
+    the folder's figures and summary (`jaxeac grid` starts its statistics there). Returns the run
+    and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
     seeds = np.arange(settings.seeds, dtype=np.int64)
     pool = ThreadPoolExecutor(max_workers=1)
-    # On accelerators E8's programs compile (and run) while the device runs the seeds; on CPUs the
-    # run has every core, and they follow it.
-    early = (pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
-             if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False) else None)
+    # On accelerators E8's programs compile (and run) while the device runs the seeds, and then the
+    # figures' modules load (half a second); on CPUs the run has every core, and they follow it.
+    early = None
+    if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
+        early = pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
+        if figures:
+            pool.submit(importlib.import_module, "jaxeac.plots")
     try:
-        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early)
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
-              seeds: np.ndarray, early) -> tuple[GridRun, dict]:
+              seeds: np.ndarray, early, on_results) -> tuple[GridRun, dict]:
     """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
@@ -442,6 +448,8 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
                                   collectors=collectors)
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
+        if on_results is not None:
+            on_results(run)
         return run, _finish_folder(run, stage, summarize(run), options, figures,
                                    diagnosed=early.result() if early is not None else None)
 

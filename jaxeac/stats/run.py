@@ -10,7 +10,7 @@ import contextlib
 import json
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -324,8 +324,8 @@ def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
     return nb == nt  # folders without seed ids (and runs in memory) hold seeds 0 … N − 1
 
 
-def compare_run_dir(
-    run_dir,
+def analyse_run_data(
+    data: RunData,
     *,
     baseline: str = "ac",
     treatment: str = "eac",
@@ -335,50 +335,25 @@ def compare_run_dir(
     calibration_splits: int = CALIBRATION_SPLITS,
     calibration_resamples: int = 200,
     chunk: int = 1000,
-    progress: bool = True,
-    data: RunData | None = None,
     unpaired: bool = False,
     require_paired: bool = False,
-) -> dict:
-    """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
-
-    `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
-    the run it just wrote), instead of reading them back. The comparison is paired when both
-    methods ran the same seeds (a jaxeac run: seed i of each shares its key, R1), unless
-    `unpaired`; `require_paired` makes other seeds an error. Returns the content of stats.json.
-    Bad input raises `jaxeac.errors.UsageError`.
-    """
-    t0 = time.perf_counter()
-    _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
-    starter = _start_device()  # a GPU's context starts while the host reads the folder
-    try:
-        t_load = time.perf_counter()
-        if data is None:
-            data = load_run_dir(run_dir, baseline, treatment)
-            trim_host_memory()  # what reading the file freed
-        t_load = time.perf_counter() - t_load
-        bowling = data.experiment == "bowling"
-        expected = "return" if bowling else "successes"
-        if data.primary_measure != expected:
-            raise UsageError(
-                f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
-                f"(expected {expected!r}); fix summary.json or re-run the experiment"
-            )
-        paired = not unpaired and _same_seeds(data, baseline, treatment)
-        if require_paired and not paired:
-            nb, nt = len(data.success[baseline]), len(data.success[treatment])
-            raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has "
-                             f"{nb} and {nt}, or different seed ids); drop --paired to compare them unpaired")
-    except BaseException:
-        starter.join()  # a damaged folder: let JAX finish starting before the command ends
-        raise
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False,
-                   disable=None)  # not into a log or a pipe: only on a terminal
-    stats, plot = compare_experiment(
+) -> tuple[dict, dict]:
+    """The statistics of a run's results (`compare_experiment`): (stats, figures' data), before
+    the report is written (`compare_run_dir`). Checks that the results fit the comparison asked
+    for; bad input raises `jaxeac.errors.UsageError`."""
+    bowling = data.experiment == "bowling"
+    expected = "return" if bowling else "successes"
+    if data.primary_measure != expected:
+        raise UsageError(
+            f"summary.json primary_measure {data.primary_measure!r} does not fit a {data.experiment} run "
+            f"(expected {expected!r}); fix summary.json or re-run the experiment"
+        )
+    paired = not unpaired and _same_seeds(data, baseline, treatment)
+    if require_paired and not paired:
+        nb, nt = len(data.success[baseline]), len(data.success[treatment])
+        raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has "
+                         f"{nb} and {nt}, or different seed ids); drop --paired to compare them unpaired")
+    return compare_experiment(
         data.success[baseline],
         data.success[treatment],
         returns_baseline=data.returns.get(baseline) if bowling else None,
@@ -394,11 +369,60 @@ def compare_run_dir(
         chunk=chunk,
         paired=paired,
     )
+
+
+def compare_run_dir(
+    run_dir,
+    *,
+    baseline: str = "ac",
+    treatment: str = "eac",
+    resamples: int = 10_000,
+    alpha: float = 0.05,
+    key: int = 0,
+    calibration_splits: int = CALIBRATION_SPLITS,
+    calibration_resamples: int = 200,
+    chunk: int = 1000,
+    progress: bool = True,
+    data: RunData | None = None,
+    unpaired: bool = False,
+    require_paired: bool = False,
+    analysed: Future | None = None,
+) -> dict:
+    """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
+
+    `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
+    the run it just wrote), instead of reading them back; `analysed`: a future of
+    `analyse_run_data`'s result for them with the same settings, started earlier (`jaxeac grid`
+    starts it while the run's own figures are drawn). The comparison is paired when both
+    methods ran the same seeds (a jaxeac run: seed i of each shares its key, R1), unless
+    `unpaired`; `require_paired` makes other seeds an error. Returns the content of stats.json.
+    Bad input raises `jaxeac.errors.UsageError`.
+    """
+    t0 = time.perf_counter()
+    _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
+    settings = dict(baseline=baseline, treatment=treatment, resamples=resamples, alpha=alpha, key=key,
+                    calibration_splits=calibration_splits, calibration_resamples=calibration_resamples,
+                    chunk=chunk, unpaired=unpaired, require_paired=require_paired)
+    t_load, bar = time.perf_counter(), None
+    starter = _start_device() if analysed is None else None  # a GPU's context starts while the host reads
+    try:
+        if data is None and analysed is None:
+            data = load_run_dir(run_dir, baseline, treatment)
+            trim_host_memory()  # what reading the file freed
+        t_load = time.perf_counter() - t_load if analysed is None else 0.0
+        bar = _progress_bar(progress, baseline, treatment)
+        stats, plot = analyse_run_data(data, **settings) if analysed is None else analysed.result()
+    except BaseException:
+        if bar is not None:
+            bar.close()
+        if starter is not None:
+            starter.join()  # a damaged folder: let JAX finish starting before the command ends
+        raise
     if bar is not None:
         bar.set_description(f"compare {treatment} vs {baseline}: report")
         bar.update()
     stats["run_dir"] = str(Path(run_dir))
-    if data.sequential is not None:  # the run's sequential decision comes first in the report
+    if data is not None and data.sequential is not None:  # the run's sequential decision comes first
         stats["sequential"] = data.sequential
     stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
     stats["timing"]["load_seconds"] = t_load
@@ -414,3 +438,13 @@ def compare_run_dir(
         bar.update()
         bar.close()
     return clean
+
+
+def _progress_bar(progress: bool, baseline: str, treatment: str):
+    """The comparison's two-step bar (statistics, report), on a terminal only; None if not `progress`."""
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False,
+                disable=None)  # not into a log or a pipe: only on a terminal
