@@ -12,6 +12,11 @@ back, writing and the run's figures. Unless ``--plain-only``, the run is repeate
 ``jaxeac grid --no-compare`` then ``jaxeac compare`` (each command's own wall time
 and memory). Peak resident memory of each process and the bytes of the run folder
 are recorded too.
+
+    python scripts/e2e.py --only grid --grid-seeds 1000000 --warm-up --builds A B --repeats 3
+
+compares source trees A and B (e.g. ``git worktree add A COMMIT``) in one sitting:
+the plain command's first runs taking turns, then a cached run of each.
 """
 
 from __future__ import annotations
@@ -95,6 +100,35 @@ def grid_record(out: Path, seeds: int, plain_only: bool = False) -> dict:
     }
 
 
+def warm_up() -> float:
+    """Seconds of a process that only imports JAX and starts its devices: afterwards the GPU
+    libraries are in the OS file cache, as on any machine that ran JAX before (the first process
+    on a freshly started machine reads them from disk, a few seconds more)."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import jax; jax.devices()"], check=True)
+    return time.perf_counter() - t0
+
+
+def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int) -> dict:
+    """A same-sitting comparison of source trees (`git worktree` checkouts or `git archive`
+    exports of commits, each put first on PYTHONPATH): the plain command with an empty
+    compilation cache, the builds taking turns, `repeats` rounds, then once each with its cache."""
+    base = ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
+    rows = {str(b): {"first_runs": []} for b in builds}
+    caches = {}
+    for r in range(repeats):
+        for i, build in enumerate(builds):
+            caches[i] = out / f"xla_cache_build{i}_{r}"
+            shutil.rmtree(caches[i], ignore_errors=True)
+            env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
+            rows[str(build)]["first_runs"].append(jaxeac([*base, "--out", str(out / f"build{i}")], env))
+            print(json.dumps(rows[str(build)]["first_runs"][-1]), flush=True)
+    for i, build in enumerate(builds):
+        env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
+        rows[str(build)]["cached"] = jaxeac([*base, "--out", str(out / f"build{i}")], env)
+    return {"seeds": seeds, "builds": rows}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("runs/e2e"))
@@ -103,11 +137,23 @@ def main() -> None:
     p.add_argument("--plain-only", action="store_true",
                    help="grid: only the plain command (no split run, no separate compare)")
     p.add_argument("--record", type=Path, help="write the JSON record here (default OUT/timings.json)")
+    p.add_argument("--warm-up", action="store_true",
+                   help="first start JAX once in a process of its own (`warm_up`), so the first run's time "
+                        "is its compiles, not the OS reading the GPU libraries from disk")
+    p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
+                   help="grid only: compare these source trees in one sitting (`builds_record`)")
+    p.add_argument("--repeats", type=int, default=3, help="--builds: rounds of first runs")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     record = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "command": " ".join(["python", *sys.argv]), "grid": []}
+    if args.warm_up:
+        record["warm_up_s"] = warm_up()
+    if args.builds:
+        record["grid"] = [builds_record(args.out, n, args.builds, args.repeats) for n in args.grid_seeds]
+        (args.record or args.out / "timings.json").write_text(json.dumps(record, indent=2) + "\n")
+        return
     wanted = set(args.only or ["grid", "sweep", "bowling", "sequential"])
     if "grid" in wanted:
         for seeds in args.grid_seeds:
