@@ -231,7 +231,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         return _grid_part(args, settings, out)
     if design is not None:
         return _grid_sequential(args, settings, design, out)
-    ahead = _compile_statistics_ahead(settings, compare=not args.no_compare)  # started by the run
+    ahead = _compile_statistics_ahead(settings, compare=not args.no_compare)
     statistics: list[Future] = []  # the comparison's statistics, started as soon as the results are in
 
     def start_statistics(run) -> None:
@@ -241,11 +241,10 @@ def cmd_grid(args: argparse.Namespace) -> int:
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
         run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
-                                          progress=bar.update, on_results=start_statistics,
-                                          on_compiled=ahead.start if ahead is not None else None)
+                                          progress=bar.update, on_results=start_statistics)
     print(summary_table(summary))
     print(f"results in {out}/")
-    if _started(ahead) and not statistics:
+    if ahead is not None and not statistics:
         ahead.join()  # the comparison's programs, in the cache before it starts
     return _compare_grid(run, out, compare=not args.no_compare, quiet=args.quiet,
                          analysed=statistics[0] if statistics else None)
@@ -263,8 +262,7 @@ STATISTICS_BESIDE_FIGURES_SEEDS = 1 << 22
 def _start_statistics(run, out, ahead) -> Future:
     """`analyse_run_data` of a grid run just finished, on a thread, while the main thread draws
     and writes the run's own figures: a future of (stats, figures' data). It starts once the
-    comparison's programs compiled ahead (`ahead`: `_compile_statistics_ahead`'s thread, or None)
-    are in the cache."""
+    comparison's programs compiled ahead (`ahead`, a thread or None) are in the cache."""
     from concurrent.futures import ThreadPoolExecutor
 
     from jaxeac.stats.run import analyse_run_data
@@ -272,7 +270,7 @@ def _start_statistics(run, out, ahead) -> Future:
     data = _grid_run_data(run, out)
 
     def work():
-        if _started(ahead):
+        if ahead is not None:
             ahead.join()
         return analyse_run_data(data)
 
@@ -283,10 +281,9 @@ def _start_statistics(run, out, ahead) -> Future:
 
 
 def _compile_statistics_ahead(settings, *, compare: bool):
-    """On accelerators, a thread to compile the comparison's device programs while the run
-    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache), to be
-    started once the run's own programs have compiled (beside them it slowed their compiles).
-    On CPUs the run needs every core: None."""
+    """On accelerators, compile the comparison's device programs on a thread while the run
+    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache). On
+    CPUs the run needs every core, so nothing is started. Returns the thread, or None."""
     import threading
 
     import jax
@@ -300,11 +297,9 @@ def _compile_statistics_ahead(settings, *, compare: bool):
         with contextlib.suppress(Exception):  # only a head start: the comparison compiles anyway
             large.compile_ahead(settings.seeds, settings.trials, splits=CALIBRATION_SPLITS)
 
-    return threading.Thread(target=work, daemon=True)
-
-
-def _started(thread) -> bool:
-    return thread is not None and thread.ident is not None
+    thread = threading.Thread(target=work, daemon=True)
+    thread.start()
+    return thread
 
 
 def _grid_sequential(args: argparse.Namespace, settings, design, out) -> int:

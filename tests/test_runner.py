@@ -262,8 +262,7 @@ class _LoggedJob:
 
 def test_a_program_runs_while_the_next_one_compiles():
     """`_run_chunks`: one chunk in flight while the one before comes back; a job still compiling
-    (a pending future) lets the last chunk come back first instead of waiting with it in flight;
-    `on_compiled` is called once the last program is ready."""
+    (a pending future) lets the last chunk come back first instead of waiting with it in flight."""
     from concurrent.futures import Future
 
     from jaxeac.running.batch import _run_chunks
@@ -271,16 +270,14 @@ def test_a_program_runs_while_the_next_one_compiles():
     log: list[str] = []
     ready = Future()
     ready.set_result(_LoggedJob("b", log, 1))
-    _run_chunks([_LoggedJob("a", log, 2), ready], None, lambda: log.append("compiled"))
-    assert log == ["dispatch a0", "dispatch a1", "collect a0", "compiled", "dispatch b0", "collect a1",
-                   "collect b0"]
+    _run_chunks([_LoggedJob("a", log, 2), ready], None)
+    assert log == ["dispatch a0", "dispatch a1", "collect a0", "dispatch b0", "collect a1", "collect b0"]
     log.clear()
     compiling = Future()  # compiles until a's last chunk is back
     first = _LoggedJob("a", log, 2, on_collect=lambda: log[-1] == "collect a1" and compiling.set_result(
         _LoggedJob("b", log, 1)))
-    _run_chunks([first, compiling], None, lambda: log.append("compiled"))
-    assert log == ["dispatch a0", "dispatch a1", "collect a0", "collect a1", "compiled", "dispatch b0",
-                   "collect b0"]
+    _run_chunks([first, compiling], None)
+    assert log == ["dispatch a0", "dispatch a1", "collect a0", "collect a1", "dispatch b0", "collect b0"]
 
 
 def _iterations_until_done(env, cfg, n_seeds=16):

@@ -19,7 +19,7 @@ import importlib
 import io
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -409,44 +409,35 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
 
 def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
                        figures: bool = True, progress: Callable[[int], None] | None = None,
-                       on_results: Callable[[GridRun], None] | None = None,
-                       on_compiled: Callable[[], None] | None = None) -> tuple[GridRun, dict]:
+                       on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
     run goes (`run_algorithms`: the programs compile side by side, one pipeline of chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
-    midway leaves it as it was). `on_compiled()` is called once the run's programs have compiled
-    (`jaxeac grid` compiles its statistics' programs from there); `on_results(run)` as soon as
-    the results are in, before the folder's figures and summary (`jaxeac grid` starts its
-    statistics there). Returns the run and its summary.json content.
+    midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before
+    the folder's figures and summary (`jaxeac grid` starts its statistics there). Returns the run
+    and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
     seeds = np.arange(settings.seeds, dtype=np.int64)
     pool = ThreadPoolExecutor(max_workers=1)
-    beside: list[Future] = []  # E8's counts, computed beside the run
-
-    def compiled() -> None:
-        # On accelerators, once the run's programs have compiled (compiling beside them slowed them),
-        # E8's programs compile and run while the device runs the seeds, and then the figures'
-        # modules load (half a second); on CPUs the run has every core, and they follow it.
-        if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
-            beside.append(pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings)))
-            if figures:
-                pool.submit(importlib.import_module, "jaxeac.plots")
-        if on_compiled is not None:
-            on_compiled()
-
+    # On accelerators E8's programs compile (and run) while the device runs the seeds, and then the
+    # figures' modules load (half a second); on CPUs the run has every core, and they follow it.
+    early = None
+    if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
+        early = pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
+        if figures:
+            pool.submit(importlib.import_module, "jaxeac.plots")
     try:
-        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, compiled, beside,
-                         on_results)
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
-              seeds: np.ndarray, compiled, beside: list[Future], on_results) -> tuple[GridRun, dict]:
-    """`run_grid_to_folder`'s run and folder; `beside`: E8's counts once `compiled()` started them."""
+              seeds: np.ndarray, early, on_results) -> tuple[GridRun, dict]:
+    """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             algos = settings.algos
@@ -454,13 +445,14 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
                                            on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
             runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
                                   n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
-                                  collectors=collectors, on_compiled=compiled)
+                                  collectors=collectors)
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
         if on_results is not None:
             on_results(run)
         return run, _finish_folder(run, stage, summarize(run), options, figures,
-                                   diagnosed=beside[0].result() if beside else None)
+                                   diagnosed=early.result() if early is not None else None)
+
 
 
 def run_grid_sequential(settings: GridSettings, out: str | Path, design, *,

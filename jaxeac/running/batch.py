@@ -191,14 +191,12 @@ class _Entries:
         return self.last_collect - max(self.first_dispatch, self.started_after)
 
 
-def _run_chunks(jobs: Sequence[_Entries | Future], progress,
-                on_compiled: Callable[[], None] | None = None) -> list[_Entries]:
+def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
     """Every chunk of every job, in order, one in flight while the one before comes back:
     dispatch is asynchronous, so the device computes the next chunk (of the same job or the
     next one) while the host collects this one. A job may be a future of one still compiling
     (`_prepare_all`): the jobs before it run meanwhile, and the last chunk in flight is
-    collected while it compiles. `on_compiled()` is called once every job's program is ready.
-    Returns the jobs."""
+    collected while it compiles. Returns the jobs."""
     done: list[_Entries] = []
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         pending = None
@@ -208,8 +206,6 @@ def _run_chunks(jobs: Sequence[_Entries | Future], progress,
                 pending = None
             job = item.result() if isinstance(item, Future) else item
             done.append(job)
-            if len(done) == len(jobs) and on_compiled is not None:
-                on_compiled()
             for start in job.starts():
                 running = job, job.dispatch(start)
                 if pending is not None:
@@ -222,14 +218,13 @@ def _run_chunks(jobs: Sequence[_Entries | Future], progress,
     return done
 
 
-def _prepare_all(make: Callable[[int], _Entries], count: int, progress,
-                 on_compiled: Callable[[], None] | None = None) -> list[_Entries]:
+def _prepare_all(make: Callable[[int], _Entries], count: int, progress) -> list[_Entries]:
     """`make(i)` for every job, the programs compiling side by side on threads (XLA compiles
     with the GIL released), each job's chunks starting as soon as its program is ready
     (`_run_chunks`). Returns the jobs, run."""
     pool = ThreadPoolExecutor(max_workers=count)
     try:
-        return _run_chunks([pool.submit(make, i) for i in range(count)], progress, on_compiled)
+        return _run_chunks([pool.submit(make, i) for i in range(count)], progress)
     finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
         pool.shutdown(wait=False, cancel_futures=True)
 
@@ -274,14 +269,12 @@ def run_algorithms(
     progress: Callable[[int], None] | None = None,
     collectors: Sequence[Collector | None] | None = None,
     hypers: Sequence[Hyper | None] | None = None,
-    on_compiled: Callable[[], None] | None = None,
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
     pipeline: the programs compile side by side, and the next algorithm's first chunk computes
     while the last one's results come back. Results as `run_seeds` gives them, one per config
     (`collectors[i]` takes config i's chunks, None: host arrays; `hypers[i]` its rates, None:
-    the config's own). `on_compiled()` is called once every program has compiled, while the
-    chunks run (work that would slow the compiles can start there)."""
+    the config's own)."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
@@ -294,7 +287,7 @@ def run_algorithms(
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
                         chunk_size=chunk_size, devices=devices, collector=collectors[i])
 
-    jobs = _prepare_all(make, len(cfgs), progress, on_compiled)
+    jobs = _prepare_all(make, len(cfgs), progress)
     results = []
     for cfg, job in zip(cfgs, jobs, strict=True):
         resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)
