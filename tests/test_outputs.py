@@ -110,6 +110,22 @@ def test_streamed_run_folder_equals_the_in_memory_one(tmp_path, monkeypatch):
     assert summary["eac_minus_ac"] == memory["eac_minus_ac"]
 
 
+@pytest.mark.parametrize("dtype", [np.int8, np.int16, np.int32, np.int64, np.uint8, bool])
+def test_arrow_arrays_built_on_numpy_buffers_equal_pyarrows_own(rng, dtype):
+    """The writer builds its columns on the arrays' buffers (`_from_numpy`, `_strings`; pyarrow's
+    own constructor imports pandas first): the same Arrow arrays, sliced views and odd lengths too."""
+    import pyarrow as pa
+
+    from jaxeac.experiments.results import _from_numpy, _strings
+
+    values = rng.integers(-100, 100, size=37).astype(dtype)
+    for view in (values, values[3:], values[::2], values[:0]):
+        got = _from_numpy(pa, view)
+        assert got.type == pa.from_numpy_dtype(view.dtype) and got.equals(pa.array(view))
+    for items in (["ac"], ["ac", "eac", "", "ε-greedy"], []):
+        assert _strings(pa, items).equals(pa.array(items, pa.string()))
+
+
 def test_success_bits_by_hand(tmp_path):
     success = np.zeros((2, 10), bool)
     success[0, [0, 9]] = True  # bit 0 of byte 0 and bit 1 of byte 1

@@ -69,9 +69,26 @@ def _arrow():
     return pa, pq
 
 
+def _from_numpy(pa, values: np.ndarray):
+    """The Arrow array of a 1-d NumPy array of numbers or booleans, built on its buffer:
+    ``pa.array`` would first import pandas (0.5-0.75 s) to ask whether the values are pandas'."""
+    values = np.ascontiguousarray(values)
+    if values.dtype == bool:  # Arrow's booleans are bits, least significant first
+        data = np.packbits(values, bitorder="little")
+        return pa.Array.from_buffers(pa.bool_(), len(values), [None, pa.py_buffer(data)])
+    return pa.Array.from_buffers(pa.from_numpy_dtype(values.dtype), len(values), [None, pa.py_buffer(values)])
+
+
+def _strings(pa, items: list[str]):
+    """The Arrow string array of `items`, built on its buffers (see `_from_numpy`)."""
+    encoded = [item.encode() for item in items]
+    offsets = np.cumsum([0, *map(len, encoded)], dtype=np.int32)
+    return pa.Array.from_buffers(pa.string(), len(items),
+                                 [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(encoded))])
+
+
 def _fixed_list(pa, values: np.ndarray, width: int):
-    flat = values.reshape(-1)
-    return pa.FixedSizeListArray.from_arrays(pa.array(flat), width)
+    return pa.FixedSizeListArray.from_arrays(_from_numpy(pa, values.reshape(-1)), width)
 
 
 def unpack_success(column, trials: int) -> np.ndarray:
@@ -117,13 +134,14 @@ class ResultsWriter:
             rows = slice(start, start + ROW_GROUP)
             bits = np.ascontiguousarray(measures["bits"][rows])
             n = bits.shape[0]
+            algo_codes = _from_numpy(pa, np.zeros(n, np.int8))
             columns = {
-                "algo": pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int8)), pa.array([algo])),
-                "seed": pa.array(np.asarray(seeds[rows], np.int64)),
-                "successes": pa.array(np.asarray(measures["successes"][rows], np.int32)),
-                "steps": pa.array(np.asarray(measures["steps_total"][rows], np.int64)),
-                "first_success": pa.array(np.asarray(measures["first_success"][rows], np.int32)),
-                "finite": pa.array(np.asarray(measures["finite"][rows], bool)),
+                "algo": pa.DictionaryArray.from_arrays(algo_codes, _strings(pa, [algo])),
+                "seed": _from_numpy(pa, np.asarray(seeds[rows], np.int64)),
+                "successes": _from_numpy(pa, np.asarray(measures["successes"][rows], np.int32)),
+                "steps": _from_numpy(pa, np.asarray(measures["steps_total"][rows], np.int64)),
+                "first_success": _from_numpy(pa, np.asarray(measures["first_success"][rows], np.int32)),
+                "finite": _from_numpy(pa, np.asarray(measures["finite"][rows], bool)),
                 "success_bits": pa.FixedSizeBinaryArray.from_buffers(
                     pa.binary(bits.shape[1]), n, [None, pa.py_buffer(bits)]),
             }
@@ -224,7 +242,8 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
 
     try:
         names = pq.read_schema(path).names
-        table = pq.read_table(path, columns=[c for c in COMPACT_COLUMNS if c in names] if compact else None)
+        with pq.ParquetFile(path) as file:  # (`pq.read_table` would import pandas, see `_from_numpy`)
+            table = file.read(columns=[c for c in COMPACT_COLUMNS if c in names] if compact else None)
     except (pa.ArrowException, OSError) as exc:
         raise UsageError(f"{path} is not a readable results file ({str(exc).splitlines()[0]}); "
                          "re-run the experiment to rewrite it") from None
@@ -252,7 +271,7 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
     try:
         algo_column = table.column("algo").cast(pa.string())
         dictionary = pc.unique(algo_column).to_pylist()
-        codes = pc.index_in(algo_column, value_set=pa.array(dictionary, pa.string())).to_numpy(
+        codes = pc.index_in(algo_column, value_set=_strings(pa, dictionary)).to_numpy(
             zero_copy_only=False)
         for algo in algos:
             if algo not in dictionary:
