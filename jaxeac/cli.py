@@ -235,7 +235,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
     statistics: list[Future] = []  # the comparison's statistics, started as soon as the results are in
 
     def start_statistics(run) -> None:
-        if _compares(run, compare=not args.no_compare) and settings.seeds <= STATISTICS_BESIDE_FIGURES_SEEDS:
+        if _compares(run, compare=not args.no_compare) and _statistics_beside_figures(settings.seeds):
             statistics.append(_start_statistics(run, out, ahead))
 
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
@@ -250,13 +250,24 @@ def cmd_grid(args: argparse.Namespace) -> int:
                          analysed=statistics[0] if statistics else None)
 
 
-#: Up to this many seeds per method, `jaxeac grid` computes the comparison's statistics beside the
-#: run's own figures (`_start_statistics`); above it they follow, as the run's other per-seed columns
-#: and the statistics' copies would be in host memory at once. At 10^7 seeds on one H100 overlapping
-#: raised the peak RSS from 3.0-3.3 GiB to 3.8-4.2 GiB (records gpu_h100_e2e_10m_grow.json and
-#: gpu_h100_e2e_10m_overlap.json). At 10^6 seeds the command took 13.1 s with it and this build's
-#: other changes (gpu_h100_e2e_1m_overlap.json), against 15.0-19.2 s before.
+#: Per JAX backend, whether `jaxeac grid` computes the comparison's statistics beside the run's own
+#: figures (`_start_statistics`): on one H100 that took the 10^6-seed command's median first run from
+#: 17.9 to 16.2 s (record gpu_h100_e2e_1m_builds.json); on the 2-core CPU, where E8 follows the run
+#: on every core, it gained nothing and held 0.15 GiB more (cpu_e2e_grid_100k_builds.json).
+STATISTICS_BESIDE_FIGURES = {"gpu": True, "tpu": True}
+#: Up to this many seeds per method: above it the run's other per-seed columns and the statistics'
+#: copies would be in host memory at once. At 10^7 seeds on one H100 overlapping raised the peak
+#: RSS from 3.0-3.3 GiB to 3.8-4.2 GiB (records gpu_h100_e2e_10m_grow.json and
+#: gpu_h100_e2e_10m_overlap.json).
 STATISTICS_BESIDE_FIGURES_SEEDS = 1 << 22
+
+
+def _statistics_beside_figures(seeds: int) -> bool:
+    """Whether a grid run of `seeds` seeds per method computes its statistics beside its figures."""
+    import jax
+
+    beside = STATISTICS_BESIDE_FIGURES.get(jax.default_backend(), False)
+    return beside and seeds <= STATISTICS_BESIDE_FIGURES_SEEDS
 
 
 def _start_statistics(run, out, ahead) -> Future:

@@ -108,10 +108,12 @@ def test_cli_results_match_library_and_rerun(tmp_path):
 
 
 def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatch, capsys):
-    """`jaxeac grid` starts the comparison's statistics as soon as the results are in, beside the
-    run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as after them."""
+    """`jaxeac grid` on accelerators starts the comparison's statistics as soon as the results are in,
+    beside the run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as
+    after them."""
     import jaxeac.cli as cli
 
+    monkeypatch.setitem(cli.STATISTICS_BESIDE_FIGURES, "cpu", True)
     started = []
     start = cli._start_statistics
     monkeypatch.setattr(cli, "_start_statistics", lambda *a: started.append(1) or start(*a))
