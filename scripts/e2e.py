@@ -109,11 +109,13 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int) -> dict:
+def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, command: list[str] | None = None
+                  ) -> dict:
     """A same-sitting comparison of source trees (`git worktree` checkouts or `git archive`
-    exports of commits, each put first on PYTHONPATH): the plain command with an empty
-    compilation cache, the builds taking turns, `repeats` rounds, then once each with its cache."""
-    base = ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
+    exports of commits, each put first on PYTHONPATH): the plain grid command (or `command`, the
+    arguments of another jaxeac command, without --out) with an empty compilation cache, the
+    builds taking turns, `repeats` rounds, then once each with its cache."""
+    base = command or ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
     rows = {str(b): {"first_runs": []} for b in builds}
     caches = {}
     for r in range(repeats):
@@ -126,7 +128,7 @@ def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int) -> di
     for i, build in enumerate(builds):
         env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
         rows[str(build)]["cached"] = jaxeac([*base, "--out", str(out / f"build{i}")], env)
-    return {"seeds": seeds, "builds": rows}
+    return {"seeds": seeds, "command": " ".join(["jaxeac", *base]), "builds": rows}
 
 
 def main() -> None:
@@ -143,6 +145,9 @@ def main() -> None:
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
                    help="grid only: compare these source trees in one sitting (`builds_record`)")
     p.add_argument("--repeats", type=int, default=3, help="--builds: rounds of first runs")
+    p.add_argument("--builds-command", metavar="ARGS",
+                   help="--builds: time `jaxeac ARGS --out DIR` instead of the grid command (e.g. 'run --env "
+                        "FourRooms-stochastic-v0 --seeds 10000 --quiet')")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     record = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
@@ -151,7 +156,9 @@ def main() -> None:
     if args.warm_up:
         record["warm_up_s"] = warm_up()
     if args.builds:
-        record["grid"] = [builds_record(args.out, n, args.builds, args.repeats) for n in args.grid_seeds]
+        command = args.builds_command.split() if args.builds_command else None
+        record["grid"] = [builds_record(args.out, n, args.builds, args.repeats, command)
+                          for n in (args.grid_seeds if command is None else [None])]
         (args.record or args.out / "timings.json").write_text(json.dumps(record, indent=2) + "\n")
         return
     wanted = set(args.only or ["grid", "sweep", "bowling", "sequential"])

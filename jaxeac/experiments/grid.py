@@ -411,7 +411,7 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
                        figures: bool = True, progress: Callable[[int], None] | None = None,
                        on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
-    run goes (`run_algorithms`: the programs compile side by side, one pipeline of chunks): each
+    run goes (`run_algorithms`: one pipeline of compiles and chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
     midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before

@@ -218,11 +218,18 @@ def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
     return done
 
 
-def _prepare_all(make: Callable[[int], _Entries], count: int, progress) -> list[_Entries]:
-    """`make(i)` for every job, the programs compiling side by side on threads (XLA compiles
-    with the GIL released), each job's chunks starting as soon as its program is ready
-    (`_run_chunks`). Returns the jobs, run."""
-    pool = ThreadPoolExecutor(max_workers=count)
+#: Per platform, whether the programs of a pipeline compile side by side (`_prepare_all`). On CPUs
+#: they compile one at a time, in order, each while the ones before it run: there compiles and runs
+#: share the same cores, and eight programs compiling at once on two cores took 8 algorithms on
+#: stochastic Four Rooms (10,000 seeds) to 89 s, against 57 s for their compiles and runs in turn.
+COMPILES_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
+
+
+def _prepare_all(make: Callable[[int], _Entries], count: int, progress, platform: str) -> list[_Entries]:
+    """`make(i)` for every job on threads (XLA compiles with the GIL released): side by side on
+    accelerators, one at a time on CPUs (`COMPILES_SIDE_BY_SIDE`), each job's chunks starting as
+    soon as its program is ready (`_run_chunks`). Returns the jobs, run."""
+    pool = ThreadPoolExecutor(max_workers=count if COMPILES_SIDE_BY_SIDE.get(platform, False) else 1)
     try:
         return _run_chunks([pool.submit(make, i) for i in range(count)], progress)
     finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
@@ -271,8 +278,8 @@ def run_algorithms(
     hypers: Sequence[Hyper | None] | None = None,
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
-    pipeline: the programs compile side by side, and the next algorithm's first chunk computes
-    while the last one's results come back. Results as `run_seeds` gives them, one per config
+    pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and the
+    next algorithm's first chunk computes while the last one's results come back. Results as `run_seeds` gives them, one per config
     (`collectors[i]` takes config i's chunks, None: host arrays; `hypers[i]` its rates, None:
     the config's own)."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
@@ -287,7 +294,7 @@ def run_algorithms(
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
                         chunk_size=chunk_size, devices=devices, collector=collectors[i])
 
-    jobs = _prepare_all(make, len(cfgs), progress)
+    jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform)
     results = []
     for cfg, job in zip(cfgs, jobs, strict=True):
         resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)
