@@ -280,6 +280,32 @@ def test_a_program_runs_while_the_next_one_compiles():
     assert log == ["dispatch a0", "dispatch a1", "collect a0", "collect a1", "dispatch b0", "collect b0"]
 
 
+@pytest.mark.parametrize(("platform", "most_at_once"), [("cpu", 1), ("gpu", 3)])
+def test_programs_compile_side_by_side_on_accelerators_only(platform, most_at_once):
+    """`_prepare_all`: on CPUs one compile at a time, in order (they share the cores with the runs);
+    on accelerators all side by side (`COMPILES_SIDE_BY_SIDE`)."""
+    import threading
+    import time
+
+    from jaxeac.running.batch import _prepare_all
+
+    log, active, most = [], [0], [0]
+    lock = threading.Lock()
+
+    def make(i):
+        with lock:
+            active[0] += 1
+            most[0] = max(most[0], active[0])
+        time.sleep(0.3)
+        with lock:
+            active[0] -= 1
+        return _LoggedJob("abc"[i], log, 1)
+
+    jobs = _prepare_all(make, 3, None, platform)
+    assert [j.name for j in jobs] == ["a", "b", "c"] and most[0] == most_at_once
+    assert sorted(log) == ["collect a0", "collect b0", "collect c0", "dispatch a0", "dispatch b0", "dispatch c0"]
+
+
 def _iterations_until_done(env, cfg, n_seeds=16):
     """Run the flat loop one chance per call with a lane per seed; (lane iterations until each
     seed was done, final agents)."""
