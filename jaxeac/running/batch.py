@@ -220,8 +220,9 @@ def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
 
 #: Per platform, whether the programs of a pipeline compile side by side (`_prepare_all`). On CPUs
 #: they compile one at a time, in order, each while the ones before it run: there compiles and runs
-#: share the same cores, and eight programs compiling at once on two cores took 8 algorithms on
-#: stochastic Four Rooms (10,000 seeds) to 89 s, against 57 s for their compiles and runs in turn.
+#: share the same cores. Eight algorithms on stochastic Four Rooms, 10,000 seeds, 2-core CPU: peak
+#: memory 1.59 GiB against 1.76 GiB side by side, time within this machine's spread (93 s against
+#: 89 s on a first run, 74 s against 82 s cached; record cpu_e2e_fourrooms_stochastic_builds.json).
 COMPILES_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
 
 
