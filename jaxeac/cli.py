@@ -251,9 +251,10 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
 
 #: Per JAX backend, whether `jaxeac grid` computes the comparison's statistics beside the run's own
-#: figures (`_start_statistics`): on one H100 that took the 10^6-seed command's median first run from
-#: 17.9 to 16.2 s (record gpu_h100_e2e_1m_builds.json); on the 2-core CPU, where E8 follows the run
-#: on every core, it gained nothing and held 0.15 GiB more (cpu_e2e_grid_100k_builds.json).
+#: figures (`_start_statistics`). On one H100 the build that brought it (with the pipeline's and the
+#: command's end's changes) took the 10^6-seed command's median first run from 17.9 to 16.2 s, same
+#: sitting (record gpu_h100_e2e_1m_builds.json); on the 2-core CPU, where E8 follows the run on every
+#: core, it gained nothing and held 0.15 GiB more (cpu_e2e_grid_100k_builds.json).
 STATISTICS_BESIDE_FIGURES = {"gpu": True, "tpu": True}
 #: Up to this many seeds per method: above it the run's other per-seed columns and the statistics'
 #: copies would be in host memory at once. At 10^7 seeds on one H100 overlapping raised the peak
