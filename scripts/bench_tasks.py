@@ -15,6 +15,7 @@ Writes JSON; ``--render`` prints the BENCHMARKS.md table.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -24,7 +25,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench import command_line, environment  # noqa: E402  (sets XLA's CPU devices first)
 
 
-def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: int | None) -> dict:
+def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: int | None,
+               jump: str = "auto") -> dict:
     from jaxeac.experiments.study import StudySettings
     from jaxeac.running.batch import run_seeds
 
@@ -32,7 +34,7 @@ def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: i
     env = settings.make_env()
     rows = []
     for algo in algos:
-        cfg = settings.run_config(algo)
+        cfg = dataclasses.replace(settings.run_config(algo), jump=jump)  # auto: wherever exact
         best, compile_s = float("inf"), None
         for _ in range(repeats):
             r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk or settings.chunk_size)
@@ -70,6 +72,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10_000)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--chunk", type=int, default=None, help="seeds per chunk (default: automatic)")
+    parser.add_argument("--jump", choices=["auto", "on", "off"], default="auto",
+                        help="memory jumps (RunConfig.jump; default auto: wherever exact)")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--render", nargs="+", type=Path, metavar="JSON")
     args = parser.parse_args()
@@ -84,7 +88,7 @@ def main() -> None:
     rec = {"command": command_line(), "environment": environment(), "seeds": args.seeds, "repeats": args.repeats,
            "algos": algos, "tasks": []}
     for task in tasks:
-        rec["tasks"].append(bench_task(task, algos, args.seeds, args.repeats, args.chunk))
+        rec["tasks"].append(bench_task(task, algos, args.seeds, args.repeats, args.chunk, args.jump))
         t = rec["tasks"][-1]
         print(f"{task}: {t['wall_s']:.1f} s; " + ", ".join(f"{r['algo']} {r['steps_per_s']:.3g}/s"
                                                           for r in t["rows"]), flush=True)

@@ -70,6 +70,21 @@ def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
     assert "| FrozenLake-4x4-v1 | 100 |" in table.stdout and "| grid-paper-v0:slip=0.1 | 40 |" in table.stdout
 
 
+def test_bench_tasks_can_turn_memory_jumps_off(tmp_path):
+    """`--jump off`: EAC on a deterministic task, where jumps are on by default, runs without them
+    (the record says so) and reaches the same results (the steps it counts are the same)."""
+    rows = {}
+    for jump in ("auto", "off"):
+        out = tmp_path / f"{jump}.json"
+        proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1", "--algos", "eac",
+                       "--jump", jump, "--out", str(out))
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        rows[jump] = json.loads(out.read_text())["tasks"][0]["rows"][0]
+    assert rows["auto"]["jump"] == "on" and rows["off"]["jump"] == "off"
+    assert rows["auto"]["agent_steps"] == rows["off"]["agent_steps"]
+    assert rows["auto"]["mean_successes"] == rows["off"]["mean_successes"]
+
+
 def test_stats_memory_runs_the_grid_data_path_and_reports_its_peak(tmp_path):
     out = tmp_path / "run"
     proc = _script("scripts/stats_memory.py", "--seeds", "2500", "--base", "50", "--chunk", "1000",
