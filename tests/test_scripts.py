@@ -76,8 +76,8 @@ def test_bench_tasks_can_turn_memory_jumps_off(tmp_path):
     rows = {}
     for jump in ("auto", "off"):
         out = tmp_path / f"{jump}.json"
-        proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1", "--algos", "eac",
-                       "--jump", jump, "--out", str(out))
+        proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1",
+                       "--algos", "eac", "--jump", jump, "--out", str(out))
         assert proc.returncode == 0, proc.stderr[-2000:]
         rows[jump] = json.loads(out.read_text())["tasks"][0]["rows"][0]
     assert rows["auto"]["jump"] == "on" and rows["off"]["jump"] == "off"
