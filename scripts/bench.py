@@ -178,6 +178,53 @@ def measure(args) -> dict:
     return record
 
 
+def builds_record(args) -> dict:
+    """`--builds`: this benchmark's jaxeac rows for each source tree in one sitting, the builds
+    taking turns for `--rounds` rounds (a drifting machine slows each alike). Each row is
+    labelled ``jaxeac <dir name>`` and keeps its round."""
+    import subprocess
+    import tempfile
+
+    child = ["--seeds", *map(str, args.seeds), "--numpy-seeds", "--chunk", str(args.chunk),
+             "--repeats", str(args.repeats), "--tables", args.tables, "--kernel", args.kernel,
+             "--jump", *args.jump, *(["--lanes", str(args.lanes)] if args.lanes else [])]
+    record = {"environment": environment(), "command": command_line(), "rows": [],
+              "builds": [b.name for b in args.builds]}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(args.rounds):
+            for build in args.builds:
+                out = Path(tmp) / f"{build.name}_{i}.json"
+                env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+                    [str(build.resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]))
+                subprocess.run([sys.executable, __file__, *child, "--out", str(out)], env=env, check=True,
+                               stdout=subprocess.DEVNULL)
+                for row in json.loads(out.read_text())["rows"]:
+                    row |= {"impl": f"jaxeac {build.name}", "build": build.name, "round": i}
+                    print(json.dumps(row), flush=True)
+                    record["rows"].append(row)
+    return record
+
+
+def _builds_lines(rec: dict) -> list[str]:
+    """Each build's best rate per (algo, jump, seeds) over the rounds, as a ratio to the first build."""
+    best: dict = {}
+    for r in rec["rows"]:
+        key = (r["algo"], r.get("jump"), r["seeds"])
+        best.setdefault(key, {})
+        best[key][r["build"]] = max(best[key].get(r["build"], 0.0), r["steps_per_s"])
+    first, *others = rec["builds"]
+    rounds = max(r["round"] for r in rec["rows"]) + 1
+    jumps = {"on": " with jumps", "off": " without jumps"}
+    lines = []
+    for (algo, jump, seeds), rates in best.items():
+        label = algo.upper() + (jumps.get(jump, "") if algo != "ac" else "")
+        lines.append(f"{label} at {seeds:,} seeds, best of {rounds} rounds: "
+                     + "; ".join(f"{b} {rates[b]:.3g}" for b in rec["builds"] if b in rates)
+                     + "".join(f" (**{rates[b] / rates[first]:.2f}×** {first})" for b in others
+                               if b in rates and first in rates))
+    return ["", *lines]
+
+
 def _devices_heading(path: Path, rec: dict) -> list[str]:
     """Title (devices, versions) and command of a record written by scale.py or check_kernel.py."""
     env = rec["environment"]
@@ -323,6 +370,8 @@ def render(paths: list[Path]) -> str:
             out.append("")
             out.append(f"jaxeac / {labels[name]} peer (same run, same seeds): "
                        + "; ".join(f"{a} at {n:,} seeds: **{x:.2f}×**" for a, n, x in pairs))
+        if "builds" in rec:
+            out += _builds_lines(rec)
         out.append("")
     return "\n".join(out)
 
@@ -349,6 +398,10 @@ def main() -> None:
     p.add_argument("--jump", nargs="+", choices=["auto", "on", "off"], default=["auto"],
                    help="EAC's memory jumps (RunConfig.jump), a row for each (e.g. `--jump on off` for "
                         "a same-run ratio); auto as jaxeac")
+    p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
+                   help="compare these source trees (e.g. `git archive` of two commits) in one sitting: "
+                        "jaxeac rows only, each build in turn (`--rounds` times), no peers")
+    p.add_argument("--rounds", type=int, default=2, help="--builds: rounds of the builds taking turns")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     p.add_argument("--render", type=Path, nargs="+", help="print Markdown tables of these JSON files")
     args = p.parse_args()
@@ -359,7 +412,7 @@ def main() -> None:
     if args.render:
         print(render(args.render))
         return
-    record = measure(args)
+    record = builds_record(args) if args.builds else measure(args)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(record, indent=2) + "\n")

@@ -8,7 +8,9 @@ back and collected, the statistics' pieces, the figures, the end. Each line hold
 seconds since start and the process's resident memory from /proc/self/status (Linux):
 VmRSS, its peak VmHWM, and its parts RssAnon (heap), RssFile (mapped files, e.g. the CUDA
 libraries) and RssShmem. Lines ('rss', seconds, GiB) mark every 0.5 GiB of growth of the
-peak (``MEMORY_TIMELINE_STEP=0.1`` for finer marks).
+peak (``MEMORY_TIMELINE_STEP=0.1`` for finer marks). With ``MEMORY_TIMELINE_COMPILES=1``, a line
+for each program JAX traces, lowers and compiles: the phase, the function, its seconds and the
+thread (JAX's own compile events), to see which compiles a first run waits on.
 """
 
 from __future__ import annotations
@@ -55,6 +57,16 @@ def main() -> int:
     cli.configure_xla()
     import jax
 
+    if os.environ.get("MEMORY_TIMELINE_COMPILES") == "1":
+        import jax.monitoring
+
+        def compile_event(event: str, seconds: float, **meta) -> None:
+            if event.startswith("/jax/core/compile/"):
+                phase = event.rsplit("/", 1)[-1].removesuffix("_duration")
+                print((round(time.perf_counter() - T0, 2), phase, meta.get("fun_name"), round(seconds, 3),
+                       threading.current_thread().name), flush=True)
+
+        jax.monitoring.register_event_duration_secs_listener(compile_event)
     jax.devices()
     mark("jax and devices")
     import jaxeac.experiments.grid as grid

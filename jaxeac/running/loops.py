@@ -370,7 +370,10 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
             nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
             take = got & (nxt < m)
             fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
-            target = jnp.where(take, idx, width)
+            # The writes go into `run`'s buffers, which the reads of the finished lanes above share:
+            # indices that depend on what was read order every read first, so XLA writes in place
+            # instead of copying every lane's tables, memory and log each block.
+            target = jnp.where(take & _read(done_out), idx, width)
             lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
             idle = jnp.where(got & ~take, idx, width)
             lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
@@ -400,6 +403,13 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
 #: least `TAIL_MIN_LANES` (accelerators' wide lane counts; BENCHMARKS.md, "Tabular tasks").
 TAIL_SHRINK = 16
 TAIL_MIN_LANES = 2048
+
+
+def _read(values) -> jax.Array:
+    """bool [], always True, computed from every leaf of `values` (narrow ints and bools): a value to
+    make a later write depend on these reads, which XLA cannot see through."""
+    low = sum(jnp.min(x).astype(jnp.int32) for x in jax.tree.leaves(values))
+    return low > jnp.iinfo(jnp.int32).min
 
 
 def tail_lanes(n_lanes: int, kernel: str) -> list[int]:
