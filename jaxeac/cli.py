@@ -231,8 +231,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         return _grid_part(args, settings, out)
     if design is not None:
         return _grid_sequential(args, settings, design, out)
-    lowered = threading.Event()  # the run's programs come first (`run_grid_to_folder`)
-    ahead = _compile_statistics_ahead(settings, compare=not args.no_compare, after=lowered)
+    ahead = _compile_statistics_ahead(settings, compare=not args.no_compare)
     statistics: list[Future] = []  # the comparison's statistics, started as soon as the results are in
 
     def start_statistics(run) -> None:
@@ -242,7 +241,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
         run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
-                                          progress=bar.update, on_results=start_statistics, lowered=lowered)
+                                          progress=bar.update, on_results=start_statistics)
     print(summary_table(summary))
     print(f"results in {out}/")
     if ahead is not None and not statistics:
@@ -293,11 +292,12 @@ def _start_statistics(run, out, ahead) -> Future:
     return future
 
 
-def _compile_statistics_ahead(settings, *, compare: bool, after: threading.Event):
+def _compile_statistics_ahead(settings, *, compare: bool):
     """On accelerators, compile the comparison's device programs on a thread while the run
-    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache), once
-    `after` is set (the run's own programs lowered). On CPUs the run needs every core, so nothing
-    is started. Returns the thread, or None."""
+    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache). On
+    CPUs the run needs every core, so nothing is started. Returns the thread, or None."""
+    import threading
+
     import jax
 
     if not compare or jax.default_backend() == "cpu":
@@ -306,7 +306,6 @@ def _compile_statistics_ahead(settings, *, compare: bool, after: threading.Event
     from jaxeac.stats.run import CALIBRATION_SPLITS
 
     def work() -> None:
-        after.wait()
         with contextlib.suppress(Exception):  # only a head start: the comparison compiles anyway
             large.compile_ahead(settings.seeds, settings.trials, splits=CALIBRATION_SPLITS)
 

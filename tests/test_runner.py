@@ -292,8 +292,7 @@ def test_programs_compile_side_by_side_on_accelerators_only(platform, most_at_on
     log, active, most = [], [0], [0]
     lock = threading.Lock()
 
-    def make(i, on_lowered):
-        on_lowered()
+    def make(i):
         with lock:
             active[0] += 1
             most[0] = max(most[0], active[0])
@@ -305,48 +304,6 @@ def test_programs_compile_side_by_side_on_accelerators_only(platform, most_at_on
     jobs = _prepare_all(make, 3, None, platform)
     assert [j.name for j in jobs] == ["a", "b", "c"] and most[0] == most_at_once
     assert sorted(log) == ["collect a0", "collect b0", "collect c0", "dispatch a0", "dispatch b0", "dispatch c0"]
-
-
-@pytest.mark.parametrize(("platform", "started"), [("cpu", [0, 1, 2]), ("gpu", [2, 0, 1])])
-def test_pipeline_starts_the_longest_compiles_first_and_says_when_all_are_lowered(monkeypatch, platform, started):
-    """`_prepare_all`: on accelerators the jobs named `first` (algorithms with memories:
-    `run_algorithms`) start first; on CPUs the order stays. `lowered` is set once every job has
-    lowered its program, not before, and results come back in the jobs' order."""
-    import threading
-    from concurrent.futures import Future
-
-    import jaxeac.running.batch as batch
-
-    class InOrder:  # an executor that runs each job as it is submitted, so the order is the test's
-        def __init__(self, max_workers):
-            pass
-
-        def submit(self, f, *args):
-            future = Future()
-            future.set_result(f(*args))
-            return future
-
-        def shutdown(self, **_):
-            pass
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *_):
-            pass
-
-    monkeypatch.setattr(batch, "ThreadPoolExecutor", InOrder)
-    lowered, order, seen, log = threading.Event(), [], [], []
-
-    def make(i, on_lowered):
-        order.append(i)
-        on_lowered()
-        seen.append(lowered.is_set())
-        return _LoggedJob("abc"[i], log, 1)
-
-    jobs = batch._prepare_all(make, 3, None, platform, first=[2], lowered=lowered)
-    assert order == started and seen == [False, False, True]
-    assert [j.name for j in jobs] == ["a", "b", "c"]
 
 
 def _iterations_until_done(env, cfg, n_seeds=16):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import io
-import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -410,47 +409,34 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
 
 def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
                        figures: bool = True, progress: Callable[[int], None] | None = None,
-                       on_results: Callable[[GridRun], None] | None = None,
-                       lowered: threading.Event | None = None) -> tuple[GridRun, dict]:
+                       on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
     run goes (`run_algorithms`: one pipeline of compiles and chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
     midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before
-    the folder's figures and summary (`jaxeac grid` starts its statistics there). `lowered` is set
-    once the run's programs are traced and lowered (`run_algorithms`; work that traces beside the run
-    waits for it). Returns the run and its summary.json content.
+    the folder's figures and summary (`jaxeac grid` starts its statistics there). Returns the run
+    and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
     seeds = np.arange(settings.seeds, dtype=np.int64)
-    lowered = lowered if lowered is not None else threading.Event()
     pool = ThreadPoolExecutor(max_workers=1)
     # On accelerators E8's programs compile (and run) while the device runs the seeds, and then the
     # figures' modules load (half a second); on CPUs the run has every core, and they follow it.
-    # E8 traces once the run's own programs are lowered, so that they come first.
     early = None
     if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
-        early = pool.submit(_when_set, lowered, diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
+        early = pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
         if figures:
             pool.submit(importlib.import_module, "jaxeac.plots")
     try:
-        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results,
-                         lowered)
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results)
     finally:
-        lowered.set()  # never leave work waiting, whatever happened
         pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _when_set(event: threading.Event, f: Callable, *args):
-    """f(*args) once `event` is set."""
-    event.wait()
-    return f(*args)
-
-
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
-              seeds: np.ndarray, early, on_results, lowered: threading.Event | None = None
-              ) -> tuple[GridRun, dict]:
+              seeds: np.ndarray, early, on_results) -> tuple[GridRun, dict]:
     """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
@@ -459,7 +445,7 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
                                            on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
             runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
                                   n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
-                                  collectors=collectors, lowered=lowered)
+                                  collectors=collectors)
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
         if on_results is not None:

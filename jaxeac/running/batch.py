@@ -103,17 +103,12 @@ def trim_host_memory() -> None:
 
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
-#: Programs are traced and lowered one at a time: that is Python work, which holds the interpreter,
-#: so side by side each would take as long as all of them; XLA's compiles after it run side by side.
-_LOWERING = threading.Lock()
 
 
-def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper,
-              on_lowered: Callable[[], None] | None = None):
+def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
     """(compiled chunk program, seconds this call spent compiling it) for this env object, config,
     devices and chunk shape, compiled once: a later caller, on any thread, waits for the first
-    and gets 0 seconds (cached). `on_lowered()` is called once the program is traced and lowered
-    (at once if another call has it), before XLA compiles it."""
+    and gets 0 seconds (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
     key = (env, cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
     with _COMPILED_LOCK:
@@ -123,17 +118,11 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper,
                 _COMPILED.clear()
             future, mine = _COMPILED.setdefault(key, Future()), True
     if not mine:
-        if on_lowered is not None:
-            on_lowered()
         return future.result()[0], 0.0  # compiled by an earlier call (or another thread)
     try:
         t0 = time.perf_counter()
         mesh = seed_mesh(devices) if len(devices) > 1 else None
-        with _LOWERING:
-            lowered = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper)
-        if on_lowered is not None:
-            on_lowered()
-        program = lowered.compile()
+        program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
         seconds = time.perf_counter() - t0
         trim_host_memory()
         future.set_result((program, seconds))
@@ -158,8 +147,7 @@ class _Entries:
     """One program's entries (seed i, hyper i), compiled and cut into chunks (`run_entries`)."""
 
     def __init__(self, env: Env, cfg: RunConfig, *, root_key: int, seeds: np.ndarray, hyper: Hyper,
-                 chunk_size: int | None, devices, collector: Collector | None,
-                 on_lowered: Callable[[], None] | None = None):
+                 chunk_size: int | None, devices, collector: Collector | None):
         n = int(seeds.size)
         if n < 1:
             raise UsageError(f"seeds must be a positive integer (got {n})")
@@ -168,7 +156,7 @@ class _Entries:
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
         _, seeds0, hyper0 = self.chunk_inputs(0)
         self.compiled, self.compile_seconds = _compiled(env, cfg, tuple(self.devices), self.root, seeds0,
-                                                        hyper0, on_lowered)
+                                                        hyper0)
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
         self.first_dispatch = self.last_collect = self.started_after = 0.0
 
@@ -238,32 +226,14 @@ def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
 COMPILES_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
 
 
-def _prepare_all(make: Callable[[int, Callable[[], None]], _Entries], count: int, progress, platform: str,
-                 first: Sequence[int] = (), lowered: threading.Event | None = None) -> list[_Entries]:
-    """`make(i, on_lowered)` for every job on threads (XLA compiles with the GIL released): side by
-    side on accelerators, jobs `first` started first (they trace and lower one at a time, `_LOWERING`),
-    one at a time in order on CPUs (`COMPILES_SIDE_BY_SIDE`), each job's chunks starting as soon as
-    its program is ready (`_run_chunks`). `lowered` is set once every program is lowered (or the
-    pipeline ends). Returns the jobs, run."""
-    side_by_side = COMPILES_SIDE_BY_SIDE.get(platform, False)
-    left, left_lock = [count], threading.Lock()
-
-    def one_lowered() -> None:
-        with left_lock:
-            left[0] -= 1
-            if left[0] == 0 and lowered is not None:
-                lowered.set()
-
-    order = [*first, *(i for i in range(count) if i not in first)] if side_by_side else range(count)
-    pool = ThreadPoolExecutor(max_workers=count if side_by_side else 1)
-    futures: dict[int, Future] = {}
+def _prepare_all(make: Callable[[int], _Entries], count: int, progress, platform: str) -> list[_Entries]:
+    """`make(i)` for every job on threads (XLA compiles with the GIL released): side by side on
+    accelerators, one at a time on CPUs (`COMPILES_SIDE_BY_SIDE`), each job's chunks starting as
+    soon as its program is ready (`_run_chunks`). Returns the jobs, run."""
+    pool = ThreadPoolExecutor(max_workers=count if COMPILES_SIDE_BY_SIDE.get(platform, False) else 1)
     try:
-        for i in order:
-            futures[i] = pool.submit(make, i, one_lowered)
-        return _run_chunks([futures[i] for i in range(count)], progress)
+        return _run_chunks([pool.submit(make, i) for i in range(count)], progress)
     finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
-        if lowered is not None:
-            lowered.set()
         pool.shutdown(wait=False, cancel_futures=True)
 
 
@@ -307,15 +277,12 @@ def run_algorithms(
     progress: Callable[[int], None] | None = None,
     collectors: Sequence[Collector | None] | None = None,
     hypers: Sequence[Hyper | None] | None = None,
-    lowered: threading.Event | None = None,
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
     pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and the
-    next algorithm's first chunk computes while the last one's results come back. Results as
-    `run_seeds` gives them, one per config (`collectors[i]` takes config i's chunks, None: host
-    arrays; `hypers[i]` its rates, None: the config's own). On accelerators the programs of
-    algorithms with memories, the longest to compile, are lowered first; `lowered` is set once
-    every program is lowered (work that traces beside the run waits for it: `run_grid_to_folder`)."""
+    next algorithm's first chunk computes while the last one's results come back. Results as `run_seeds` gives them, one per config
+    (`collectors[i]` takes config i's chunks, None: host arrays; `hypers[i]` its rates, None:
+    the config's own)."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
@@ -323,13 +290,12 @@ def run_algorithms(
     hypers = list(hypers) if hypers is not None else [None] * len(cfgs)
     devices = list(devices) if devices is not None else jax.local_devices()
 
-    def make(i: int, on_lowered: Callable[[], None]) -> _Entries:
+    def make(i: int) -> _Entries:
         hyper = cfgs[i].hyper() if hypers[i] is None else hypers[i]
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
-                        chunk_size=chunk_size, devices=devices, collector=collectors[i], on_lowered=on_lowered)
+                        chunk_size=chunk_size, devices=devices, collector=collectors[i])
 
-    with_memory = [i for i, cfg in enumerate(cfgs) if cfg.agent.uses_memory]
-    jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform, with_memory, lowered)
+    jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform)
     results = []
     for cfg, job in zip(cfgs, jobs, strict=True):
         resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)
