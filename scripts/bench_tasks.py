@@ -26,7 +26,7 @@ from bench import command_line, environment  # noqa: E402  (sets XLA's CPU devic
 
 
 def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: int | None,
-               jump: str = "auto") -> dict:
+               jump: str = "auto", lanes: int | None = None) -> dict:
     from jaxeac.experiments.study import StudySettings
     from jaxeac.running.batch import run_seeds
 
@@ -34,7 +34,7 @@ def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: i
     env = settings.make_env()
     rows = []
     for algo in algos:
-        cfg = dataclasses.replace(settings.run_config(algo), jump=jump)  # auto: wherever exact
+        cfg = dataclasses.replace(settings.run_config(algo), jump=jump, lanes=lanes)  # auto: wherever exact
         best, compile_s = float("inf"), None
         for _ in range(repeats):
             r = run_seeds(env, cfg, root_key=0, n_seeds=n_seeds, chunk_size=chunk or settings.chunk_size)
@@ -43,7 +43,8 @@ def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: i
         resolved = cfg.resolve(env)
         rows.append({"algo": algo, "compile_s": compile_s, "run_s": best, "agent_steps": r.agent_steps,
                      "steps_per_s": r.agent_steps / best, "mean_successes": float(r.successes.mean()),
-                     "loop": resolved.loop, "kernel": resolved.kernel, "jump": resolved.jump})
+                     "loop": resolved.loop, "kernel": resolved.kernel, "jump": resolved.jump,
+                     "lanes": r.settings["lanes"]})
     return {"task": task, "chances": env.n_chances, "states": env.n_states, "deterministic": env.deterministic,
             "wall_s": sum(r["compile_s"] + r["run_s"] for r in rows), "rows": rows}
 
@@ -74,12 +75,16 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=None, help="seeds per chunk (default: automatic)")
     parser.add_argument("--jump", choices=["auto", "on", "off"], default="auto",
                         help="memory jumps (RunConfig.jump; default auto: wherever exact)")
+    parser.add_argument("--lanes", type=int, default=None,
+                        help="seeds in flight per device (RunConfig.lanes; default: automatic)")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--render", nargs="+", type=Path, metavar="JSON")
     args = parser.parse_args()
     if args.render:
         print(render(args.render))
         return
+    if args.lanes is not None and args.lanes < 1:
+        parser.error(f"--lanes {args.lanes}: need at least one lane per device")
     from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS
 
     if args.seeds < 1 or args.repeats < 1:
@@ -88,7 +93,8 @@ def main() -> None:
     rec = {"command": command_line(), "environment": environment(), "seeds": args.seeds, "repeats": args.repeats,
            "algos": algos, "tasks": []}
     for task in tasks:
-        rec["tasks"].append(bench_task(task, algos, args.seeds, args.repeats, args.chunk, args.jump))
+        rec["tasks"].append(bench_task(task, algos, args.seeds, args.repeats, args.chunk, args.jump,
+                                       args.lanes))
         t = rec["tasks"][-1]
         print(f"{task}: {t['wall_s']:.1f} s; " + ", ".join(f"{r['algo']} {r['steps_per_s']:.3g}/s"
                                                           for r in t["rows"]), flush=True)

@@ -7,6 +7,13 @@ the GPU's peak (BENCHMARKS.md):
     ncu --kernel-name regex:chance --launch-skip 4 --launch-count 3 \\
         --metrics gpu__time_duration.sum,dram__throughput.avg.pct_of_peak_sustained_elapsed \\
         python scripts/profile_kernel.py --algo eac --seeds 262144
+
+Why a warp waits (the stall reasons, per instruction issued), as in BENCHMARKS.md:
+
+    ncu --kernel-name regex:chance --launch-skip 4 --launch-count 2 \
+        --metrics gpu__time_duration.sum,smsp__inst_executed.sum,\
+smsp__average_warp_latency_per_inst_issued.ratio,regex:smsp__average_warps_issue_stalled_.*_per_issue_active\.ratio \
+        python scripts/profile_kernel.py --algo ac --seeds 32768 --lanes 32768
 """
 
 from __future__ import annotations

@@ -39,6 +39,29 @@ def test_bench_writes_a_record_with_the_peer_beside_jaxeac(tmp_path):
     assert "jaxeac / NumPy peer (same run, same seeds): AC at 60 seeds:" in table.stdout
 
 
+def test_bench_compares_builds_taking_turns(tmp_path):
+    """`--builds`: each source tree's jaxeac rows, the builds taking turns each round, labelled by
+    directory, with a line per row kind giving each build's best rate against the first build's."""
+    import shutil
+
+    builds = []
+    for name in ("one", "two"):
+        shutil.copytree(ROOT / "jaxeac", tmp_path / name / "jaxeac",
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        builds.append(str(tmp_path / name))
+    out = tmp_path / "builds.json"
+    proc = _script("scripts/bench.py", "--seeds", "40", "--chunk", "64", "--repeats", "1",
+                   "--builds", *builds, "--rounds", "2", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert rec["builds"] == ["one", "two"]
+    assert [(r["build"], r["round"], r["algo"]) for r in rec["rows"]] == [
+        (b, i, a) for i in (0, 1) for b in ("one", "two") for a in ("ac", "eac")]
+    table = _script("scripts/bench.py", "--render", str(out)).stdout
+    assert "| jaxeac two | eac |" in table and "AC at 40 seeds, best of 2 rounds: one " in table
+    assert "×** one)" in table
+
+
 def test_check_kernel_compares_every_seed_and_renders(tmp_path):
     out = tmp_path / "check.json"
     proc = _script("scripts/check_kernel.py", "--seeds", "40", "--trials", "6", "--algos", "eac",
@@ -72,15 +95,17 @@ def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
 
 def test_bench_tasks_can_turn_memory_jumps_off(tmp_path):
     """`--jump off`: EAC on a deterministic task, where jumps are on by default, runs without them
-    (the record says so) and reaches the same results (the steps it counts are the same)."""
+    (the record says so) and reaches the same results (the steps it counts are the same); `--lanes`
+    sets the seeds in flight."""
     rows = {}
-    for jump in ("auto", "off"):
+    for jump, lanes in (("auto", []), ("off", ["--lanes", "8"])):  # lanes: seeds in flight, same results
         out = tmp_path / f"{jump}.json"
         proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1",
-                       "--algos", "eac", "--jump", jump, "--out", str(out))
+                       "--algos", "eac", "--jump", jump, *lanes, "--out", str(out))
         assert proc.returncode == 0, proc.stderr[-2000:]
         rows[jump] = json.loads(out.read_text())["tasks"][0]["rows"][0]
     assert rows["auto"]["jump"] == "on" and rows["off"]["jump"] == "off"
+    assert rows["auto"]["lanes"] == 256 and rows["off"]["lanes"] == 8  # default: 256 per core
     assert rows["auto"]["agent_steps"] == rows["off"]["agent_steps"]
     assert rows["auto"]["mean_successes"] == rows["off"]["mean_successes"]
 
