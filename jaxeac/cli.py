@@ -138,6 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--resamples", type=positive_int, default=10_000, metavar="R", help="bootstrap resamples")
     st.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
     st.add_argument("--chunk-size", type=positive_int, default=None, metavar="M", help="seeds per compiled batch")
+    st.add_argument("--lanes", type=positive_int, default=None, metavar="L",
+                    help="seeds in flight per device (default: automatic; results do not depend on it)")
     st.add_argument("--out", type=folder_name, default="runs/study", metavar="DIR")
     st.add_argument("--quiet", action="store_true", help="no progress lines")
 
@@ -556,6 +558,7 @@ def _grid_settings(args: argparse.Namespace):
         alpha=args.alpha, beta=args.beta, gamma=args.gamma, temperature=args.temperature,
         algos=tuple(args.algos), seeds=args.seeds, key=args.key, chunk_size=args.chunk_size,
         memory=args.memory, capacity=args.capacity, env=args.env, slip=args.slip, epsilon=args.epsilon,
+        lanes=args.lanes,
     )
 
 
@@ -583,7 +586,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     settings = StudySettings(
         tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
         trials=args.trials, key=args.key, epsilon=args.epsilon, resamples=args.resamples,
-        chunk_size=args.chunk_size)
+        chunk_size=args.chunk_size, lanes=args.lanes)
     settings.validate()  # bad names and settings fail before any compute
     from jaxeac.experiments.common import check_grid_resources
 

@@ -131,6 +131,9 @@ def add_grid_flags(p: argparse.ArgumentParser, env_required: bool = False) -> No
     p.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
                    help="seeds per compiled batch; bounds memory (default: chosen for the backend and "
                         "free device memory; results do not depend on it)")
+    p.add_argument("--lanes", type=positive_int, default=None, metavar="L",
+                   help="seeds in flight per device (default: chosen for the backend and algorithm; "
+                        "results do not depend on it)")
     p.add_argument("--memory", default="dense", metavar="LAYOUT", help="memory layout: dense | buffer (E7)")
     p.add_argument("--capacity", type=positive_int, default=1024, metavar="K",
                    help="slots per memory for --memory buffer")

@@ -47,6 +47,7 @@ BAD = {
     "unknown memory": (["--memory", "sparse"], "unknown memory layout 'sparse'"),
     "zero capacity": (["--capacity", "0"], "must be a positive integer"),
     "zero chunk": (["--chunk-size", "0"], "must be a positive integer"),
+    "zero lanes": (["--lanes", "0"], "must be a positive integer"),
     "negative key": (["--key", "-1"], "must be a non-negative integer"),
     "out is a file": (["--out", "{tmp}/file.txt"], "is not a directory"),
     "out under a file": (["--out", "{tmp}/file.txt/sub"], "cannot write to --out"),
@@ -102,9 +103,11 @@ def test_grid_end_to_end(tmp_path, capsys):
 def test_cli_results_match_library_and_rerun(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     assert main(["grid", *SMALL, "--out", str(a), "--chunk-size", "3"]) == 0
-    assert main(["grid", *SMALL, "--out", str(b), "--chunk-size", "4"]) == 0
+    assert main(["grid", *SMALL, "--out", str(b), "--chunk-size", "4", "--lanes", "1"]) == 0  # R1: a queue
     assert (a / "per_seed.csv").read_text() == (b / "per_seed.csv").read_text()
     assert pq.read_table(a / "results.parquet").equals(pq.read_table(b / "results.parquet"))
+    runs = {f: json.loads((f / "summary.json").read_text())["per_algo"]["eac"]["run"] for f in (a, b)}
+    assert runs[a]["lanes"] == 256 and runs[b]["lanes"] == 1
 
 
 def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatch, capsys):

@@ -76,6 +76,7 @@ class GridSettings:
     env: str | None = None  # a registered environment (`jaxeac.registered()`); None: the preset's map or --map
     slip: float = 0.0  # X1: with this probability a move executes a uniformly random action
     epsilon: float = 0.1  # X3: exploration rate of q_learning and sarsa
+    lanes: int | None = None  # seeds in flight per device (RunConfig.lanes); None: `default_lanes`
 
     def resolved(self) -> GridSettings:
         """Fill unset fields from the preset (chances of a registered environment: its own) and
@@ -94,6 +95,7 @@ class GridSettings:
     def validate(self) -> None:
         sizes = ("trials", "chances", "seeds", "capacity")
         sizes += ("chunk_size",) if self.chunk_size is not None else ()
+        sizes += ("lanes",) if self.lanes is not None else ()
         for name in sizes:
             check_positive_int(name.replace("_", " "), getattr(self, name))
         check_rate("alpha", self.alpha)
@@ -128,7 +130,7 @@ class GridSettings:
         agent = algorithm(algo, memory=self.memory, capacity=self.capacity)
         return RunConfig(
             trials=self.trials, agent=agent, alpha=self.alpha, beta=self.beta,
-            gamma=self.gamma, temperature=self.temperature, epsilon=self.epsilon,
+            gamma=self.gamma, temperature=self.temperature, epsilon=self.epsilon, lanes=self.lanes,
         )
 
 

@@ -72,6 +72,7 @@ class StudySettings:
     epsilon: float = 0.1
     resamples: int = 10_000
     chunk_size: int | None = None
+    lanes: int | None = None  # seeds in flight per device (RunConfig.lanes); None: automatic
 
     def validate(self) -> None:
         if not self.tasks:
@@ -91,7 +92,8 @@ class StudySettings:
     def task_settings(self, task: str) -> GridSettings:
         name, slip = parse_task(task)
         return GridSettings(env=name, slip=slip, algos=tuple(self.algos), seeds=self.seeds, trials=self.trials,
-                            key=self.key, epsilon=self.epsilon, chunk_size=self.chunk_size).resolved()
+                            key=self.key, epsilon=self.epsilon, chunk_size=self.chunk_size,
+                            lanes=self.lanes).resolved()
 
 
 def folder_name(task: str) -> str:
