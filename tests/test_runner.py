@@ -403,3 +403,28 @@ def test_tail_on_fewer_lanes_keeps_every_result(algo, monkeypatch):
         np.testing.assert_array_equal(tail.success, plain.success)
         np.testing.assert_array_equal(tail.steps, plain.steps)
         np.testing.assert_array_equal(tail.policy, plain.policy)
+
+
+@pytest.mark.parametrize("algo", ["ac", "eac"])
+def test_queue_blocks_update_lanes_in_place(algo):
+    """A queue-fed chunk's compiled program copies no lane's tables, memory or trial log: each
+    block's writes into the lanes depend on its reads of the finished lanes (`loops._read`), so
+    XLA updates the lanes in place (BENCHMARKS.md, *Queue blocks that update their lanes in
+    place*). Without that dependency the program copied them twice a block."""
+    import re
+
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.running.batch import make_batch_run
+
+    env = GridWorld(get_map("paper"), 40)
+    lanes, m = 8, 32
+    cfg = RunConfig(trials=20, agent=algorithm(algo), lanes=lanes).resolve(env, m)
+    hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (m,)), cfg.hyper())
+    program = make_batch_run(env, cfg).lower(jax.random.key(0), np.arange(m, dtype=np.int32), hyper)
+    text = program.compile().as_text()
+    per_lane = {f"[{lanes},{env.n_states},{env.n_actions}]", f"[{lanes},{env.n_states}]",
+                f"[{lanes},{cfg.trials}]"}
+    loops = [c for c in re.split(r"\n(?=\S)", text) if not c.startswith("ENTRY")]  # not the one-off start
+    copied = {shape for c in loops for shape in re.findall(r"= \w+(\[[\d,]+\])\{[\d,]*\} copy\(", c)}
+    assert "while(" in text and not copied & per_lane, sorted(copied)
