@@ -370,12 +370,10 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
             nxt = queued + jnp.arange(harvest)  # the next waiting entries, in lane order
             take = got & (nxt < m)
             fresh = jax.vmap(start)(nxt)  # hand waiting entries to the harvested lanes
-            # The writes go into `run`'s buffers, which the reads of the finished lanes above share
-            # (XLA may fuse a read into the write of `out`): indices that depend on what was read and
-            # on `out` as written order every read first, so XLA writes in place instead of copying
-            # every lane's tables, memory and log each block.
-            written = jax.tree.map(lambda a: a[jnp.minimum(row[0], m - 1)], out)
-            target = jnp.where(take & _read((done_out, written)), idx, width)
+            # The writes go into `run`'s buffers, which the reads of the finished lanes above share:
+            # indices that depend on what was read order every read first, so XLA writes in place
+            # instead of copying every lane's tables, memory and log each block.
+            target = jnp.where(take & _read(done_out), idx, width)
             lanes = jax.tree.map(lambda a, f: a.at[target].set(f, mode="drop"), lanes.replace(run=run), fresh)
             idle = jnp.where(got & ~take, idx, width)
             lanes = lanes.replace(entry=lanes.entry.at[idle].set(m, mode="drop"))
