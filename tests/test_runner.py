@@ -303,7 +303,8 @@ def test_programs_compile_side_by_side_on_accelerators_only(platform, most_at_on
 
     jobs = _prepare_all(make, 3, None, platform)
     assert [j.name for j in jobs] == ["a", "b", "c"] and most[0] == most_at_once
-    assert sorted(log) == ["collect a0", "collect b0", "collect c0", "dispatch a0", "dispatch b0", "dispatch c0"]
+    assert sorted(log) == ["collect a0", "collect b0", "collect c0",
+                           "dispatch a0", "dispatch b0", "dispatch c0"]
 
 
 def _iterations_until_done(env, cfg, n_seeds=16):

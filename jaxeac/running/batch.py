@@ -280,9 +280,9 @@ def run_algorithms(
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
     pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and the
-    next algorithm's first chunk computes while the last one's results come back. Results as `run_seeds` gives them, one per config
-    (`collectors[i]` takes config i's chunks, None: host arrays; `hypers[i]` its rates, None:
-    the config's own)."""
+    next algorithm's first chunk computes while the last one's results come back. Results as
+    `run_seeds` gives them, one per config (`collectors[i]` takes config i's chunks, None: host
+    arrays; `hypers[i]` its rates, None: the config's own)."""
     if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
         raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
