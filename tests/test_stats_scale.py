@@ -480,6 +480,38 @@ def test_compile_ahead_builds_the_large_path_programs_only_when_needed():
     large.compile_ahead(large.LARGE_N + 3, 16, 4)  # odd n: halves of 2·⌊n/2⌋ seeds too
 
 
+_KEY_PROGRAMS = """
+import sys, jax, jax.monitoring, numpy as np
+from jaxeac.stats import compare_experiment
+from jaxeac.stats._rng import warm_key_programs
+if sys.argv[1] == "warm":
+    warm_key_programs()
+names = []
+def seen(event, seconds, **meta):
+    if event.endswith("backend_compile_duration"):
+        names.append(str(meta.get("fun_name")).removeprefix("jit(").removesuffix(")"))
+jax.monitoring.register_event_duration_secs_listener(seen)
+rng = np.random.default_rng(0)
+sb, st = (rng.random((64, 12)) < p for p in (0.3, 0.6))
+compare_experiment(sb, st, resamples=100, calibration_splits=0, key=3, paired=True)
+print(sorted({n for n in names if "threefry" in n or n == "unstack"}))
+"""
+
+
+def test_warm_key_programs_leave_no_key_program_to_compile():
+    """`warm_key_programs` (run on the compile-ahead thread of `jaxeac grid`): in a fresh process, a
+    paired comparison compiles key-derivation programs without it and none after it."""
+    import subprocess
+
+    def key_programs(mode: str) -> str:
+        out = subprocess.run([sys.executable, "-c", _KEY_PROGRAMS, mode], capture_output=True, text=True,
+                             check=True)
+        return out.stdout.strip().splitlines()[-1]
+
+    assert "_threefry_split" in key_programs("cold")
+    assert key_programs("warm") == "[]"
+
+
 def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
     """Measures held as integer codes (`Coded`: counts per value from the codes, float64 values
     made a measure at a time, means a block of seeds at a time, measures in turn within the host

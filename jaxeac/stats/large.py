@@ -78,7 +78,7 @@ from scipy import special
 
 from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
-from jaxeac.stats._rng import mulhi32, random_words
+from jaxeac.stats._rng import mulhi32, random_words, warm_key_programs
 from jaxeac.stats.rundir import Coded, as_values, joint_counts
 
 #: Above this many seeds in either method the large-N path is used.
@@ -538,7 +538,10 @@ def compile_ahead(n: int, trials: int, splits: int, block: int = 4096) -> None:
     """Compile the large-N path's device programs for success bits of n seeds per method and T
     trials (curve sums, calibration halves) before the data exists: `jaxeac grid` calls it on a
     thread while the run computes. The programs land in the persistent compilation cache, so
-    the comparison loads them instead of compiling them (with the cache off, nothing changes)."""
+    the comparison loads them instead of compiling them (with the cache off they compile again).
+    The comparison's key derivations are run once here too (`warm_key_programs`, any n): those
+    stay compiled in this process, cache or not."""
+    warm_key_programs()
     if not is_large(n):
         return
     width = -(-trials // 8)
