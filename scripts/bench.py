@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxeac.cli import configure_xla
 
-configure_xla()  # before JAX starts: one host device per core, as `jaxeac` does
+configure_xla("grid")  # before JAX starts: one host device per core, as `jaxeac` does
 
 
 def environment() -> dict:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from jaxeac.cli import configure_xla
 
-configure_xla()  # before JAX starts, as `jaxeac` does
+configure_xla("grid")  # before JAX starts, as `jaxeac` does
 
 ALGOS = ("ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only")
 

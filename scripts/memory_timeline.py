@@ -54,7 +54,7 @@ def wrap(owner, name: str, label: str | None = None) -> None:
 def main() -> int:
     import jaxeac.cli as cli
 
-    cli.configure_xla()
+    cli.configure_xla(sys.argv[1] if len(sys.argv) > 1 else None)
     import jax
 
     if os.environ.get("MEMORY_TIMELINE_COMPILES") == "1":

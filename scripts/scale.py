@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxeac.cli import configure_xla
 
-configure_xla()  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
+configure_xla("grid")  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
 
 import jax  # noqa: E402
 

@@ -130,7 +130,7 @@ def main() -> int:
 
     import jaxeac.cli as cli
 
-    cli.configure_xla()
+    cli.configure_xla("compare")
     import jax
 
     jax.devices()

@@ -182,6 +182,30 @@ def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
         assert proc.stdout.split() == expected.split()
 
 
+def test_configure_xla_adds_each_gpu_flag_unless_the_user_set_it():
+    """Each of jaxeac's GPU flags is added on its own; one the user set keeps the user's value
+    (XLA keeps a flag's last value, so appending jaxeac's would override it). The compile-time
+    flags are for the grid-like commands only: bowling's MJX physics is slower with them."""
+    code = ("import os, sys; from jaxeac.cli import configure_xla; configure_xla(sys.argv[1]); "
+            "print(os.environ['XLA_FLAGS'])")
+    base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    user = "--xla_gpu_enable_triton_gemm=true"
+
+    def flags(command: str, env: dict) -> list[str]:
+        proc = subprocess.run([sys.executable, "-c", code, command], capture_output=True, text=True,
+                              env=base | env, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.split()
+
+    grid = flags("grid", {"XLA_FLAGS": user})
+    assert grid.count(user) == 1 and "--xla_gpu_enable_triton_gemm=false" not in grid
+    assert "--xla_gpu_autotune_level=0" in grid
+    assert any(f.startswith("--xla_gpu_enable_command_buffer=") for f in grid)
+    bowling = flags("bowling", {})
+    assert any(f.startswith("--xla_gpu_enable_command_buffer=") for f in bowling)
+    assert not any("autotune" in f or "triton_gemm" in f for f in bowling)
+
+
 def test_compilation_cache_is_kept_and_changes_no_result(tmp_path):
     """`jaxeac` keeps compiled programs in JAXEAC_COMPILATION_CACHE (XDG_CACHE_HOME/jaxeac/xla by
     default); a rerun that loads them writes the same results, and ``off`` writes no cache."""
