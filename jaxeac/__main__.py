@@ -31,7 +31,7 @@ def run() -> NoReturn:
     signal.signal(signal.SIGINT, _interrupted_while_starting)
     from jaxeac.cli import configure_xla, main
 
-    configure_xla()  # XLA's flags, before JAX is imported
+    configure_xla(sys.argv[1] if len(sys.argv) > 1 else None)  # XLA's flags for the command, before JAX
     import jax  # noqa: F401  (the heaviest imports, still under the start-up handler)
 
     import jaxeac.running.cache  # noqa: F401
@@ -42,7 +42,11 @@ def run() -> NoReturn:
 
 def _end(code: int) -> NoReturn:
     """End the process with `code`: the exit handlers run and stdout and stderr are flushed, as
-    at a normal exit, but the interpreter's teardown is skipped (see the module docstring)."""
+    at a normal exit, but the interpreter's teardown is skipped (see the module docstring). The
+    command has finished, so a Ctrl-C from here on is ignored: it would only interrupt an exit
+    handler (JAX's) with a traceback."""
+    with contextlib.suppress(ValueError):  # (not the main thread: signals stay as they are)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):  # e.g. a reader of stdout that has gone away

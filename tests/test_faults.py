@@ -141,3 +141,14 @@ def test_ctrl_c_where_python_cannot_raise_it_is_sent_again(monkeypatch, capsys):
         time.sleep(0.01)
     assert sent == [signal.SIGINT, signal.SIGINT] and others == [ValueError]
     assert ref is not None and "Exception ignored" not in capsys.readouterr().err
+
+
+def test_ctrl_c_while_the_exit_handlers_run_is_ignored():
+    """Once the command has finished (`jaxeac.__main__._end`), a Ctrl-C that lands in an exit
+    handler (JAX's clean-up, in a run stopped at random) neither prints a traceback nor changes
+    the exit code."""
+    code = ("import atexit, os, signal, time; from jaxeac.__main__ import _end; "
+            "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(0.2))); _end(3)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3, proc.stderr
+    assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr
