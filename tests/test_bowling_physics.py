@@ -405,6 +405,63 @@ def test_settled_throws_end_where_full_length_throws_end(partial):
     eng.close()
 
 
+@pytest.mark.parametrize("scene", ["default", "table1"])
+def test_throws_from_a_full_rack_asleep_are_bit_identical(scene):
+    """B7: a throw from a full rack starts from the rack already asleep (made once per rack and
+    shared): every body ends exactly where the throw that lets the rack fall asleep itself leaves
+    it, after the same steps. Partial racks (chance 2) let their pins settle themselves."""
+    from jaxeac.envs.bowling import backend_c
+    from jaxeac.envs.bowling.backend_c import CEngine
+    from jaxeac.envs.bowling.scene import SCENES
+
+    cfg = BowlingConfig(scene=SCENES[scene])
+    n = 24
+    a = np.resize(angles(cfg), n)
+    eps = batch_noise(jax.random.key(4), n)
+    qpos, qvel = (np.asarray(x, np.float64)
+                  for x in backend_c._prepare_fn(cfg)(initial_pins(n, cfg.scene), jnp.asarray(a, jnp.float32), eps))
+    eng = CEngine(2, SolverSettings(), cfg.scene)
+    assert eng.rack_templates
+    asleep, _ = eng.simulate(qpos, qvel, cfg.n_steps)
+    steps = eng.steps_run
+    assert len(eng._racks) == 1 and next(iter(eng._racks.values())) is not None  # one rack, asleep
+    eng.rack_templates = False
+    itself, _ = eng.simulate(qpos, qvel, cfg.n_steps)
+    np.testing.assert_array_equal(asleep, itself)
+    assert eng.steps_run == steps
+    eng.rack_templates = True
+    partial_qpos, partial_qvel = _start_states(12, seed=6, partial=True)
+    eng.simulate(partial_qpos, partial_qvel, cfg.n_steps)
+    assert len(eng._racks) == 1  # no template for racks with pins standing where they came to rest
+    eng.close()
+
+
+def test_a_ball_that_could_reach_a_settling_rack_does_not_start_from_it_asleep():
+    """B7: the asleep rack is only for throws whose ball stays out of reach while the rack
+    would settle; a ball started 0.6 m before the head pin lets the rack settle itself, and its
+    throw ends where the engine without asleep racks leaves it."""
+    from jaxeac.envs.bowling import backend_c
+    from jaxeac.envs.bowling.backend_c import CEngine
+
+    qpos, qvel = _start_states(2, seed=9, partial=False)
+    eng = CEngine(1, SolverSettings())
+    data = eng.datas[0]
+    for near, expected in ((False, True), (True, False)):
+        mujoco.mj_resetData(eng.model, data)
+        data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
+        data.qpos[9:77:7] = backend_c.PIN_REST_Z  # as `_throw` seats a rack placed upright
+        if near:
+            data.qpos[0] = PIN_XY[0][0] - 0.6
+        assert (eng._asleep_rack(data) is not None) == expected
+    close = qpos.copy()
+    close[:, 0] = PIN_XY[0][0] - 0.6
+    with_racks, _ = eng.simulate(close, qvel, CFG.n_steps)
+    eng.rack_templates = False
+    without, _ = eng.simulate(close, qvel, CFG.n_steps)
+    np.testing.assert_array_equal(with_racks, without)
+    eng.close()
+
+
 def test_where_removed_pins_wait_changes_no_pin_in_play():
     """B4/B7: removed pins asleep on the floor behind the thrower or falling 1000 m up: the pins
     in play move the same, bit for bit."""

@@ -22,6 +22,7 @@ from __future__ import annotations
 import functools
 import itertools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -55,6 +56,10 @@ SETTLE_CHECK = 10  # steps between two checks of whether a throw has settled
 PIN_REST_Z = 0.189886
 # A pin in play is a body within this height; removed pins are parked 1000 m up (B4).
 IN_PLAY_Z = 10.0
+# Steps a rack placed upright may take to fall asleep before a throw may start from it asleep
+# (MuJoCo puts a body to sleep after 10 quiet steps; the ball needs ~170 steps to reach the rack).
+RACK_SETTLE_STEPS = 40
+MAX_RACKS = 8  # racks kept asleep per engine (a bowling run has one: the full rack of its scene)
 
 
 def reach(scene: Scene) -> float:
@@ -135,6 +140,39 @@ class CEngine:
         self.datas = [mujoco.MjData(self.model) for _ in range(self.nthread)]
         self.pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="jaxeac-throws")
         self.steps_run = 0  # physics steps run by the last simulate call, all throws together
+        # Racks placed upright fall asleep in the same steps whatever the ball does (each pin is its
+        # own island, the ball is metres away), so a throw from one starts from the rack already
+        # asleep (`_asleep_rack`): the same state, bit for bit, without its ~10 awake steps.
+        self.rack_templates = solver.sleep
+        self._racks: dict[bytes, tuple[mujoco.MjData, float] | None] = {}
+        self._racks_lock = threading.Lock()
+        fresh = mujoco.MjData(self.model)
+        self._ball_sleep_reset = int(fresh.tree_asleep[0])  # the ball's sleep counter after a reset
+
+    def _asleep_rack(self, data: mujoco.MjData) -> mujoco.MjData | None:
+        """`data` (a throw's start, every pin placed upright) stepped until its rack fell asleep,
+        made once per rack (at most MAX_RACKS) and shared read-only by the threads; None where
+        its pins did not all fall asleep within RACK_SETTLE_STEPS, or where this throw's ball
+        could come near a pin before the rack would be asleep."""
+        key = data.qpos[7:NQ].tobytes()
+        with self._racks_lock:
+            if key not in self._racks and len(self._racks) < MAX_RACKS:
+                rack = mujoco.MjData(self.model)
+                mujoco.mj_copyData(rack, self.model, data)
+                for _ in range(RACK_SETTLE_STEPS):
+                    mujoco.mj_step(self.model, rack)
+                    if np.all(rack.tree_asleep[1:] >= 0):  # trees 1..10 are the pins
+                        break
+                asleep = np.all(rack.tree_asleep[1:] >= 0) and rack.tree_asleep[0] < 0  # the ball still rolls
+                self._racks[key] = (rack, rack.time) if asleep else None
+            found = self._racks.get(key)
+        if found is None:
+            return None
+        rack, settle_time = found
+        # the ball rolls straight at about its start speed: with a margin, where it can be meanwhile
+        travel = 2.0 * float(np.linalg.norm(data.qvel[:3])) * settle_time + 0.1
+        gap = np.sqrt(np.min(np.sum((data.qpos[7:NQ].reshape(N_PINS, 7)[:, :3] - data.qpos[:3]) ** 2, axis=1)))
+        return rack if gap - travel > self.reach else None
 
     def _throw(self, data: mujoco.MjData, qpos, qvel, n_steps: int, stride: int, traj, stop: bool) -> int:
         """One throw from a reset MjData; qpos snapshots into traj every stride steps; with stop, it
@@ -149,6 +187,14 @@ class CEngine:
             pins = data.qpos[7:NQ].reshape(N_PINS, 7)
             placed = np.abs(pins[:, 2] - PIN_CENTRE_Z) < 1e-6  # placed upright, not yet at rest
             pins[placed, 2] = PIN_REST_Z
+            rack = self._asleep_rack(data) if self.rack_templates and not stride and placed.all() else None
+            if rack is not None:  # the rack asleep already, the ball at its start
+                mujoco.mj_copyData(data, self.model, rack)
+                data.time = 0.0
+                data.qpos[:7] = qpos[:7]
+                data.qvel[:6] = qvel[:6]
+                data.qacc_warmstart[:6] = 0.0
+                data.tree_asleep[0] = self._ball_sleep_reset
         if stride:
             for k in range(n_steps // stride):
                 mujoco.mj_step(self.model, data, nstep=stride)
