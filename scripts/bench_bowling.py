@@ -11,6 +11,10 @@ default noise, from a full rack, so hits and misses are both in the batch.
     python scripts/bench_bowling.py --backends mjx --mjx-batches 1024 4096 16384 65536 --out gpu.json
     python scripts/bench_bowling.py --backends mjx --physics newton:4:8 cg:8:8 cg:6:4:24 --accuracy 2048
     python scripts/bench_bowling.py --backends warp --mjx-batches 4096 16384 65536 --accuracy 2048
+    python scripts/bench_bowling.py --backends warp mujoco_warp --mjx-batches 16384 65536 --accuracy 2048
+
+``mujoco_warp`` runs the same throws through the standalone MuJoCo Warp package (not a jaxeac
+backend: it steps outside JAX, from captured CUDA graphs), with or without sleeping (``:nosleep``).
 
 ``--physics`` lists solver settings (solver:iterations:ls_iterations[:contact_cap[:pair_cap]][:nosleep]);
 ``--accuracy N`` also scores each setting's pins on the first N throws of its largest
@@ -27,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import json
 import os
 import platform
@@ -34,9 +39,13 @@ import sys
 import time
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
-import numpy as np
+# JAX would take 75 % of the GPU at its first allocation and leave Warp's own arrays (the
+# standalone package's) too little: it grows as needed instead, as in jaxeac's CLI.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -52,7 +61,7 @@ from jaxeac.envs.bowling import (  # noqa: E402
 )
 from jaxeac.envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
 from jaxeac.errors import UsageError  # noqa: E402
-from jaxeac.experiments.grid import versions  # noqa: E402
+from jaxeac.experiments.common import OPTIONAL_PACKAGES, versions  # noqa: E402
 
 
 def _inputs(batch: int, cfg: BowlingConfig, seed: int):
@@ -62,30 +71,39 @@ def _inputs(batch: int, cfg: BowlingConfig, seed: int):
     return initial_pins(batch), a, keys
 
 
-def bench_c(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
-    """Time the C backend on one batch size (after a warm-up call)."""
+def bench_c(batch: int, cfg: BowlingConfig, repeats: int, rack_templates: tuple[bool, ...] = (True,)) -> list[dict]:
+    """Time the C backend on one batch size (after a warm-up call), a row per setting of
+    `rack_templates` (off: every throw from a full rack lets the rack fall asleep itself, the
+    engine before its asleep racks), the settings taking turns within each repeat."""
     pins, a, keys = _inputs(batch, cfg, 0)
+    eng = backend_c.engine(cfg.nthread, cfg.solver, cfg.scene)
     t0 = time.perf_counter()
     throw(initial_pins(8), np.resize(a, 8), jax.random.split(keys[0], 8), cfg=cfg)  # warm-up
     setup = time.perf_counter() - t0
-    best = float("inf")
+    best = dict.fromkeys(rack_templates, float("inf"))
+    steps, knocked = {}, {}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        res = throw(pins, a, keys, backend="c", cfg=cfg)
-        best = min(best, time.perf_counter() - t0)
-    return {
+        for flag in rack_templates:
+            eng.rack_templates = flag and cfg.solver.sleep
+            t0 = time.perf_counter()
+            res = throw(pins, a, keys, backend="c", cfg=cfg)
+            best[flag] = min(best[flag], time.perf_counter() - t0)
+            steps[flag], knocked[flag] = eng.steps_run, np.asarray(res.knocked)  # each setting's own
+    eng.rack_templates = cfg.solver.sleep
+    return [{
         "backend": "c",
         "physics": physics_label(cfg),
         "batch": batch,
         "nthread": cfg.nthread or os.cpu_count(),
+        "rack_templates": flag and cfg.solver.sleep,
         "setup_s": setup,
-        "run_s": best,
-        "throws_per_s": batch / best,
-        "steps_per_s": batch * cfg.n_steps / best,
-        "steps_run_per_throw": backend_c.engine(cfg.nthread, cfg.solver, cfg.scene).steps_run / batch,
-        "mean_knocked": float(np.mean(res.knocked)),
-        "_knocked": np.asarray(res.knocked),
-    }
+        "run_s": best[flag],
+        "throws_per_s": batch / best[flag],
+        "steps_per_s": batch * cfg.n_steps / best[flag],
+        "steps_run_per_throw": steps[flag] / batch,
+        "mean_knocked": float(np.mean(knocked[flag])),
+        "_knocked": knocked[flag],
+    } for flag in rack_templates]
 
 
 def bench_c_timestep(batch: int, cfg: BowlingConfig, dt: float, repeats: int) -> dict:
@@ -158,6 +176,24 @@ def accuracy(knocked: np.ndarray, batch: int, cfg: BowlingConfig, n: int, refere
             "strike_rate": float((got == 10).mean()), "reference_strike_rate": float((ref == 10).mean())}
 
 
+def _device_row(backend: str, cfg: BowlingConfig, batch: int, device: str, compile_s: float, run_s: float,
+                knocked) -> dict:
+    """A GPU-style row: one batch's compile and best run seconds, throws/s and pins knocked."""
+    knocked = np.asarray(knocked)
+    return {
+        "backend": backend,
+        "physics": physics_label(cfg),
+        "batch": batch,
+        "device": device,
+        "compile_s": compile_s,
+        "run_s": run_s,
+        "throws_per_s": batch / run_s,
+        "steps_per_s": batch * cfg.n_steps / run_s,
+        "mean_knocked": float(np.mean(knocked)),
+        "_knocked": knocked,
+    }
+
+
 def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int, backend: str = "mjx") -> dict:
     """Compile and time an MJX backend (mjx or warp) on one batch size."""
     pins, a, keys = _inputs(batch, cfg, 0)
@@ -171,18 +207,73 @@ def bench_mjx(batch: int, cfg: BowlingConfig, repeats: int, backend: str = "mjx"
         t0 = time.perf_counter()
         res = jax.block_until_ready(compiled(*args))
         best = min(best, time.perf_counter() - t0)
-    return {
-        "backend": backend,
-        "physics": physics_label(cfg),
-        "batch": batch,
-        "device": str(jax.devices()[0]),
-        "compile_s": compile_s,
-        "run_s": best,
-        "throws_per_s": batch / best,
-        "steps_per_s": batch * cfg.n_steps / best,
-        "mean_knocked": float(np.mean(np.asarray(res.knocked))),
-        "_knocked": np.asarray(res.knocked),
-    }
+    return _device_row(backend, cfg, batch, str(jax.devices()[0]), compile_s, best, res.knocked)
+
+
+#: Throws through the standalone MuJoCo Warp package (`mujoco_warp`; not a jaxeac backend),
+#: measured to choose between it and MJX's Warp implementation (backend ``warp``).
+STANDALONE_WARP = "mujoco_warp"
+#: Steps per captured CUDA graph of the standalone package (a throw launches it n_steps / this times).
+GRAPH_STEPS = 50
+
+
+def bench_mujoco_warp(batch: int, cfg: BowlingConfig, repeats: int) -> dict:
+    """The same throws as `bench_mjx` (same inputs and judging) through the standalone MuJoCo
+    Warp package: the model as the C engine loads it, with MuJoCo's sleeping when the settings
+    keep it (the package's sleeping needs Newton and islands; pins placed upright start at
+    their resting height, as in the C engine), contact and row arrays sized as the ``warp``
+    backend's, steps replayed from a captured CUDA graph. Compile seconds: model and data on the
+    device, the kernels' first step and the capture."""
+    import mujoco
+    import mujoco_warp as mjw
+    import warp as wp
+
+    from jaxeac.envs.bowling.backend_mjx import WARP_CONTACTS, WARP_ROWS
+    from jaxeac.envs.bowling.scene import N_PINS, NQ, PIN_CENTRE_Z, throw_noise
+
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+    pins, a, keys = _inputs(batch, cfg, 0)
+    qpos, qvel = backend_c._prepare_fn(cfg)(pins, jnp.asarray(a, jnp.float32), jax.vmap(throw_noise)(keys))
+    qpos, qvel = np.array(qpos, np.float32), np.array(qvel, np.float32)
+    if cfg.solver.sleep:
+        rack = qpos[:, 7:NQ].reshape(batch, N_PINS, 7)
+        rack[..., 2] = np.where(np.abs(rack[..., 2] - PIN_CENTRE_Z) < 1e-6, backend_c.PIN_REST_Z, rack[..., 2])
+    model = backend_c.load_model(cfg.solver, cfg.scene)
+    model.opt.jacobian = mujoco.mjtJacobian.mjJAC_AUTO  # dense is the C engine's CPU choice; Warp: nv <= 60
+    t0 = time.perf_counter()
+    m = mjw.put_model(model)
+    overflow = mjw.OverflowType if hasattr(mjw, "OverflowType") else None
+    if overflow is not None:  # the iteration caps are chosen settings (as in the warp backend)
+        m.opt.warn_overflow = int(m.opt.warn_overflow) & ~int(overflow.ITERATIONS | overflow.LS_ITERATIONS)
+    d = mjw.make_data(model, nworld=batch,
+                      naconmax=WARP_CONTACTS * batch, njmax=WARP_ROWS)
+
+    def start():
+        mjw.reset_data(m, d)
+        d.qpos.assign(qpos)
+        d.qvel.assign(qvel)
+
+    start()
+    mjw.step(m, d)  # loads the kernels
+    with wp.ScopedCapture() as capture:
+        for _ in range(GRAPH_STEPS):
+            mjw.step(m, d)
+    wp.synchronize()
+    compile_s = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats):
+        start()
+        wp.synchronize()
+        t0 = time.perf_counter()
+        for _ in range(cfg.n_steps // GRAPH_STEPS):
+            wp.capture_launch(capture.graph)
+        for _ in range(cfg.n_steps % GRAPH_STEPS):
+            mjw.step(m, d)
+        wp.synchronize()
+        best = min(best, time.perf_counter() - t0)
+    final = d.qpos.numpy()
+    res = backend_c._judge_fn(cfg)(pins, jnp.asarray(final[:, 7:].reshape(-1, N_PINS, 7)))
+    return _device_row(STANDALONE_WARP, cfg, batch, str(wp.get_device()), compile_s, best, res.knocked)
 
 
 def command_line(argv: list[str], out: Path | None) -> str:
@@ -209,7 +300,8 @@ def saturation(rows: list[dict]) -> int | None:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and write the JSON report."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--backends", nargs="+", default=["c", "mjx"], choices=list(BACKENDS))
+    p.add_argument("--backends", nargs="+", default=["c", "mjx"], choices=[*BACKENDS, STANDALONE_WARP],
+                   help=f"jaxeac's bowling backends, or {STANDALONE_WARP}: the standalone MuJoCo Warp package")
     p.add_argument("--c-batches", nargs="+", type=int, default=[64, 256, 1024])
     p.add_argument("--mjx-batches", nargs="+", type=int, default=None,
                    help="default: 16 64 256 on CPU, 1024 4096 16384 65536 on GPU")
@@ -223,10 +315,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timesteps", nargs="+", type=float, default=[], metavar="DT",
                    help="C backend only: also run each setting with the model's timestep DT (s) instead of "
                         "the MJCF file's 0.005, the throw's 2 s in round(2 / DT) steps")
+    p.add_argument("--rack-templates", choices=["on", "off", "both"], default="on",
+                   help="C engine: throws from a full rack start from it already asleep (on, the engine's "
+                        "default), let it fall asleep itself (off), or both, taking turns")
     p.add_argument("--out", type=Path, default=None, help="write the JSON report here")
     args = p.parse_args(argv)
     for name in args.backends:
         try:
+            if name == STANDALONE_WARP:
+                check_backend("warp")  # the same needs: warp-lang and an NVIDIA GPU
+                if importlib.util.find_spec("mujoco_warp") is None:  # MJX brings its own copy, not this
+                    raise UsageError("--backends mujoco_warp needs the standalone MuJoCo Warp package: "
+                                     "pip install mujoco-warp (its version matching mujoco's)")
+                continue
             check_backend(name)
         except UsageError as exc:
             p.error(str(exc))
@@ -244,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
             "loadavg_at_start": os.getloadavg(),
             "jax_devices": [str(d) for d in jax.devices()],
         },
-        "versions": versions(),  # mujoco-mjx and warp-lang included where installed
+        "versions": versions(optional=(*OPTIONAL_PACKAGES, "mujoco-warp")),  # where installed
         "config": {"n_steps": cfg.n_steps, "timestep_s": 0.005, "n_angles": cfg.n_angles,
                    "theta_max": cfg.theta_max},
         "commands": [command_line(sys.argv[1:] if argv is None else argv, args.out)],
@@ -258,7 +359,10 @@ def main(argv: list[str] | None = None) -> int:
             rows = []
             for b in batches:
                 if name == "c":
-                    rows.append(bench_c(b, pcfg, args.repeats))
+                    flags = {"on": (True,), "off": (False,), "both": (False, True)}[args.rack_templates]
+                    rows.extend(bench_c(b, pcfg, args.repeats, flags))
+                elif name == STANDALONE_WARP:
+                    rows.append(bench_mujoco_warp(b, pcfg, args.repeats))
                 else:
                     rows.append(bench_mjx(b, pcfg, args.repeats, name))
             knocked = rows[-1]["_knocked"]
@@ -271,7 +375,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps({k: v for k, v in rows[-1].items() if "diff" in k or "reference" in k}),
                       flush=True)
             report["results"].extend(rows)
-            report.setdefault("saturates_at_batch", {})[f"{name} {physics_label(pcfg)}"] = saturation(rows)
+            # over the rows of the engine's default (rack templates on where there are both)
+            default_rows = [r for r in rows if r.get("rack_templates", pcfg.solver.sleep) == pcfg.solver.sleep]
+            report.setdefault("saturates_at_batch", {})[f"{name} {physics_label(pcfg)}"] = saturation(default_rows)
             for dt in args.timesteps if name == "c" else ():
                 row = bench_c_timestep(args.c_batches[-1], pcfg, dt, args.repeats)
                 knocked = row.pop("_knocked")

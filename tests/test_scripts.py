@@ -136,3 +136,34 @@ def test_bowling_landscape_records_each_scene(tmp_path):
     assert (r["ball_radius"], r["pin_spacing"], r["throws"]) == (0.06, 0.4, 42)
     assert max(r["chance1_mean_per_angle"]) == r["best_chance1_mean"] <= r["most_pins_one_throw"] <= 10
     assert "| table1 | 0.06 | 0.4 |" in proc.stdout
+
+
+def test_bench_bowling_standalone_warp_without_warp_is_refused(tmp_path):
+    """`bench_bowling.py --backends mujoco_warp` needs what the warp backend needs (warp-lang,
+    an NVIDIA GPU): without it, argparse's usage error naming the fix and no record."""
+    import importlib.util
+
+    if importlib.util.find_spec("warp") is not None:
+        import pytest
+
+        pytest.skip("warp-lang is installed here")
+    out = tmp_path / "b.json"
+    proc = _script("scripts/bench_bowling.py", "--backends", "mujoco_warp", "--out", str(out))
+    assert proc.returncode == 2
+    assert 'pip install "jaxeac[warp]"' in proc.stderr.splitlines()[-1], proc.stderr[-500:]
+    assert not out.exists()
+
+
+def test_profile_bowling_splits_a_throw_into_phases(tmp_path):
+    """`profile_bowling.py` at 3 throws: every step of the engine in one phase, the stages of a step
+    as shares below 1, and the outcome final no later than the engine's stop."""
+    out = tmp_path / "p.json"
+    proc = _script("scripts/profile_bowling.py", "--throws", "3", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert rec["command"] == f"python scripts/profile_bowling.py --throws 3 --out {out}"
+    steps = sum(p["steps_per_throw"] for p in rec["phases"].values())
+    assert abs(steps - rec["steps_per_throw"]) < 1e-9 and rec["phases"]["settling"]["steps_per_throw"] == 10
+    assert abs(sum(p["share_of_time"] for p in rec["phases"].values()) - 1) < 1e-9
+    assert 0.5 < sum(rec["stages_share_of_step"].values()) <= 1.0
+    assert rec["outcome_final_step_mean"] <= rec["settled_stop_step_mean"] <= 400
