@@ -169,8 +169,7 @@ def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterat
         out = check_writable_dir(out)
         key = os.path.realpath(out)
         if not _STAGES.get(key):  # no stage of ours is open here: any is left by a killed run
-            for stale in out.glob(".staging-*"):
-                shutil.rmtree(stale, ignore_errors=True)
+            _remove_stale_stages(out)
         others = set(out.glob(".staging-*"))  # an enclosing stage of this folder, if any
         _STAGES[key] = _STAGES.get(key, 0) + 1
         try:
@@ -191,6 +190,16 @@ def staged_dir(out: str | os.PathLike, replaces: tuple[str, ...] = ()) -> Iterat
             _STAGES[key] -= 1
             for stage in set(out.glob(".staging-*")) - others:
                 shutil.rmtree(stage, ignore_errors=True)
+
+
+def _remove_stale_stages(out: Path) -> None:
+    """Remove the staging folders and write probes in `out`, a folder this process holds with no
+    stage of its own open there: any such file is left by a killed or interrupted run."""
+    for stale in out.glob(".staging-*"):
+        shutil.rmtree(stale, ignore_errors=True)
+    for probe in out.glob(".probe-*"):
+        with contextlib.suppress(OSError):
+            probe.unlink()
 
 
 # ------------------------------------------------------------------ a full disk
@@ -240,8 +249,9 @@ def folder_lock(out: str | os.PathLike) -> Iterator[Path]:
 
     A second process locking the same folder gets a `UsageError` at once (no waiting), so
     two runs never write one folder together. Re-entrant within a process (a command that
-    holds its folder can write into it). The lock file, ``out/.jaxeac.lock``, is removed on
-    release; folders this call created are removed again if they are still empty.
+    holds its folder can write into it). On release the lock file, ``out/.jaxeac.lock``, and
+    any staging folder still there (one whose removal raced a writer, say) are removed;
+    folders this call created are removed again if they are then empty.
     """
     out = check_out_path(out)
     if out.exists() and not out.is_dir():
@@ -265,6 +275,8 @@ def folder_lock(out: str | os.PathLike) -> Iterator[Path]:
         yield out
     finally:
         del _HELD[key]
+        if not _STAGES.get(key):
+            _remove_stale_stages(out)
         with contextlib.suppress(OSError):
             os.unlink(out / LOCK_NAME)  # while still locked: a waiting process sees a new file
         os.close(fd)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 
@@ -159,6 +160,32 @@ def test_a_stage_interrupted_before_it_has_a_name_is_removed(tmp_path, monkeypat
                 pass
         assert list(out.glob(".staging-*")) == [outer]
     assert not list(out.glob(".staging-*")) and (out / "a.txt").read_text() == "outer"
+
+
+def test_a_stage_a_writer_refilled_is_removed_with_the_folder_it_was_made_in(tmp_path, monkeypatch):
+    """A run stopped while a thread still writes into its stage: the stage's removal misses a file
+    written meanwhile (as `shutil.rmtree` racing a writer does). Releasing the folder removes the
+    stage, and the folder the command created is gone again: nothing is left of the run."""
+    from jaxeac import io
+    from jaxeac.io import folder_lock, staged_dir
+
+    out = tmp_path / "new" / "run"
+    real_rmtree = shutil.rmtree
+
+    def racing(path, ignore_errors=False):
+        real_rmtree(path, ignore_errors=ignore_errors)
+        Path(path).mkdir()
+        (Path(path) / "fig.png").write_bytes(b"late")  # the writer's file, after the removal
+
+    with folder_lock(out):
+        with monkeypatch.context() as m:
+            m.setattr(io.shutil, "rmtree", racing)
+            with pytest.raises(KeyboardInterrupt), staged_dir(out) as stage:
+                (stage / "results.parquet").write_bytes(b"half")
+                raise KeyboardInterrupt
+        assert [p.name for p in out.glob(".staging-*/*")] == ["fig.png"]  # left by the race
+        (out / ".probe-x").write_bytes(b"")  # a write probe a Ctrl-C cut short
+    assert not (tmp_path / "new").exists()
 
 
 def test_a_new_run_replaces_the_old_folder_as_a_whole(tmp_path):
