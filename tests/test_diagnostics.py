@@ -20,10 +20,10 @@ from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.algorithm.memory import with_committed
 from jaxeac.cli import main
 from jaxeac.envs.grid import GridWorld, get_map, parse_map, shortest_actions
-from jaxeac.experiments.grid import GridSettings, memory_diagnostics, run_grid
+from jaxeac.experiments.grid import GridSettings, memory_diagnostics, run_grid, run_grid_to_folder
 from jaxeac.rng import action_uniform, seed_key, seed_words
 from jaxeac.running.config import RunConfig
-from jaxeac.running.diagnostics import diagnose_seeds, diagnostics_block, seeds_block
+from jaxeac.running.diagnostics import diagnose_seeds, diagnostics_block, diagnostics_from_logs, seeds_block
 
 R, L, U, D = 0, 1, 2, 3  # G2
 
@@ -194,6 +194,47 @@ def test_diagnosed_seeds_are_the_runs_seeds(algo):
     if algo == "ac":
         assert (block["hit_rate"], block["restricted_share"], block["learning_share"], block["flags"]) \
             == (0.0, 0.0, 1.0, 0)
+
+
+@pytest.mark.parametrize(("algo", "env_name"), [("ac", None), ("q_learning", None), ("sarsa", None),
+                                                ("ac", "FrozenLake-4x4-slippery-v1")])
+def test_counts_without_memories_follow_from_the_run_logs(algo, env_name):
+    """E8 of AC and the X3 baselines from the run's trial logs (`diagnostics_from_logs`) equals the
+    `trials` loop's counts seed by seed, best actions known or not."""
+    settings = GridSettings(seeds=7, trials=30, key=4, algos=(algo,), env=env_name).resolved()
+    r = run_grid(settings).results[algo]
+    env, grid_map = settings.make_env(), settings.grid_map()
+    best = shortest_actions(grid_map) if grid_map is not None else None
+    loop = diagnose_seeds(env, settings.run_config(algo), root_key=4, seeds=r.seeds, best=best)
+    logs = diagnostics_from_logs(r.logs_of_first(7), env.n_chances)
+    for a, b in zip(jax.tree.leaves(loop), jax.tree.leaves(logs), strict=True):
+        np.testing.assert_array_equal(a, b)
+        assert a.dtype == b.dtype
+    assert logs.routes.taken[:, 0].tolist() == [30] * 7 and logs.routes.taken.sum() == r.agent_steps
+
+
+def test_a_streamed_run_counts_only_its_memory_algorithms_again(tmp_path, monkeypatch):
+    """A run written as it goes keeps its first seeds' trial logs (`CompactSeeds.first_logs`), so E8
+    re-runs only EAC in the `trials` loop; AC's counts are those the loop gives."""
+    import jaxeac.experiments.grid as grid
+
+    settings = GridSettings(seeds=9, trials=20, key=1, algos=("ac", "eac"), chunk_size=4).resolved()
+    asked = []
+    diagnose = grid.diagnose_grid
+
+    def counting(s, m, seeds):
+        asked.append(sorted(seeds))
+        return diagnose(s, m, seeds)
+
+    monkeypatch.setattr(grid, "diagnose_grid", counting)
+    run, summary = run_grid_to_folder(settings, tmp_path / "run", figures=False)
+    assert asked == [["eac"]]
+    whole = run_grid(settings).results["ac"]
+    np.testing.assert_array_equal(run.results["ac"].logs_of_first(9), whole.logs_of_first(9))
+    best = shortest_actions(settings.grid_map())
+    full = seeds_block(diagnose_seeds(settings.make_env(), settings.run_config("ac"), root_key=1,
+                                      seeds=np.arange(9), best=best), True)
+    assert summary["memory_diagnostics"]["ac"] == full | {"successes_match_run": True}
 
 
 def test_chunks_change_no_count(monkeypatch):

@@ -300,6 +300,8 @@ def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[
     from jaxeac.envs.grid import shortest_actions
     from jaxeac.running.diagnostics import diagnose_seeds
 
+    if not seeds:
+        return {}, 0.0
     t0 = time.perf_counter()
     env = settings.make_env()
     best = shortest_actions(grid_map) if grid_map is not None else None
@@ -319,10 +321,16 @@ def _diagnosed_count(settings: GridSettings, n_seeds: int) -> int:
     return diagnostic_seed_count(n_seeds, settings.trials, settings.make_env().n_chances)
 
 
+def _keeps_memories(settings: GridSettings, algo: str) -> bool:
+    return settings.run_config(algo).agent.uses_memory
+
+
 def diagnostic_seeds(settings: GridSettings) -> dict[str, np.ndarray]:
-    """The seeds E8 counts of a run of `settings` from seed 0 (`_diagnosed_count`)."""
+    """The seeds E8 counts in the `trials` loop for a run of `settings` from seed 0
+    (`_diagnosed_count`): those of the algorithms with memories; the others' counts follow from
+    the run's own trial logs (`memory_diagnostics`)."""
     n = _diagnosed_count(settings, settings.seeds)
-    return {a: np.arange(n, dtype=np.int64) for a in settings.algos}
+    return {a: np.arange(n, dtype=np.int64) for a in settings.algos if _keeps_memories(settings, a)}
 
 
 def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tuple[dict, float] | None = None
@@ -330,13 +338,23 @@ def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tu
     """summary.json's ``diagnostics_seeds``, ``diagnostics_seconds`` and ``memory_diagnostics`` (E8):
     per algorithm, the counts of the run's first min(N, `max_seeds`, default `diagnostic_seed_count`) seeds
     (`diagnose_grid`; `diagnosed`: its result for those seeds, computed earlier, e.g. beside the run).
+    An algorithm without memories is counted from those seeds' trial logs in the run's results
+    (`diagnostics_from_logs`, the same counts) where the results keep them.
     ``successes_match_run``: those seeds' successes equal the run's (R1, R2)."""
-    from jaxeac.running.diagnostics import seeds_block
+    from jaxeac.running.diagnostics import diagnostics_from_logs, seeds_block
 
     shortest = min(len(r.seeds) for r in run.results.values())
     n = _diagnosed_count(run.settings, shortest) if max_seeds is None else min(max_seeds, shortest)
-    seeds = {a: r.seeds[:n] for a, r in run.results.items()}
-    counts, seconds = diagnosed or diagnose_grid(run.settings, run.grid_map, seeds)
+    chances = run.settings.make_env().n_chances
+    counts, seconds = dict(diagnosed[0]) if diagnosed else {}, diagnosed[1] if diagnosed else 0.0
+    for algo, r in run.results.items():
+        logs = r.logs_of_first(n) if not _keeps_memories(run.settings, algo) else None
+        if algo not in counts and logs is not None:
+            counts[algo] = diagnostics_from_logs(logs, chances)
+    rest = {a: r.seeds[:n] for a, r in run.results.items() if a not in counts}
+    if rest:
+        more, more_seconds = diagnose_grid(run.settings, run.grid_map, rest)
+        counts, seconds = counts | more, seconds + more_seconds
     blocks = {}
     for algo, r in run.results.items():
         d = counts[algo]
@@ -428,7 +446,8 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
     # figures' modules load (half a second); on CPUs the run has every core, and they follow it.
     early = None
     if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
-        early = pool.submit(diagnose_grid, settings, grid_map, diagnostic_seeds(settings))
+        if diagnosed := diagnostic_seeds(settings):
+            early = pool.submit(diagnose_grid, settings, grid_map, diagnosed)
         if figures:
             pool.submit(importlib.import_module, "jaxeac.plots")
     try:

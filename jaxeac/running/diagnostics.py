@@ -160,6 +160,24 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 
+def diagnostics_from_logs(logs: np.ndarray, n_chances: int) -> SeedDiagnostics:
+    """E8's counts of seeds of an algorithm without memories (AC, the X3 baselines) from their trial
+    logs (int [N, T]: chances used, negated if failed), as numpy arrays with a leading seed axis.
+
+    Without memories every step is E1 (c) and learns (E2) and no flag is ever set, so the steps
+    taken at chance index c are the trials that lasted more than c chances. Equal to
+    `diagnose_seeds` of the same seeds (tested), without compiling and running the `trials` loop."""
+    lengths = np.abs(np.asarray(logs)).astype(np.int64)
+    n, trials = lengths.shape
+    ended = np.zeros((n, n_chances + 1), np.int32)  # per seed: trials of each length (1 … C)
+    np.add.at(ended, (np.repeat(np.arange(n), trials), lengths.ravel()), 1)
+    taken = (trials - np.cumsum(ended, axis=1)[:, :n_chances]).astype(np.int32)  # trials longer than c
+    none = np.zeros_like(taken)
+    return SeedDiagnostics(routes=StepRoute(taken, none, none, taken), flags=np.zeros(n, np.int32),
+                           flags_on_best=np.zeros(n, np.int32), best_at_flags=np.zeros(n, np.float32),
+                           success=np.asarray(logs) > 0)
+
+
 def _share(part, whole) -> float | None:
     return float(part) / float(whole) if whole else None
 

@@ -123,6 +123,10 @@ class SeedsResult:
     def agent_steps(self) -> int:
         return int(self.steps.sum())
 
+    def logs_of_first(self, n: int) -> np.ndarray:
+        """int32 [n, T]: the trial logs (chances used, negated if failed) of the first n seeds."""
+        return np.where(self.success[:n], self.steps[:n], -self.steps[:n])
+
     def policy_of(self, i: int) -> np.ndarray:
         """The final greedy policy of the run's i-th seed."""
         return self.policy[i]
@@ -240,6 +244,7 @@ class CompactSeeds:
     compile_seconds: float = 0.0
     run_seconds: float = 0.0
     settings: dict | None = None
+    first_logs: np.ndarray | None = None  # int [k, T]: trial logs of the first k seeds (`KEEP_LOGS`)
 
     @property
     def non_finite_seeds(self) -> np.ndarray:
@@ -253,6 +258,13 @@ class CompactSeeds:
         """The final greedy policy of the run's i-th seed (one of the first k)."""
         return self.first_policies[i]
 
+    def logs_of_first(self, n: int) -> np.ndarray | None:
+        """int [n, T]: the trial logs (chances used, negated if failed) of the first n seeds, or
+        None where the run kept fewer."""
+        if self.first_logs is None or self.first_logs.shape[0] < n:
+            return None
+        return self.first_logs[:n]
+
     @classmethod
     def concatenate(cls, parts: list[CompactSeeds]) -> CompactSeeds:
         """Consecutive batches of one algorithm's seeds as one run (a sequential run's batches:
@@ -264,6 +276,8 @@ class CompactSeeds:
                    successes=cat("successes"), first_success=cat("first_success"),
                    steps_total=cat("steps_total"), finite=cat("finite"),
                    first_policies=np.concatenate([p.first_policies for p in parts])[:KEEP_POLICIES],
+                   first_logs=(None if any(p.first_logs is None for p in parts)
+                               else np.concatenate([p.first_logs for p in parts])[:KEEP_LOGS]),
                    compile_seconds=first.compile_seconds, run_seconds=sum(p.run_seconds for p in parts),
                    settings=first.settings)
 
@@ -279,6 +293,10 @@ def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
 
 
 KEEP_POLICIES = 16  # policies of the first seeds a compact run keeps, for figures
+#: Trial logs of the first seeds a compact run keeps: E8's counts of an algorithm without memories
+#: follow from them (`jaxeac.running.diagnostics.routes_from_logs`); as many as E8 diagnoses at most
+#: (`jaxeac.running.diagnostics.DIAGNOSTIC_SEEDS`; 0.4 MB at T = 200).
+KEEP_LOGS = 1000
 
 
 class CompactCollector:
@@ -302,6 +320,8 @@ class CompactCollector:
             steps_total=np.empty(n, np.int64 if n_chances is None else narrow_int(n_trials * n_chances)),
             finite=np.ones(n, bool),
             first_policies=np.zeros((min(n, KEEP_POLICIES), n_states), np.int32),
+            first_logs=np.zeros((min(n, KEEP_LOGS), n_trials),
+                                np.int32 if n_chances is None else narrow_int(n_chances)),
         )
         self.on_chunk = on_chunk
 
@@ -321,6 +341,8 @@ class CompactCollector:
             o.finite[start:start + m] = chunk.finite
         keep = max(0, min(m, o.first_policies.shape[0] - start))
         o.first_policies[start:start + keep] = chunk.policy[:keep]
+        keep = max(0, min(m, o.first_logs.shape[0] - start))
+        o.first_logs[start:start + keep] = chunk.log[:keep]
         if self.on_chunk is not None:
             at = slice(start, start + m)
             self.on_chunk(start, chunk, {"bits": o.success.bits[at], "successes": o.successes[at],
