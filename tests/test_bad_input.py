@@ -52,13 +52,13 @@ def refused(capsys, argv, root, match=None, code=2) -> str:
     return err
 
 
-def bad_count(text: str, limit: int = INT32_MAX) -> bool:
-    """Whether `text` is not a count the CLI accepts (an integer in 1..limit)."""
+def bad_count(text: str, limit: int = INT32_MAX, low: int = 1) -> bool:
+    """Whether `text` is not a count the CLI accepts (an integer in low..limit)."""
     try:
         value = int(text)
     except ValueError:
         return True
-    return not 1 <= value <= limit
+    return not low <= value <= limit
 
 
 def bad_number(text: str, low: float, high: float, *, positive: bool = False) -> bool:
@@ -88,9 +88,17 @@ def test_bad_counts(flag, value, tmp_path, capsys):
 
 @FUZZ
 @given(value=st.one_of(st.integers(max_value=-1), st.integers(min_value=2**32)).map(str)
-       | texts.filter(lambda t: bad_count(t, 2**32)))
+       | texts.filter(lambda t: bad_count(t, 2**32 - 1, low=0)))  # keys are 0..2^32 - 1, 0 included
 def test_bad_keys(value, tmp_path, capsys):
     refused(capsys, ["grid", *TINY, "--out", str(tmp_path / "out"), f"--key={value}"], tmp_path)
+
+
+@pytest.mark.parametrize("value", ["0", " 0", "+0", "-0", "00", "4294967295"])
+def test_keys_at_the_ends_of_their_range_are_accepted(value):
+    """Keys are 0..2^32 - 1 (R1): the ends of the range, as a user may type them, parse."""
+    from jaxeac.cli_args import prng_key
+
+    assert prng_key(value) == int(value)
 
 
 @FUZZ
