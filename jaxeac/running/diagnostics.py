@@ -169,8 +169,8 @@ def diagnostics_from_logs(logs: np.ndarray, n_chances: int) -> SeedDiagnostics:
     `diagnose_seeds` of the same seeds (tested), without compiling and running the `trials` loop."""
     lengths = np.abs(np.asarray(logs)).astype(np.int64)
     n, trials = lengths.shape
-    ended = np.zeros((n, n_chances + 1), np.int32)  # per seed: trials of each length (1 … C)
-    np.add.at(ended, (np.repeat(np.arange(n), trials), lengths.ravel()), 1)
+    rows = np.arange(n)[:, None] * (n_chances + 1)  # per seed: trials of each length (1 … C)
+    ended = np.bincount((rows + lengths).ravel(), minlength=n * (n_chances + 1)).reshape(n, n_chances + 1)
     taken = (trials - np.cumsum(ended, axis=1)[:, :n_chances]).astype(np.int32)  # trials longer than c
     none = np.zeros_like(taken)
     return SeedDiagnostics(routes=StepRoute(taken, none, none, taken), flags=np.zeros(n, np.int32),

@@ -144,7 +144,7 @@ class CEngine:
         # own island, the ball is metres away), so a throw from one starts from the rack already
         # asleep (`_asleep_rack`): the same state, bit for bit, without its ~10 awake steps.
         self.rack_templates = solver.sleep
-        self._racks: dict[bytes, tuple[mujoco.MjData, float] | None] = {}
+        self._racks: dict[bytes, mujoco.MjData | None] = {}  # rack qpos -> the rack asleep (its time: when)
         self._racks_lock = threading.Lock()
         fresh = mujoco.MjData(self.model)
         self._ball_sleep_reset = int(fresh.tree_asleep[0])  # the ball's sleep counter after a reset
@@ -164,13 +164,12 @@ class CEngine:
                     if np.all(rack.tree_asleep[1:] >= 0):  # trees 1..10 are the pins
                         break
                 asleep = np.all(rack.tree_asleep[1:] >= 0) and rack.tree_asleep[0] < 0  # the ball still rolls
-                self._racks[key] = (rack, rack.time) if asleep else None
-            found = self._racks.get(key)
-        if found is None:
+                self._racks[key] = rack if asleep else None
+            rack = self._racks.get(key)
+        if rack is None:
             return None
-        rack, settle_time = found
         # the ball rolls straight at about its start speed: with a margin, where it can be meanwhile
-        travel = 2.0 * float(np.linalg.norm(data.qvel[:3])) * settle_time + 0.1
+        travel = 2.0 * float(np.linalg.norm(data.qvel[:3])) * rack.time + 0.1
         gap = np.sqrt(np.min(np.sum((data.qpos[7:NQ].reshape(N_PINS, 7)[:, :3] - data.qpos[:3]) ** 2, axis=1)))
         return rack if gap - travel > self.reach else None
 
