@@ -162,7 +162,7 @@ def measure(args) -> dict:
         record["rows"].append(row)
 
     for n in args.seeds:
-        for algo, jump in [(a, j) for a in ("ac", "eac") for j in (args.jump if a == "eac" else ["auto"])]:
+        for algo, jump in [(a, j) for a in args.algos for j in (args.jump if a == "eac" else ["auto"])]:
             row = bench_grid(algo, n, args.chunk, args.repeats, args.tables, args.lanes, args.kernel, jump)
             for name in peers:
                 peer = bench_peer(name, algo, n, args.repeats, args.peer_threads)
@@ -173,7 +173,7 @@ def measure(args) -> dict:
                 add(bench_numpy(algo, n, args.repeats))
     for n in args.numpy_seeds:
         if n not in args.seeds:
-            for algo in ("ac", "eac"):
+            for algo in args.algos:
                 add(bench_numpy(algo, n, args.repeats))
     return record
 
@@ -187,7 +187,7 @@ def builds_record(args) -> dict:
 
     child = ["--seeds", *map(str, args.seeds), "--numpy-seeds", "--chunk", str(args.chunk),
              "--repeats", str(args.repeats), "--tables", args.tables, "--kernel", args.kernel,
-             "--jump", *args.jump, *(["--lanes", str(args.lanes)] if args.lanes else [])]
+             "--algos", *args.algos, "--jump", *args.jump, *(["--lanes", str(args.lanes)] if args.lanes else [])]
     record = {"environment": environment(), "command": command_line(), "rows": [],
               "builds": [b.name for b in args.builds]}
     with tempfile.TemporaryDirectory() as tmp:
@@ -387,6 +387,7 @@ def main() -> None:
                    "jaxeac row")
     p.add_argument("--peer-threads", type=int, default=None,
                    help="threads for the C and numba peers (default: every core, as jaxeac)")
+    p.add_argument("--algos", nargs="+", choices=["ac", "eac"], default=["ac", "eac"], help="methods to run")
     p.add_argument("--chunk", type=int, default=8192, help="seeds per compiled chunk (split over devices)")
     p.add_argument("--repeats", type=int, default=2, help="runs per row; the best run time is kept")
     p.add_argument("--tables", choices=["auto", "split", "rows"], default="auto",

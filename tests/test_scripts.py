@@ -39,6 +39,15 @@ def test_bench_writes_a_record_with_the_peer_beside_jaxeac(tmp_path):
     assert "jaxeac / NumPy peer (same run, same seeds): AC at 60 seeds:" in table.stdout
 
 
+def test_bench_algos_runs_only_the_methods_named(tmp_path):
+    out = tmp_path / "eac.json"
+    proc = _script("scripts/bench.py", "--algos", "eac", "--seeds", "40", "--numpy-seeds", "40", "--chunk", "64",
+                   "--repeats", "1", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["impl"], r["algo"]) for r in rows] == [("jaxeac", "eac"), ("numpy", "eac")]
+
+
 def test_bench_compares_builds_taking_turns(tmp_path):
     """`--builds`: each source tree's jaxeac rows, the builds taking turns each round, labelled by
     directory, with a line per row kind giving each build's best rate against the first build's."""
