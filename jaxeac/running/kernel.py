@@ -114,59 +114,29 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
     packed = mem.PackedMemory(words=None, n_actions=n_actions) if agent.uses_memory else None
 
     jumps = "visits" in state  # memory jumps (`flat_slot`)
-    # With memories a chance reads its cell's row, memory word and visit word one chance ahead,
-    # and the log entries they name after the chance before has stored everything: a chance then
-    # waits on memory once (the next cell's reads), not three times (row, words, log), 1.06x for
-    # EAC on an H100. Without memories (AC) the carried reads cost more registers than the one wait
-    # they save (0.8x), so AC reads at the start of its chance (BENCHMARKS.md).
-    ahead = packed is not None
-
-    def fetch(cell, live):
-        """What a chance at `cell` reads before it can choose: the seed's row (p(cell, ·) and
-        V(cell)); ahead, where each action leads and the cell's memory and visit words."""
-        row = [rows[lane, cell, a] for a in range(n_actions + 1)]
-        moves = [moves_ref[cell * n_actions + a] for a in range(n_actions)] if ahead else None
-        word = state["memory"][lane, cell] if packed is not None else None
-        # The visit word is read for live lanes only, and the log (`fetch_log`) only where a
-        # visit word names a trial (masked loads: memory traffic bounds this kernel).
-        visit = plgpu.load(state["visits"].at[lane, cell], mask=live, other=0) if jumps else None
-        return row, moves, word, visit
-
-    def fetch_log(word, visit, live):
-        """The log entries a chance reads: the outcome of the trial that stamped its memory word
-        (`settled`) and (jumps) the length of the trial its visit word names."""
-        outcome = walked = None
-        if packed is not None:
-            outcome = log[lane, jnp.maximum(packed.unpack(word).stamp, 0)] > 0
-        if jumps:
-            visit_trial = visit_fields(visit, n_chances)[0]
-            walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=live & (visit_trial >= 0), other=0)
-        return outcome, walked
 
     def chance(_, carry):
-        """One chance of every lane. Ahead, its reads at s were issued by the chance before (`fetch`,
-        `fetch_log`), and where the next cell is this one the values stored here replace those read."""
-        (position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow,
-         row, moves, word, visit, outcome, walked) = carry
+        position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow = carry
         live = trial_now < n_trials
-        if not ahead:
-            row = fetch(position, live)[0]
         trial = jnp.minimum(trial_now, n_trials - 1)
         u = action_uniform(words, trial, c, n_chances)
-        # G3: the next trial's start cell, used only where this chance ends the trial
-        start = starts_ref[start_index(words, jnp.minimum(trial_now + 1, n_trials - 1), n_chances, env.n_starts)]
         s = position
-        prefs, value = row[:n_actions], row[n_actions]
+        prefs = [rows[lane, s, a] for a in range(n_actions)]
+        value = rows[lane, s, n_actions]
         logits = [p / temperature for p in prefs]
         allowed = restricted = remembered = None  # None: no restriction / no such memory
         if packed is not None:  # E1 (a), (b) from the seed's memory word at s
-            f = packed.unpack(word)
-            succeeded, failed = mem.settled(f.stamp, trial_now, outcome)
+            f = packed.unpack(state["memory"][lane, s])
+            succeeded, failed = mem.settled(f.stamp, trial_now, log[lane, jnp.maximum(f.stamp, 0)] > 0)
             remembered, failed_bits = mem.packed_in_effect(f, succeeded, failed)
         active, jump = live, None
         if jumps:  # a known path length from s: the trial ends here without a step
+            # The log is read only where the visit word names a trial (a masked load: memory
+            # traffic bounds this kernel); the visit word is read beside the memory word.
+            visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
             visit_trial, visit_chance = visit_fields(visit, n_chances)
             known = (remembered >= 0) & (visit_trial >= 0)
+            walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
             to_goal = walked - visit_chance
             jump = live & known & (walked > 0)
             active = live & ~jump
@@ -178,37 +148,19 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
             allowed = [restricted & ~x | ~restricted for x in flags]
         action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
         learn = learns(agent, from_memory, active)
-        pick = lambda xs: functools.reduce(  # noqa: E731  (xs[action], action a traced index)
-            lambda acc, a: jnp.where(action == a, xs[a], acc), range(1, n_actions), xs[0])
 
-        move = pick(moves) if ahead else moves_ref[s * n_actions + action]
-        s_next, bumped = decode_move(move)  # G4/G5 (`GridWorld.step`)
+        s_next, bumped = decode_move(moves_ref[s * n_actions + action])  # G4/G5 (`GridWorld.step`)
         terminated = s_next == env.map.goal_index
         reward = move_reward(bumped, terminated)
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
-        ends = active & (terminated | truncated)
-        if jumps:
-            ends = ends | jump
-        position_next = jnp.where(ends, start, jnp.where(active, s_next, position))
-        live_next = trial_now + ends.astype(jnp.int32) < n_trials
-        if ahead:
-            row_next, moves_next, word_next, visit_next = fetch(position_next, live_next)
-            same = position_next == s
 
-        # (2)-(4) (`learn_step`, `RowTables.learn`): V(s') as it was before the row is written
-        if ahead:
-            value_next = jnp.where(position_next == s_next, row_next[n_actions], plgpu.load(
-                rows.at[lane, s_next, n_actions], mask=position_next != s_next, other=0))
-        else:
-            value_next = rows[lane, s_next, n_actions]
-        delta = td_error(reward, value, value_next, gamma, terminated)
+        # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
+        delta = td_error(reward, value, rows[lane, s_next, n_actions], gamma, terminated)
         actor, critic = learning_increments(delta, learn, alpha, beta)
-        taken = pick(prefs)
+        taken = functools.reduce(lambda acc, a: jnp.where(action == a, prefs[a], acc),
+                                 range(1, n_actions), prefs[0])
         put(rows.at[lane, s, action], taken + actor)
         put(rows.at[lane, s, n_actions], value + critic)
-        if ahead:
-            row_next = [jnp.where(same & (action == a), taken + actor, x) for a, x in enumerate(row_next[:-1])] + [
-                jnp.where(same, value + critic, row_next[-1])]
 
         # E5 and the records of `record_step`
         goal_known = goal_known | (active & terminated).astype(jnp.int32)
@@ -226,19 +178,18 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
             flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
             put(rtilde.at[lane, jnp.minimum(c, n_chances - 1)], shaped, active)
         if packed is not None:  # `PackedMemory.record`
-            new = packed.pack(mem.packed_visit(
+            new = mem.packed_visit(
                 f, trial_now, succeeded, failed,
                 action if agent.success_memory else jnp.full_like(action, -1),
-                0 if flag is None else jnp.where(flag, 1 << action, 0)))
-            put(state["memory"].at[lane, s], new, active)
-            word_next = jnp.where(same & active, new, word_next)
+                0 if flag is None else jnp.where(flag, 1 << action, 0))
+            put(state["memory"].at[lane, s], packed.pack(new), active)
         success = terminated
+        ends = active & (terminated | truncated)
         if jumps:
-            visited = visit_word(trial_now, c, n_chances)
-            put(state["visits"].at[lane, s], visited, active & (remembered >= 0))
-            visit_next = jnp.where(same & active & (remembered >= 0) & live_next, visited, visit_next)
+            put(state["visits"].at[lane, s], visit_word(trial_now, c, n_chances), active & (remembered >= 0))
             remaining = n_chances - c
             success = jnp.where(jump, to_goal <= remaining, terminated)
+            ends = ends | jump
             anchor = jnp.where(ends, jnp.where(jump, c, n_chances), anchor)
             c = jnp.where(jump, c + jnp.minimum(to_goal, remaining), c)
         c = c + active.astype(jnp.int32)
@@ -248,23 +199,16 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         prev_length = jnp.where(ends, c, prev_length)
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
+        nxt = jnp.minimum(trial_now, n_trials - 1)
+        start = starts_ref[start_index(words, nxt, n_chances, env.n_starts)]
+        position = jnp.where(ends, start, jnp.where(active, s_next, position))
         env_chance = jnp.where(ends, 0, jnp.where(active, env_chance + 1, env_chance))
-        vectors = (position_next, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow)
-        if not ahead:
-            return (*vectors, None, None, None, None, None, None)
-        # after the log entry above
-        return (*vectors, row_next, moves_next, word_next, visit_next, *fetch_log(word_next, visit_next, live_next))
+        return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow
 
     vectors = ("position", "env_chance", "trial", "chance", "goal_known", "prev_length", "anchor", "shadow")
     carry = tuple(state[k][lane] if k in state else None for k in vectors)
-    if ahead:
-        live = carry[2] < n_trials
-        first = fetch(carry[0], live)
-        carry = (*carry, *first, *fetch_log(first[2], first[3], live))
-    else:
-        carry = (*carry, None, None, None, None, None, None)
     carry = jax.lax.fori_loop(0, n_chances, chance, carry)
-    for k, v in zip(vectors, carry[:len(vectors)], strict=True):
+    for k, v in zip(vectors, carry, strict=True):
         if k in state:
             put(state[k].at[lane], v)
 
