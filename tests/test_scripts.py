@@ -176,3 +176,12 @@ def test_profile_bowling_splits_a_throw_into_phases(tmp_path):
     assert abs(sum(p["share_of_time"] for p in rec["phases"].values()) - 1) < 1e-9
     assert 0.5 < sum(rec["stages_share_of_step"].values()) <= 1.0
     assert rec["outcome_final_step_mean"] <= rec["settled_stop_step_mean"] <= 400
+
+
+def test_startup_times_both_ways_of_starting_the_devices(tmp_path):
+    out = tmp_path / "startup.json"
+    proc = _script("scripts/startup.py", "--repeats", "1", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["mode"] for r in rows] == ["serial", "thread"]
+    assert all(0 < r["jax_imported_s"] <= r["modules_imported_s"] <= r["devices_ready_s"] for r in rows)
