@@ -5,11 +5,6 @@ are loaded nothing has been written, so Ctrl-C then ends the process at once wit
 line and exit code 130 (an interrupt inside an import would otherwise surface as an
 ImportError traceback); from `jaxeac.cli.main` on, its own handling takes over.
 
-JAX's backend starts on a thread as soon as JAX is imported (`start_devices`): on one H100
-starting it (the CUDA context) took 0.4-0.5 s, 1.5 s in a machine's first process, and the
-command's own modules take about as long to import, so the two now overlap
-(BENCHMARKS.md, *Starting the devices beside the imports*).
-
 When the command has finished, the process ends without the interpreter's teardown
 (`_end`): freeing JAX's client and the run's arrays object by object took about 1 s
 after a 10^6-seed grid run on one H100 (its last line at 17.9 s, 19.0 s wall: record
@@ -21,7 +16,6 @@ import contextlib
 import os
 import signal
 import sys
-import threading
 from typing import NoReturn
 
 
@@ -40,38 +34,10 @@ def run() -> NoReturn:
     configure_xla(sys.argv[1] if len(sys.argv) > 1 else None)  # XLA's flags for the command, before JAX
     import jax  # noqa: F401  (the heaviest imports, still under the start-up handler)
 
-    start_devices(sys.argv[1:])
     import jaxeac.running.cache  # noqa: F401
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # what `main` restores when it ends
     _end(main())  # `main` installs its own Ctrl-C handling while it runs
-
-
-#: The commands that compute on JAX's devices (the others read or write files only).
-DEVICE_COMMANDS = frozenset({"grid", "run", "compare", "bowling", "throw", "sweep", "study", "reproduce"})
-
-
-def start_devices(argv: list[str]) -> threading.Thread | None:
-    """Start JAX's backend on a thread for a command that will use it, while the main thread
-    imports and checks the command (see the module docstring); returns the thread, or None
-    where nothing was started: another command, a help page, or a multi-host run, whose
-    ``jax.distributed.initialize`` must come before the backend (any abbreviation of
-    ``--coordinator`` counts). A backend that fails to start fails again, reported, where the
-    command first uses it."""
-    if not argv or argv[0] not in DEVICE_COMMANDS:
-        return None
-    names = [arg.split("=", 1)[0] for arg in argv]
-    if any(n in ("-h", "--help") or (len(n) > 2 and "--coordinator".startswith(n)) for n in names):
-        return None
-    import jax
-
-    def start() -> None:
-        with contextlib.suppress(Exception):
-            jax.devices()
-
-    thread = threading.Thread(target=start, name="jaxeac-devices", daemon=True)
-    thread.start()
-    return thread
 
 
 def _end(code: int) -> NoReturn:
