@@ -130,11 +130,8 @@ def _analyse(
     chunk: int,
     perm_chunk: int,
     higher_is_better: Mapping | None,
-    moments=None,
 ) -> dict:
-    """Measures (and optionally curves) from one shared bootstrap and permutation draw.
-    moments: above `large.LARGE_N` seeds, the curves' `large.curve_moments` waiters, if already
-    dispatched (shared with the calibration)."""
+    """Measures (and optionally curves) from one shared bootstrap and permutation draw."""
     names = list(mb)
     if list(mt) != names:
         raise UsageError(
@@ -143,8 +140,9 @@ def _analyse(
         )
     nb, nt = mb[names[0]].size, mt[names[0]].size
     if large.is_large(nb, nt):
-        return _analyse_large(mb, mt, key, curves=curves, resamples=resamples, alpha=alpha,
-                              higher_is_better=higher_is_better, moments=moments)
+        return _analyse_large(
+            mb, mt, key, curves=curves, resamples=resamples, alpha=alpha, higher_is_better=higher_is_better
+        )
     mb, mt = ({k: as_values(v) for k, v in m.items()} for m in (mb, mt))
     xb = np.stack([mb[k] for k in names], 1)
     xt = np.stack([mt[k] for k in names], 1)
@@ -320,7 +318,7 @@ def _measure_large(
 
 
 def _analyse_large(
-    mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better, moments=None
+    mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better
 ) -> dict:
     """`_analyse` above `large.LARGE_N` seeds per method: same results dict, scalable methods."""
     names = list(mb)
@@ -328,10 +326,10 @@ def _analyse_large(
     k_b, k_t, k_p = jax.random.split(as_key(key), 3)
     pieces: dict = {}
     t0 = time.perf_counter()
-    binary = None
+    moments = binary = None
     if curves is not None:  # per-chunk sums on the device while the host does the measures
         binary = is_binary(*curves)
-        moments = moments or [large.curve_moments(c) for c in curves]
+        moments = [large.curve_moments(c) for c in curves]
     pieces["dispatch_curve_sums"] = time.perf_counter() - t0
     def one(j: int, name: str):  # a measure's closed forms and resampling (on a host thread)
         with large.HOST_BUDGET.hold(large.job_bytes(nb, nt)):

@@ -44,10 +44,6 @@ from jaxeac.stats.rundir import (
 SCHEMA = "jaxeac.stats/1"
 #: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).
 CALIBRATION_SPLITS = 200
-#: Up to this many seeds per method the calibration runs on a thread beside the main comparison
-#: (its draws are its own, so the results are the same); above it the two would hold their host
-#: copies at once (the 10^7-seed runs' peak resident memory, BENCHMARKS.md).
-CALIBRATION_BESIDE_SEEDS = 1 << 22
 #: fold_in index of the paired analysis under the comparison's key (its own stream: the
 #: unpaired results stay as they were).
 PAIRED_STREAM = 2_000_000
@@ -174,31 +170,6 @@ def compare_experiment(
         pool = ThreadPoolExecutor(max_workers=1)  # one thread beside the rest
         paired_jobs = [pool.submit(pair, j, k) for j, k in enumerate(names)]
         pool.shutdown(wait=False)  # the threads end with their jobs
-    # above large.LARGE_N the curves' moments, dispatched once for the comparison and the calibration
-    moments = [large.curve_moments(c) for c in curves] if large.is_large(sb.shape[0], st.shape[0]) else None
-
-    def calibration() -> tuple[dict, float]:
-        t = time.perf_counter()
-        if calibration_splits <= 0:
-            return {"skipped": "calibration_splits = 0"}, 0.0
-        cal = calibrate(
-            vb,
-            curves[0] if bowling or large.is_large(sb.shape[0]) else as_bool(curves[0]),
-            k_cal,
-            splits=calibration_splits,
-            resamples=calibration_resamples,
-            alpha=alpha,
-            time_event=(mb["_time"], mb["_event"]),
-            labels=cal_labels,
-            moments=None if moments is None else moments[0](),
-        )
-        return cal, time.perf_counter() - t
-
-    calibration_job = None
-    if calibration_splits > 0 and max(sb.shape[0], st.shape[0]) <= CALIBRATION_BESIDE_SEEDS:
-        pool = ThreadPoolExecutor(max_workers=1)  # on a thread beside the main comparison
-        calibration_job = pool.submit(calibration)
-        pool.shutdown(wait=False)  # the thread ends with its job
     hib = {k: MEASURES[k][0] for k in names}
     res = _analyse(
         vb,
@@ -210,7 +181,6 @@ def compare_experiment(
         chunk=chunk,
         perm_chunk=perm_chunk,
         higher_is_better=hib,
-        moments=moments,
     )
     measures = res["measures"]
     for k in names:
@@ -246,9 +216,22 @@ def compare_experiment(
             "risk_ratio_method": "Miettinen-Nurminen (1985) score",
         }
     t_lr = time.perf_counter() - t_lr
-    t_wait = time.perf_counter()
-    cal, t_cal = calibration() if calibration_job is None else calibration_job.result()
-    t_cal_wait = time.perf_counter() - t_wait
+    t_cal = time.perf_counter()
+    if calibration_splits > 0:
+        cal = calibrate(
+            vb,
+            curves[0] if bowling or large.is_large(sb.shape[0]) else as_bool(curves[0]),
+            k_cal,
+            splits=calibration_splits,
+            resamples=calibration_resamples,
+            alpha=alpha,
+            time_event=(mb["_time"], mb["_event"]),
+            labels=cal_labels,
+            moments=(res.get("curve_moments") or [None])[0],
+        )
+    else:
+        cal = {"skipped": "calibration_splits = 0"}
+    t_cal = time.perf_counter() - t_cal
     primary = names[0]
     stats = {
         "schema": SCHEMA,
@@ -300,7 +283,6 @@ def compare_experiment(
                 **res.get("pieces", {}),
                 "logrank_and_proportions": t_lr,
                 "calibration": t_cal,
-                "calibration_wait": t_cal_wait,
             },
         },
     }
