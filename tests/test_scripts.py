@@ -185,3 +185,12 @@ def test_startup_times_both_ways_of_starting_the_devices(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     assert [r["mode"] for r in rows] == ["serial", "thread"]
     assert all(0 < r["jax_imported_s"] <= r["modules_imported_s"] <= r["devices_ready_s"] for r in rows)
+
+
+def test_cpu_loop_ops_counts_the_chance_loops_operations(tmp_path):
+    out = tmp_path / "ops.json"
+    proc = _script("scripts/cpu_loop_ops.py", "--algos", "ac", "eac_failure_only", "--jump", "on", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    ac, failure_only = json.loads(out.read_text())["rows"]
+    assert ac["jump"] == "auto" and ac["loops"][0]["lanes"] == 256 and ac["loops"][0]["operations"] > 10
+    assert "memory jumps follow the success memory" in failure_only["error"]  # no jumps without it
