@@ -318,7 +318,7 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
             return advance_chances(env, cfg, run, w, h, interpret=interpret)
     else:
         def advance(run: _FlatCarry, w, h) -> _FlatCarry:  # C chances of every lane, XLA ops
-            return _packed_counters_loop(env.n_chances, lambda x: slot(x, w, h), run)
+            return jax.lax.fori_loop(0, env.n_chances, lambda _, x: slot(x, w, h), run)
     policies = jax.vmap(lambda a: greedy_policy(cfg.agent, a))
     finite = jax.vmap(tables_finite)
 
@@ -403,31 +403,6 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
 #: least `TAIL_MIN_LANES` (accelerators' wide lane counts; BENCHMARKS.md, "Tabular tasks").
 TAIL_SHRINK = 16
 TAIL_MIN_LANES = 2048
-
-
-def _packed_counters_loop(n: int, body, run):
-    """`body` applied `n` times to `run`, the lanes' int32 vectors carried as one [lanes, K] array.
-
-    XLA copies a loop-carried vector whose old values are still read after its new ones are
-    computed, one operation per vector and chance; carried as the columns of one array they
-    cost one copy (BENCHMARKS.md, *What a CPU chance costs*)."""
-    leaves, tree = jax.tree.flatten(run)
-    packed = [i for i, x in enumerate(leaves) if x.dtype == jnp.int32 and x.ndim == 1]
-    if len(packed) < 2:
-        return jax.lax.fori_loop(0, n, lambda _, x: body(x), run)
-
-    def split(run):
-        leaves = jax.tree.leaves(run)
-        return jnp.stack([leaves[i] for i in packed], 0), [x for i, x in enumerate(leaves) if i not in packed]
-
-    def join(ints, others):
-        others, leaves = iter(others), []
-        for i in range(len(packed) + len(others_len)):
-            leaves.append(ints[packed.index(i)] if i in packed else next(others))
-        return jax.tree.unflatten(tree, leaves)
-
-    others_len = [i for i in range(len(leaves)) if i not in packed]
-    return join(*jax.lax.fori_loop(0, n, lambda _, c: split(body(join(*c))), split(run)))
 
 
 def _read(values) -> jax.Array:
