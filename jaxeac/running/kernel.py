@@ -109,6 +109,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         plgpu.store(ref, value, mask=mask)
 
     words = (w0_ref[lane], w1_ref[lane])
+    alpha, beta, gamma, temperature = alpha_ref[lane], beta_ref[lane], gamma_ref[lane], temp_ref[lane]
     rows, log, rtilde = state["rows"], state["log"], state["rtilde"]
     packed = mem.PackedMemory(words=None, n_actions=n_actions) if agent.uses_memory else None
 
@@ -117,8 +118,6 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
     def chance(_, carry):
         position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow = carry
         live = trial_now < n_trials
-        # read each chance (cached): held across the loop they would take four registers
-        alpha, beta, gamma, temperature = alpha_ref[lane], beta_ref[lane], gamma_ref[lane], temp_ref[lane]
         trial = jnp.minimum(trial_now, n_trials - 1)
         u = action_uniform(words, trial, c, n_chances)
         s = position
