@@ -2,7 +2,7 @@
 
 XLA:CPU runs a while loop's body as a sequence of thunks (mostly fused kernels), each
 dispatched on its own; over 256 lanes a thunk's work is small, so their number sets much of
-a chance's cost (BENCHMARKS.md, *EAC at the hardware's limit*). For each algorithm this runs
+a chance's cost (BENCHMARKS.md, *What a CPU chance costs*). For each algorithm this runs
 the paper preset once at a small size with XLA's HLO dump on (``--xla_dump_to``), takes the
 compiled program's lane loop (the while loop whose state holds the [lanes, S, A] table; with
 a queue there are two: the block's chance loop, and the loop over blocks), and counts the
@@ -45,7 +45,7 @@ def loop_bodies(hlo: str) -> list[dict]:
         r"^(%[\w.\-]+|ENTRY [%\w.\-]+) \(.*?\) -> .*? \{\n(.*?)\n\}", hlo, re.S | re.M)}
     out = []
     for m in re.finditer(r"%while[\w.]* = \((.*?)\) while\(.*?body=(%[\w.\-]+)", hlo):
-        lanes = re.search(r"\[(\d+),121,\d\]", m.group(1))
+        lanes = re.search(r"\[(\d+),121,\d\]", m.group(1))  # the paper grid's 121 states
         if lanes is None:
             continue
         ops: collections.Counter = collections.Counter()

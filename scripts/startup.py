@@ -1,6 +1,7 @@
 """How long a `jaxeac grid` command takes to start: JAX imported, the command's modules imported,
 the devices ready, with the devices started after the imports (as `jaxeac` does) or on a
-thread beside them (a way tried and not taken: BENCHMARKS.md, *Starting the devices*).
+thread beside them (a way tried and not taken: BENCHMARKS.md, *starting the devices beside the
+imports*).
 
     python scripts/startup.py --repeats 4 --out startup.json
 
