@@ -346,11 +346,12 @@ def memory_diagnostics(run: GridRun, max_seeds: int | None = None, diagnosed: tu
     shortest = min(len(r.seeds) for r in run.results.values())
     n = _diagnosed_count(run.settings, shortest) if max_seeds is None else min(max_seeds, shortest)
     counts, seconds = (dict(diagnosed[0]), diagnosed[1]) if diagnosed else ({}, 0.0)
+    n_chances = run.settings.make_env().n_chances
     for algo, r in run.results.items():
         if algo in counts or _keeps_memories(run.settings, algo):
             continue
         if (logs := r.logs_of_first(n)) is not None:
-            counts[algo] = diagnostics_from_logs(logs, run.settings.make_env().n_chances)
+            counts[algo] = diagnostics_from_logs(logs, n_chances)
     rest = {a: r.seeds[:n] for a, r in run.results.items() if a not in counts}
     if rest:
         more, more_seconds = diagnose_grid(run.settings, run.grid_map, rest)

@@ -30,11 +30,12 @@ from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import seed_key
 from jaxeac.running.config import RunConfig
 from jaxeac.running.loops import Env, state_bytes_per_seed, trace_run
+from jaxeac.running.outputs import KEEP_LOGS
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
 #: at most DIAGNOSTIC_SEEDS, and at most DIAGNOSTIC_STEPS chance evaluations (T × C a seed in the
 #: trials loop, which takes every chance) but never fewer than MIN_DIAGNOSTIC_SEEDS.
-DIAGNOSTIC_SEEDS = 1000
+DIAGNOSTIC_SEEDS = KEEP_LOGS  # as many as a compact run keeps the trial logs of (`diagnostics_from_logs`)
 DIAGNOSTIC_STEPS = 10_000_000
 MIN_DIAGNOSTIC_SEEDS = 100
 

@@ -294,8 +294,8 @@ def measures_of(success: np.ndarray, steps: np.ndarray, finite=None) -> dict:
 
 KEEP_POLICIES = 16  # policies of the first seeds a compact run keeps, for figures
 #: Trial logs of the first seeds a compact run keeps: E8's counts of an algorithm without memories
-#: follow from them (`jaxeac.running.diagnostics.routes_from_logs`); as many as E8 diagnoses at most
-#: (`jaxeac.running.diagnostics.DIAGNOSTIC_SEEDS`; 0.4 MB at T = 200).
+#: follow from them (`jaxeac.running.diagnostics.diagnostics_from_logs`), and E8 diagnoses at most
+#: this many seeds (`jaxeac.running.diagnostics.DIAGNOSTIC_SEEDS`; 0.4 MB at T = 200).
 KEEP_LOGS = 1000
 
 
