@@ -121,16 +121,6 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         trial = jnp.minimum(trial_now, n_trials - 1)
         u = action_uniform(words, trial, c, n_chances)
         s = position
-        # The loads whose addresses are known at the chance's start are issued first, so that their
-        # latency overlaps the row's: issued where they were used, each was a wait of its own
-        # (BENCHMARKS.md, "Where the kernel's warps wait, instruction by instruction").
-        if jumps:  # the visit word at s (its log entry is read only where it names a trial)
-            visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
-        if agent.failure_memory:  # E6's compared r̃ and, past a jump, trial t−1's memory word on its path
-            before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
-            if jumps and shadow is not None:
-                on_path = c >= anchor
-                path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
         prefs = [rows[lane, s, a] for a in range(n_actions)]
         value = rows[lane, s, n_actions]
         logits = [p / temperature for p in prefs]
@@ -142,7 +132,8 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         active, jump = live, None
         if jumps:  # a known path length from s: the trial ends here without a step
             # The log is read only where the visit word names a trial (a masked load: memory
-            # traffic bounds this kernel).
+            # traffic bounds this kernel); the visit word is read beside the memory word.
+            visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
             visit_trial, visit_chance = visit_fields(visit, n_chances)
             known = (remembered >= 0) & (visit_trial >= 0)
             walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
@@ -176,7 +167,10 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         shaped = shaped_reward(dist_ref[s_next], bumped, goal_known == 1)
         flag = None
         if agent.failure_memory:  # E6
+            before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
             if jumps and shadow is not None:  # trial t−1's r̃ past its jump, along its path
+                on_path = c >= anchor
+                path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
                 path_action = packed.unpack(path_word).pending  # `path_action`
                 path_next, path_bumped = decode_move(moves_ref[shadow * n_actions + jnp.maximum(path_action, 0)])
                 before = jnp.where(on_path, shaped_reward(dist_ref[path_next], path_bumped, True), before)
