@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -153,8 +155,6 @@ def test_bench_bowling_standalone_warp_without_warp_is_refused(tmp_path):
     import importlib.util
 
     if importlib.util.find_spec("warp") is not None:
-        import pytest
-
         pytest.skip("warp-lang is installed here")
     out = tmp_path / "b.json"
     proc = _script("scripts/bench_bowling.py", "--backends", "mujoco_warp", "--out", str(out))
@@ -194,3 +194,87 @@ def test_cpu_loop_ops_counts_the_chance_loops_operations(tmp_path):
     ac, failure_only = json.loads(out.read_text())["rows"]
     assert ac["jump"] == "auto" and ac["loops"][0]["lanes"] == 256 and ac["loops"][0]["operations"] > 10
     assert "memory jumps follow the success memory" in failure_only["error"]  # no jumps without it
+
+
+def _sass_csv(path: Path) -> None:
+    """A toy ncu source page: two loads, a use of each, and a predicated select that keeps a loaded value."""
+    head = ["Address", "Source", "Warp Stall Sampling (All Samples)", "Instructions Executed", "stall_long_sb",
+            "stall_wait"]
+    rows = [
+        ["0x00", "LDG.E R5, desc[UR6][R2.64]", "0", "40", "0", "0"],
+        ["0x10", "LDG.E R8, desc[UR6][R2.64+0x10]", "0", "40", "0", "0"],
+        ["0x20", "IMAD R7, R1, 0x4, R3", "2", "40", "0", "2"],
+        ["0x30", "FMUL R6, R5, 0.25", "60", "40", "50", "10"],
+        ["0x40", "@P2   FSEL R8, R7, -1, !P5", "38", "40", "30", "8"],
+        ["0x50", "STG.E desc[UR6][R2.64], R6", "0", "40", "0", "0"],
+    ]
+    path.write_text('"Kernel Name","_chance_kernel"\n' + "\n".join(",".join(f'"{x}"' for x in r)
+                                                                 for r in [head, *rows]) + "\n")
+
+
+def test_profile_kernel_summarizes_where_warps_wait(tmp_path):
+    _sass_csv(tmp_path / "k.csv")
+    out = tmp_path / "sass.json"
+    proc = _script("scripts/profile_kernel.py", "--sass", str(tmp_path / "k.csv"), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (s,) = json.loads(out.read_text())["summaries"]
+    assert s["samples"] == 100 and s["instructions"] == 6 and s["global_stores"] == 1
+    assert s["stall_reasons"] == {"long_sb": 0.8, "wait": 0.2}
+    assert [x["index"] for x in s["global_loads"]] == [0, 1]
+    fmul, fsel = s["top_waits"]  # the IMAD has no long-scoreboard samples
+    assert (fmul["long_scoreboard_share"], fmul["waits_for"]["index"]) == (0.5, 0)
+    # predicated: R8 keeps its loaded value where P2 is off, so the select waits for that load
+    assert (fsel["long_scoreboard_share"], fsel["waits_for"]["index"]) == (0.3, 1)
+    assert "FMUL R6, R5, 0.25" in proc.stdout and "waits for [0] LDG.E R5" in proc.stdout
+
+
+def _profile_cpu():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("profile_cpu", ROOT / "scripts" / "profile_cpu.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_profile_cpu_sorts_samples_by_what_they_landed_in():
+    m = _profile_cpu()
+    report = """# Samples: 1K of event 'cpu-clock'
+#
+    40.00%  [JIT] tid 31002                                    [.] 0x00007f04b535a074
+    25.00%  libjax_common.so                                   [.] xla::cpu::ThunkExecutor::Execute<xla::cpu::X>
+    10.00%  libc.so.6                                          [.] _int_malloc
+     5.00%  libc.so.6                                          [.] qsort
+     8.00%  [kernel.kallsyms]                                  [k] clear_page_erms
+     7.00%  libm.so.6                                          [.] __expf_fma
+     5.00%  libpython3.11.so.1.0                               [.] _PyEval_EvalFrameDefault
+"""
+    rows = m.parse_report(report)
+    assert rows[0] == (40.0, "[JIT]", "0x00007f04b535a074")
+    assert rows[1][2].startswith("xla::cpu::ThunkExecutor::Execute")
+    s = m.summarize(rows, top=2)
+    assert s["shares"] == {"compiled": 0.47, "runtime": 0.25, "memory": 0.1, "kernel": 0.08, "python": 0.05,
+                           "other": 0.05}
+    assert [t["object"] for t in s["top"]] == ["[JIT]", "libjax_common.so"]
+    assert m.category("c_peer_abc.so", "run") == "compiled" and m.category("libgomp.so.1", "x") == "runtime"
+
+
+def _perf_works() -> bool:
+    import shutil
+
+    if shutil.which("perf") is None:
+        return False
+    probe = subprocess.run(["perf", "stat", "-e", "cpu-clock", "true"], capture_output=True, text=True)
+    return probe.returncode == 0
+
+
+def test_profile_cpu_samples_a_run(tmp_path):
+    if not _perf_works():
+        pytest.skip("perf is not installed or may not sample this process here")
+    out = tmp_path / "profile.json"
+    proc = _script("scripts/profile_cpu.py", "--algos", "ac", "--peers", "--seeds", "256", "--repeats", "1",
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (row,) = json.loads(out.read_text())["rows"]
+    assert row["impl"] == "jaxeac" and row["agent_steps"] > 0
+    assert abs(sum(row["shares"].values()) - 1) < 1e-3 and row["shares"]["compiled"] > 0
