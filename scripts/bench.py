@@ -248,12 +248,13 @@ def _render_scale(path: Path, rec: dict) -> list[str]:
 
 
 def _render_kernel_check(path: Path, rec: dict) -> list[str]:
+    env = any("env" in r for r in rec["rows"])  # --envs: a column naming each row's task
     out = [*_devices_heading(path, rec),
-           "| algo | seeds | trials | seeds with identical successes and steps | "
+           "| " + ("env | " if env else "") + "algo | seeds | trials | seeds with identical successes and steps | "
            "seeds with identical policy | mean successes | XLA run s | kernel run s |",
-           "|---|---|---|---|---|---|---|---|"]
+           "|---" * (9 if env else 8) + "|"]
     for r in rec["rows"]:
-        out.append(f"| {r['algo']} | {r['seeds']:,} | {r['trials']} | "
+        out.append(("| " + r.get("env", "") + " " if env else "") + f"| {r['algo']} | {r['seeds']:,} | {r['trials']} | "
                    f"{r['seeds_identical_success_and_steps']:,} | {r['seeds_identical_policy']:,} | "
                    f"{r['mean_successes']:.2f} | {r['xla_run_s']:.2f} | {r['kernel_run_s']:.2f} |")
     return out + [""]

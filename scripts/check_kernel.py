@@ -1,12 +1,14 @@
 """Per-seed check of the fused GPU kernel against XLA ops: the same run, seed by seed.
 
-For every algorithm the kernel supports, N seeds × T trials of the paper preset run
-once with ``kernel="xla"`` and once with ``kernel="pallas"`` (same seeds, all local
+For every algorithm the kernel supports, N seeds × T trials of the paper preset (or of
+each registered task named by ``--envs``) run once with ``kernel="xla"`` and once with
+``kernel="pallas"`` (same seeds, all local
 devices), and the per-seed records are compared: successes and steps per trial must be
 identical for every seed; greedy policies are counted as identical or not (an argmax
 tie may round apart, see tests/test_kernel.py). Exit status 1 if any seed differs.
 
     python scripts/check_kernel.py --seeds 20000 --out kernel_check.json
+    python scripts/check_kernel.py --envs FourRooms-v0 CliffWalking-v1 --seeds 20000
 
 Off GPUs the kernel runs in Pallas's interpreter: use a few hundred seeds there.
 """
@@ -30,6 +32,8 @@ def main() -> int:
     p.add_argument("--seeds", type=int, default=20_000)
     p.add_argument("--trials", type=int, default=200)
     p.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
+    p.add_argument("--envs", nargs="+", metavar="NAME",
+                   help="registered deterministic tasks (jaxeac.registered()); default: the paper preset")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     args = p.parse_args()
     if args.seeds < 1 or args.trials < 1:
@@ -39,14 +43,15 @@ def main() -> int:
     from bench import command_line, environment
 
     from jaxeac.algorithm.config import algorithm
+    from jaxeac.envs import make
     from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.running.batch import run_seeds
     from jaxeac.running.config import RunConfig
 
-    env = GridWorld(get_map("paper"), 40)
+    envs = {name: make(name) for name in args.envs} if args.envs else {"paper": GridWorld(get_map("paper"), 40)}
     record = {"environment": environment(), "command": command_line(), "rows": []}
     all_equal = True
-    for algo in args.algos:
+    for (name, env), algo in [(e, a) for e in envs.items() for a in args.algos]:
         runs = {kernel: run_seeds(env, RunConfig(trials=args.trials, agent=algorithm(algo, tables="rows"),
                                                  kernel=kernel),
                                   root_key=0, n_seeds=args.seeds, chunk_size=args.seeds)
@@ -54,7 +59,7 @@ def main() -> int:
         xla, fused = runs["xla"], runs["pallas"]
         same_run = (xla.success == fused.success).all(axis=1) & (xla.steps == fused.steps).all(axis=1)
         row = {
-            "algo": algo, "seeds": args.seeds, "trials": args.trials,
+            **({"env": name} if args.envs else {}), "algo": algo, "seeds": args.seeds, "trials": args.trials,
             "seeds_identical_success_and_steps": int(same_run.sum()),
             "seeds_identical_policy": int((xla.policy == fused.policy).all(axis=1).sum()),
             "mean_successes": float(fused.successes.mean()),

@@ -15,7 +15,9 @@ import optax
 import pytest
 
 from jaxeac.algorithm.config import algorithm
+from jaxeac.envs import make
 from jaxeac.envs.grid import GridWorld, get_map
+from jaxeac.envs.tabular import TabularEnv
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
 from jaxeac.running.batch import run_seeds
@@ -27,34 +29,64 @@ ENV = GridWorld(get_map("paper"), 40)
 ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only"]
 
 
-def _lanes(cfg, n, trials_done=0):
+def _lanes(cfg, n, trials_done=0, env=ENV):
     words = jax.vmap(lambda i: seed_words(seed_key(jax.random.key(7), i)))(jnp.arange(n))
-    run = jax.vmap(lambda w: flat_init(ENV, cfg, w))(words)
+    run = jax.vmap(lambda w: flat_init(env, cfg, w))(words)
     hyper = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), cfg.hyper())
     return run, words, hyper
 
 
-@pytest.mark.parametrize("algo", ALGOS)
-def test_kernel_block_equals_c_xla_slots(algo):
-    """Three blocks of C chances from fresh lanes: every integer field equal, tables to float rounding.
+def _task(name: str, chances: int | None = None, rtilde: str = "shaped") -> TabularEnv:
+    """A registered deterministic task's tables, with fewer chances to keep interpreted runs short."""
+    return TabularEnv(make(name).task, chances, rtilde)
+
+
+#: Deterministic tabular tasks (X1), run by the kernel from their tables: terminal states that are
+#: not successes (FrozenLake's holes), rewards of their own (CliffWalking's −100), and r̃ as the reward.
+TASKS = {
+    "frozenlake": _task("FrozenLake-4x4-v1"),
+    "cliffwalking": _task("CliffWalking-v1", 40),
+    "fourrooms": _task("FourRooms-v0", 60),
+    "windy_reward": _task("WindyGridworld-v0", 40, rtilde="reward"),
+}
+
+
+def _block_equals_xla_slots(env, algo, blocks=3, rtol=1e-6, atol=1e-7):
+    """`blocks` blocks of C chances from fresh lanes: every integer field equal, tables to float rounding.
     With a success memory both paths jump (`flat_slot`), the jumps' own records included."""
-    cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"), kernel="xla").resolve(ENV)
+    cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"), kernel="xla").resolve(env)
     assert (cfg.jump == "on") == (algo in ("eac", "eac_within_trial", "eac_success_only"))
-    run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM)
-    slot = jax.vmap(lambda c, w, h: flat_slot(ENV, cfg, c, w, h))
-    xla = jax.jit(lambda r: jax.lax.fori_loop(0, 3 * ENV.n_chances, lambda _, x: slot(x, words, hyper), r))
+    run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM, env=env)
+    slot = jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h))
+    xla = jax.jit(lambda r: jax.lax.fori_loop(0, blocks * env.n_chances, lambda _, x: slot(x, words, hyper), r))
     kernel = jax.jit(lambda r: jax.lax.fori_loop(
-        0, 3, lambda _, x: advance_chances(ENV, cfg, x, words, hyper, interpret=True), r))
+        0, blocks, lambda _, x: advance_chances(env, cfg, x, words, hyper, interpret=True), r))
     want, got = xla(run), kernel(run)
     assert int(want.agent.trial.min()) >= 1  # trials ended and restarted inside the blocks
     for (path, a), b in zip(jax.tree_util.tree_flatten_with_path(got)[0], jax.tree.leaves(want), strict=True):
         if jax.tree_util.keystr(path) == ".jumps.shadow.chance":
             continue  # E6's walk along the previous trial's path uses its cell only; the kernel keeps that
         if jnp.issubdtype(a.dtype, jnp.floating):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-7,
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=rtol, atol=atol,
                                        err_msg=jax.tree_util.keystr(path))
         else:
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+    return want
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_kernel_block_equals_c_xla_slots(algo):
+    _block_equals_xla_slots(ENV, algo)
+
+
+@pytest.mark.parametrize("task", list(TASKS))
+@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
+def test_kernel_block_equals_xla_slots_on_tabular_tasks(task, algo):
+    """The kernel reads a tabular task's move, reward, ends and r̃ from its tables as `TabularEnv` does."""
+    # Rounding apart in the last bit (module docstring) grows with rewards like CliffWalking's −100
+    # over 160 chances; the integer fields (actions, memories, trial log) must still match exactly.
+    want = _block_equals_xla_slots(TASKS[task], algo, blocks=4, rtol=1e-4, atol=1e-5)
+    assert int(want.agent.log.astype(bool).sum()) > LANES_PER_PROGRAM  # trials ended inside the blocks
 
 
 @pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
@@ -69,9 +101,24 @@ def test_kernel_runs_equal_xla_runs(algo, lanes):
     assert (runs[0].policy == runs[1].policy).all(axis=1).mean() > 0.9  # argmax ties may round apart
 
 
+@pytest.mark.parametrize("algo", ["ac", "eac"])
+def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo):
+    """A whole run of a tabular task fed from a queue (128 lanes): the same per-seed results."""
+    env = TASKS["frozenlake"]
+    runs = [run_seeds(env, RunConfig(trials=25, agent=algorithm(algo, tables="rows"), kernel=k, lanes=128),
+                      root_key=5, n_seeds=300, chunk_size=300) for k in ("xla", "pallas")]
+    np.testing.assert_array_equal(runs[0].success, runs[1].success)
+    np.testing.assert_array_equal(runs[0].steps, runs[1].steps)
+    assert runs[0].success.any() and not runs[0].success.all()  # holes end trials as failures
+
+
 def test_kernel_choice_and_errors():
     eac = RunConfig(trials=10, agent=algorithm("eac", tables="rows"))
     assert resolved_kernel(ENV, eac, "gpu") == "pallas" and resolved_kernel(ENV, eac, "cpu") == "xla"
+    assert resolved_kernel(make("FourRooms-v0"), eac, "gpu") == "pallas"
+    stochastic = make("FourRooms-stochastic-v0")
+    assert resolved_kernel(stochastic, eac, "gpu") == "xla"
+    assert "deterministic tasks" in kernel_unsupported(stochastic, eac.resolve(stochastic))
     split = RunConfig(trials=10, agent=algorithm("eac", tables="split"))
     assert resolved_kernel(ENV, split, "gpu") == "xla"  # auto falls back where the kernel cannot run
     assert "rows table layout" in kernel_unsupported(ENV, split)

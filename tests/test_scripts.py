@@ -88,6 +88,17 @@ def test_check_kernel_compares_every_seed_and_renders(tmp_path):
     assert bad.returncode == 2 and "--seeds and --trials must be ≥ 1" in bad.stderr
 
 
+def test_check_kernel_runs_registered_tasks(tmp_path):
+    out = tmp_path / "check.json"
+    proc = _script("scripts/check_kernel.py", "--envs", "CliffWalking-v1", "--seeds", "40", "--trials", "6",
+                   "--algos", "ac", "eac", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rec = json.loads(out.read_text())
+    assert [(r["env"], r["algo"], r["seeds_identical_success_and_steps"]) for r in rec["rows"]] == [
+        ("CliffWalking-v1", "ac", 40), ("CliffWalking-v1", "eac", 40)]
+    assert "| CliffWalking-v1 | eac | 40 | 6 | 40 |" in _script("scripts/bench.py", "--render", str(out)).stdout
+
+
 def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
     out = tmp_path / "tasks.json"
     proc = _script("scripts/bench_tasks.py", "--seeds", "20", "--tasks", "FrozenLake-4x4-v1",

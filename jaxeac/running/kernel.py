@@ -20,9 +20,10 @@ that it matches the XLA loop bit for bit on the CPU (Pallas's interpreter runs t
 kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
 
-Supported: the grid world, rows tables, the packed dense memory or none (AC), both
-E6 rules, the E2 variant, constant step sizes. Anything else runs the XLA loop
-(`kernel_unsupported` says why).
+Supported: the grid world and every deterministic tabular task (`TabularEnv`: the move,
+reward and end flags read from its tables, `_Tables`), rows tables, the packed dense memory
+or none (AC), both E6 rules, the E2 variant, constant step sizes. Anything else runs the XLA
+loop (`kernel_unsupported` says why).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
@@ -33,6 +34,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxeac.algorithm import memory as mem
 from jaxeac.algorithm.agent import (
@@ -46,6 +48,7 @@ from jaxeac.algorithm.agent import (
 )
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.grid import GridWorld, decode_move, move_reward, shaped_reward
+from jaxeac.envs.tabular import TabularEnv
 from jaxeac.rng import action_uniform, start_index
 from jaxeac.running.loops import visit_fields, visit_word
 
@@ -55,8 +58,10 @@ LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower 
 def kernel_unsupported(env: Any, cfg: Any) -> str | None:
     """Why the fused kernel cannot run this env and (table-resolved) config (None: it can)."""
     agent = cfg.agent
-    if not isinstance(env, GridWorld):
-        return "the fused kernel runs the grid world only"
+    if not isinstance(env, GridWorld | TabularEnv):
+        return "the fused kernel runs the grid world and the tabular tasks only"
+    if not env.deterministic:
+        return "the fused kernel runs deterministic tasks (a stochastic move runs as XLA ops)"
     if agent.learner != "actor_critic":
         return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
     if agent.tables != "rows":
@@ -67,6 +72,55 @@ def kernel_unsupported(env: Any, cfg: Any) -> str | None:
     if callable(cfg.alpha) or callable(cfg.beta):
         return "the fused kernel needs constant step sizes (not schedules)"
     return None
+
+
+class _Tables:
+    """The environment's part of a chance: its tables (kernel inputs, `arrays`) and the move,
+    r̃ and start read from them, as `GridWorld` / `TabularEnv` compute them (G3–G5, E3, E5, X1, X2).
+
+    Both encode a move (s, a) as one word, 2·s' + bumped (`decode_move`). The grid world's
+    reward and end follow from s' (`move_reward`: its goal is the one terminal state); a
+    tabular task's come from its reward table and per-state end flags (terminal | success << 1).
+    """
+
+    def __init__(self, env):
+        self.grid = isinstance(env, GridWorld)
+        self.n_actions, self.n_chances, self.n_starts = env.n_actions, env.n_chances, env.n_starts
+        if self.grid:
+            self.goal = env.map.goal_index
+            self.shaped = True
+            self.arrays = (np.asarray(env._moves, np.int32), np.asarray(env.goal_distance, np.float32),
+                           np.asarray(env._start_cells, np.int32))
+        else:  # deterministic: outcome 0 of every move
+            self.shaped = env.goal_distance is not None
+            moves = 2 * env._next[:, 0].astype(np.int64) + env._bumped[:, 0]
+            ends = env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1)
+            distance = env.goal_distance if self.shaped else np.zeros(env.n_states)
+            self.arrays = (moves.astype(np.int32), np.asarray(env._reward[:, 0], np.float32), ends,
+                           np.asarray(distance, np.float32), np.asarray(env._starts, np.int32))
+
+    def bind(self, refs) -> None:
+        """The kernel's refs of `arrays`, in order."""
+        self.refs = refs
+
+    def move(self, s, action):
+        """(s', reward, terminated, success, bumped) of action `action` at s (`env.move`)."""
+        s_next, bumped = decode_move(self.refs[0][s * self.n_actions + action])
+        if self.grid:
+            terminated = s_next == self.goal
+            return s_next, move_reward(bumped, terminated), terminated, terminated, bumped
+        ends = self.refs[2][s_next]
+        return s_next, self.refs[1][s * self.n_actions + action], (ends & 1) == 1, (ends & 2) == 2, bumped
+
+    def rtilde(self, s_next, bumped, goal_known, reward):
+        """E5/X2's r̃ at s' (`env.rtilde`): shaped by the distance to the goal, or the reward."""
+        if not self.shaped:
+            return reward
+        return shaped_reward(self.refs[1 if self.grid else 3][s_next], bumped, goal_known)
+
+    def start(self, words, trial):
+        """G3: the start cell of trial `trial` (`env.start`)."""
+        return self.refs[-1][start_index(words, trial, self.n_chances, self.n_starts)]
 
 
 def _sample(logits: list, allowed: list, u):
@@ -100,8 +154,10 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
 
     agent = cfg.agent
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
-    n_in = 9
-    (w0_ref, w1_ref, alpha_ref, beta_ref, gamma_ref, temp_ref, moves_ref, dist_ref, starts_ref) = refs[:n_in]
+    tables = _Tables(env)
+    n_in = 6 + len(tables.arrays)
+    (w0_ref, w1_ref, alpha_ref, beta_ref, gamma_ref, temp_ref) = refs[:6]
+    tables.bind(refs[6:n_in])
     state = dict(zip(names, refs[n_in + len(names):], strict=True))  # the outputs, aliased to the inputs
     lane = pl.program_id(0) * LANES_PER_PROGRAM + jnp.arange(LANES_PER_PROGRAM)
 
@@ -149,9 +205,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
         learn = learns(agent, from_memory, active)
 
-        s_next, bumped = decode_move(moves_ref[s * n_actions + action])  # G4/G5 (`GridWorld.step`)
-        terminated = s_next == env.map.goal_index
-        reward = move_reward(bumped, terminated)
+        s_next, reward, terminated, reached, bumped = tables.move(s, action)  # G4/G5, E3 (`env.move`)
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
 
         # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
@@ -163,8 +217,8 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         put(rows.at[lane, s, n_actions], value + critic)
 
         # E5 and the records of `record_step`
-        goal_known = goal_known | (active & terminated).astype(jnp.int32)
-        shaped = shaped_reward(dist_ref[s_next], bumped, goal_known == 1)
+        goal_known = goal_known | (active & reached).astype(jnp.int32)
+        shaped = tables.rtilde(s_next, bumped, goal_known == 1, reward)
         flag = None
         if agent.failure_memory:  # E6
             before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
@@ -172,8 +226,8 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
                 on_path = c >= anchor
                 path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
                 path_action = packed.unpack(path_word).pending  # `path_action`
-                path_next, path_bumped = decode_move(moves_ref[shadow * n_actions + jnp.maximum(path_action, 0)])
-                before = jnp.where(on_path, shaped_reward(dist_ref[path_next], path_bumped, True), before)
+                path_next, path_reward, _, _, path_bumped = tables.move(shadow, jnp.maximum(path_action, 0))
+                before = jnp.where(on_path, tables.rtilde(path_next, path_bumped, True, path_reward), before)
                 shadow = jnp.where(jump, s, jnp.where(on_path, path_next, shadow))
             flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
             put(rtilde.at[lane, jnp.minimum(c, n_chances - 1)], shaped, active)
@@ -183,12 +237,12 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
                 action if agent.success_memory else jnp.full_like(action, -1),
                 0 if flag is None else jnp.where(flag, 1 << action, 0))
             put(state["memory"].at[lane, s], packed.pack(new), active)
-        success = terminated
+        success = reached
         ends = active & (terminated | truncated)
         if jumps:
             put(state["visits"].at[lane, s], visit_word(trial_now, c, n_chances), active & (remembered >= 0))
             remaining = n_chances - c
-            success = jnp.where(jump, to_goal <= remaining, terminated)
+            success = jnp.where(jump, to_goal <= remaining, reached)
             ends = ends | jump
             anchor = jnp.where(ends, jnp.where(jump, c, n_chances), anchor)
             c = jnp.where(jump, c + jnp.minimum(to_goal, remaining), c)
@@ -200,7 +254,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
         nxt = jnp.minimum(trial_now, n_trials - 1)
-        start = starts_ref[start_index(words, nxt, n_chances, env.n_starts)]
+        start = tables.start(words, nxt)
         position = jnp.where(ends, start, jnp.where(active, s_next, position))
         env_chance = jnp.where(ends, 0, jnp.where(active, env_chance + 1, env_chance))
         return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow
@@ -245,7 +299,7 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
         words[:, 0], words[:, 1],
         *(jnp.broadcast_to(jnp.asarray(x, f32), (n_lanes,))
           for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature)),
-        jnp.asarray(env._moves), jnp.asarray(env.goal_distance, f32), jnp.asarray(env._start_cells),
+        *(jnp.asarray(x) for x in _Tables(env).arrays),
     )
     n_in = len(consts)
     out = pl.pallas_call(
