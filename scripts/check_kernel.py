@@ -33,7 +33,7 @@ def main() -> int:
     p.add_argument("--trials", type=int, default=200)
     p.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     p.add_argument("--envs", nargs="+", metavar="NAME",
-                   help="registered deterministic tasks (jaxeac.registered()); default: the paper preset")
+                   help="registered tasks (jaxeac.registered()); default: the paper preset")
     p.add_argument("--out", type=Path, help="write the JSON record here")
     args = p.parse_args()
     if args.seeds < 1 or args.trials < 1:

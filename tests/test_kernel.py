@@ -17,7 +17,7 @@ import pytest
 from jaxeac.algorithm.config import algorithm
 from jaxeac.envs import make
 from jaxeac.envs.grid import GridWorld, get_map
-from jaxeac.envs.tabular import TabularEnv
+from jaxeac.envs.tabular import TabularEnv, grid_world
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
 from jaxeac.running.batch import run_seeds
@@ -41,13 +41,18 @@ def _task(name: str, chances: int | None = None, rtilde: str = "shaped") -> Tabu
     return TabularEnv(make(name).task, chances, rtilde)
 
 
-#: Deterministic tabular tasks (X1), run by the kernel from their tables: terminal states that are
-#: not successes (FrozenLake's holes), rewards of their own (CliffWalking's −100), and r̃ as the reward.
+#: Tabular tasks (X1), run by the kernel from their tables: terminal states that are not successes
+#: (FrozenLake's holes), rewards of their own (CliffWalking's −100), r̃ as the reward, and outcomes
+#: drawn from the transition stream (slippery FrozenLake: 3, stochastic Four Rooms: 4, the slipping
+#: paper grid: A + 1).
 TASKS = {
     "frozenlake": _task("FrozenLake-4x4-v1"),
     "cliffwalking": _task("CliffWalking-v1", 40),
     "fourrooms": _task("FourRooms-v0", 60),
     "windy_reward": _task("WindyGridworld-v0", 40, rtilde="reward"),
+    "frozenlake_slippery": _task("FrozenLake-4x4-slippery-v1"),
+    "fourrooms_stochastic": _task("FourRooms-stochastic-v0", 60),
+    "paper_slip": grid_world(get_map("paper"), 40, slip=0.2),
 }
 
 
@@ -55,7 +60,8 @@ def _block_equals_xla_slots(env, algo, blocks=3, rtol=1e-6, atol=1e-7):
     """`blocks` blocks of C chances from fresh lanes: every integer field equal, tables to float rounding.
     With a success memory both paths jump (`flat_slot`), the jumps' own records included."""
     cfg = RunConfig(trials=6, agent=algorithm(algo, tables="rows"), kernel="xla").resolve(env)
-    assert (cfg.jump == "on") == (algo in ("eac", "eac_within_trial", "eac_success_only"))
+    jumps = env.deterministic and algo in ("eac", "eac_within_trial", "eac_success_only")
+    assert (cfg.jump == "on") == jumps
     run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM, env=env)
     slot = jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h))
     xla = jax.jit(lambda r: jax.lax.fori_loop(0, blocks * env.n_chances, lambda _, x: slot(x, words, hyper), r))
@@ -82,7 +88,8 @@ def test_kernel_block_equals_c_xla_slots(algo):
 @pytest.mark.parametrize("task", list(TASKS))
 @pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
 def test_kernel_block_equals_xla_slots_on_tabular_tasks(task, algo):
-    """The kernel reads a tabular task's move, reward, ends and r̃ from its tables as `TabularEnv` does."""
+    """The kernel reads a tabular task's move, reward, ends and r̃ from its tables, and draws a
+    stochastic move's outcome, as `TabularEnv` does."""
     # Rounding apart in the last bit (module docstring) grows with rewards like CliffWalking's −100
     # over 160 chances; the integer fields (actions, memories, trial log) must still match exactly.
     want = _block_equals_xla_slots(TASKS[task], algo, blocks=4, rtol=1e-4, atol=1e-5)
@@ -101,10 +108,11 @@ def test_kernel_runs_equal_xla_runs(algo, lanes):
     assert (runs[0].policy == runs[1].policy).all(axis=1).mean() > 0.9  # argmax ties may round apart
 
 
+@pytest.mark.parametrize("task", ["frozenlake", "frozenlake_slippery"])
 @pytest.mark.parametrize("algo", ["ac", "eac"])
-def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo):
+def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo, task):
     """A whole run of a tabular task fed from a queue (128 lanes): the same per-seed results."""
-    env = TASKS["frozenlake"]
+    env = TASKS[task]
     runs = [run_seeds(env, RunConfig(trials=25, agent=algorithm(algo, tables="rows"), kernel=k, lanes=128),
                       root_key=5, n_seeds=300, chunk_size=300) for k in ("xla", "pallas")]
     np.testing.assert_array_equal(runs[0].success, runs[1].success)
@@ -115,10 +123,8 @@ def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo):
 def test_kernel_choice_and_errors():
     eac = RunConfig(trials=10, agent=algorithm("eac", tables="rows"))
     assert resolved_kernel(ENV, eac, "gpu") == "pallas" and resolved_kernel(ENV, eac, "cpu") == "xla"
-    assert resolved_kernel(make("FourRooms-v0"), eac, "gpu") == "pallas"
-    stochastic = make("FourRooms-stochastic-v0")
-    assert resolved_kernel(stochastic, eac, "gpu") == "xla"
-    assert "deterministic tasks" in kernel_unsupported(stochastic, eac.resolve(stochastic))
+    for task in ("FourRooms-v0", "FourRooms-stochastic-v0"):
+        assert resolved_kernel(make(task), eac, "gpu") == "pallas"
     split = RunConfig(trials=10, agent=algorithm("eac", tables="split"))
     assert resolved_kernel(ENV, split, "gpu") == "xla"  # auto falls back where the kernel cannot run
     assert "rows table layout" in kernel_unsupported(ENV, split)

@@ -20,8 +20,8 @@ that it matches the XLA loop bit for bit on the CPU (Pallas's interpreter runs t
 kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
 
-Supported: the grid world and every deterministic tabular task (`TabularEnv`: the move,
-reward and end flags read from its tables, `_Tables`), rows tables, the packed dense memory
+Supported: the grid world and every tabular task (`TabularEnv`: the move, reward, end
+flags and, in a stochastic task, the outcome's draw read from its tables, `_Tables`), rows tables, the packed dense memory
 or none (AC), both E6 rules, the E2 variant, constant step sizes. Anything else runs the XLA
 loop (`kernel_unsupported` says why).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
@@ -49,7 +49,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.grid import GridWorld, decode_move, move_reward, shaped_reward
 from jaxeac.envs.tabular import TabularEnv
-from jaxeac.rng import action_uniform, start_index
+from jaxeac.rng import action_uniform, start_index, transition_uniform
 from jaxeac.running.loops import visit_fields, visit_word
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
@@ -60,8 +60,6 @@ def kernel_unsupported(env: Any, cfg: Any) -> str | None:
     agent = cfg.agent
     if not isinstance(env, GridWorld | TabularEnv):
         return "the fused kernel runs the grid world and the tabular tasks only"
-    if not env.deterministic:
-        return "the fused kernel runs deterministic tasks (a stochastic move runs as XLA ops)"
     if agent.learner != "actor_critic":
         return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
     if agent.tables != "rows":
@@ -80,37 +78,49 @@ class _Tables:
 
     Both encode a move (s, a) as one word, 2·s' + bumped (`decode_move`). The grid world's
     reward and end follow from s' (`move_reward`: its goal is the one terminal state); a
-    tabular task's come from its reward table and per-state end flags (terminal | success << 1).
+    tabular task's come from its reward table and per-state end flags (terminal | success << 1),
+    and a stochastic task's outcome k of (s, a) is drawn as `TabularEnv.transition` draws it: the
+    number of its cumulative probabilities (all but the last) at most the transition uniform (X1).
     """
 
     def __init__(self, env):
         self.grid = isinstance(env, GridWorld)
         self.n_actions, self.n_chances, self.n_starts = env.n_actions, env.n_chances, env.n_starts
         if self.grid:
-            self.goal = env.map.goal_index
-            self.shaped = True
+            self.goal, self.shaped, self.outcomes = env.map.goal_index, True, 1
             self.arrays = (np.asarray(env._moves, np.int32), np.asarray(env.goal_distance, np.float32),
                            np.asarray(env._start_cells, np.int32))
-        else:  # deterministic: outcome 0 of every move
-            self.shaped = env.goal_distance is not None
-            moves = 2 * env._next[:, 0].astype(np.int64) + env._bumped[:, 0]
-            ends = env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1)
-            distance = env.goal_distance if self.shaped else np.zeros(env.n_states)
-            self.arrays = (moves.astype(np.int32), np.asarray(env._reward[:, 0], np.float32), ends,
-                           np.asarray(distance, np.float32), np.asarray(env._starts, np.int32))
+            return
+        self.shaped = env.goal_distance is not None
+        self.outcomes = env._next.shape[1]  # K: 1 for a deterministic task
+        moves = 2 * env._next.astype(np.int64) + env._bumped  # [S·A, K]
+        ends = env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1)
+        distance = env.goal_distance if self.shaped else np.zeros(env.n_states)
+        cumulative = (np.asarray(env._cumulative, np.float32).reshape(-1),) if self.outcomes > 1 else ()
+        self.arrays = (moves.reshape(-1).astype(np.int32), np.asarray(env._reward, np.float32).reshape(-1), ends,
+                       np.asarray(distance, np.float32), *cumulative, np.asarray(env._starts, np.int32))
 
     def bind(self, refs) -> None:
         """The kernel's refs of `arrays`, in order."""
         self.refs = refs
 
-    def move(self, s, action):
-        """(s', reward, terminated, success, bumped) of action `action` at s (`env.move`)."""
-        s_next, bumped = decode_move(self.refs[0][s * self.n_actions + action])
+    def move(self, s, action, words, trial, chance):
+        """(s', reward, terminated, success, bumped) of action `action` at s in chance `chance` of
+        trial `trial` (`env.move`)."""
+        row = s * self.n_actions + action
         if self.grid:
+            s_next, bumped = decode_move(self.refs[0][row])
             terminated = s_next == self.goal
             return s_next, move_reward(bumped, terminated), terminated, terminated, bumped
+        at = row
+        if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
+            u = transition_uniform(words, trial, chance, self.n_chances)
+            below = [(u >= self.refs[4][row * (self.outcomes - 1) + j]).astype(jnp.int32)
+                     for j in range(self.outcomes - 1)]
+            at = row * self.outcomes + functools.reduce(lambda a, b: a + b, below)
+        s_next, bumped = decode_move(self.refs[0][at])
         ends = self.refs[2][s_next]
-        return s_next, self.refs[1][s * self.n_actions + action], (ends & 1) == 1, (ends & 2) == 2, bumped
+        return s_next, self.refs[1][at], (ends & 1) == 1, (ends & 2) == 2, bumped
 
     def rtilde(self, s_next, bumped, goal_known, reward):
         """E5/X2's r̃ at s' (`env.rtilde`): shaped by the distance to the goal, or the reward."""
@@ -205,7 +215,7 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
         action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
         learn = learns(agent, from_memory, active)
 
-        s_next, reward, terminated, reached, bumped = tables.move(s, action)  # G4/G5, E3 (`env.move`)
+        s_next, reward, terminated, reached, bumped = tables.move(s, action, words, trial, c)  # G4/G5, E3, X1
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
 
         # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
@@ -226,7 +236,9 @@ def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
                 on_path = c >= anchor
                 path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
                 path_action = packed.unpack(path_word).pending  # `path_action`
-                path_next, path_reward, _, _, path_bumped = tables.move(shadow, jnp.maximum(path_action, 0))
+                # deterministic (jumps need it): the move draws nothing
+                path_next, path_reward, _, _, path_bumped = tables.move(shadow, jnp.maximum(path_action, 0),
+                                                                        words, trial, c)
                 before = jnp.where(on_path, tables.rtilde(path_next, path_bumped, True, path_reward), before)
                 shadow = jnp.where(jump, s, jnp.where(on_path, path_next, shadow))
             flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
