@@ -90,25 +90,53 @@ def summarize(rows: list[tuple[float, str, str]], top: int = 8) -> dict:
 
 
 def child(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: int) -> None:
-    """Warm up, say READY, wait for a line on stdin, run `repeats` times, print the row as JSON."""
+    """Warm up and say READY; on a line from stdin run `repeats` times and say DONE; on another line
+    print the row as JSON. Only the runs lie between the two lines (the parent samples them alone):
+    counting the steps afterwards converts arrays on the host, which is no part of a run."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import importlib
+
     import bench  # noqa: E402  (configures XLA before JAX starts, as jaxeac does)
 
     if impl == "jaxeac":
-        def run(n: int) -> dict:
-            return bench.bench_grid(algo, seeds, chunk, n, jump=jump)
+        from jaxeac.algorithm.config import algorithm
+        from jaxeac.envs.grid import GridWorld, get_map
+        from jaxeac.running.batch import run_seeds
+        from jaxeac.running.config import RunConfig
+
+        env = GridWorld(get_map("paper"), 40)  # as bench.bench_grid
+        cfg = RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3, gamma=0.9, jump=jump)
+
+        def run():
+            r = run_seeds(env, cfg, root_key=0, n_seeds=seeds, chunk_size=chunk)
+            return r.run_seconds, r
+
+        def steps(r) -> int:
+            return r.agent_steps
     else:
         if not bench.prepare_peers([impl], None):
             print(json.dumps({"skip": f"the {impl} peer cannot run here"}), flush=True)
             return
+        module, fn = bench.COMPILED_PEERS[impl]
+        peer = getattr(importlib.import_module(module), fn)
 
-        def run(n: int) -> dict:
-            return bench.bench_peer(impl, algo, seeds, n)
-    run(1)
+        def run():  # as bench.bench_peer
+            t0 = time.perf_counter()
+            out = peer("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
+                       temperature=1.0, n_seeds=seeds, seed=0, threads=None)
+            return time.perf_counter() - t0, out
+
+        def steps(out) -> int:
+            return int(out["agent_steps"].sum())
+    run()
     print("READY", flush=True)
     sys.stdin.readline()
-    row = run(repeats)
-    print(json.dumps({k: row[k] for k in ("run_s", "agent_steps", "steps_per_s") if k in row}), flush=True)
+    timed = [run() for _ in range(repeats)]
+    print("DONE", flush=True)
+    sys.stdin.readline()
+    best = min(t for t, _ in timed)
+    n = steps(timed[0][1])
+    print(json.dumps({"run_s": best, "agent_steps": n, "steps_per_s": n / best}), flush=True)
 
 
 def profile(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: int, frequency: int) -> dict:
@@ -127,9 +155,15 @@ def profile(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: in
         time.sleep(1.0)  # perf attached to every thread before the runs start
         proc.stdin.write("go\n")
         proc.stdin.flush()
-        row = json.loads(proc.stdout.readline())
+        done = proc.stdout.readline().strip()
         perf.send_signal(signal.SIGINT)
         perf.wait()
+        if done != "DONE":
+            proc.kill()
+            raise RuntimeError(f"the {impl} child stopped before its runs ended (said {done!r})")
+        proc.stdin.write("go\n")
+        proc.stdin.flush()
+        row = json.loads(proc.stdout.readline())
         proc.wait()
         report = subprocess.run(["perf", "report", "-i", data, "--sort", "dso,sym", "--stdio", "--no-children",
                                  "--percent-limit", "0"], capture_output=True, text=True, check=True).stdout
