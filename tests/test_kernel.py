@@ -125,6 +125,7 @@ def test_kernel_choice_and_errors():
     assert resolved_kernel(ENV, eac, "gpu") == "pallas" and resolved_kernel(ENV, eac, "cpu") == "xla"
     for task in ("FourRooms-v0", "FourRooms-stochastic-v0"):
         assert resolved_kernel(make(task), eac, "gpu") == "pallas"
+    assert "the grid world and the tabular tasks only" in kernel_unsupported(object(), eac)  # e.g. an adapter
     split = RunConfig(trials=10, agent=algorithm("eac", tables="split"))
     assert resolved_kernel(ENV, split, "gpu") == "xla"  # auto falls back where the kernel cannot run
     assert "rows table layout" in kernel_unsupported(ENV, split)
