@@ -21,9 +21,9 @@ kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
 
 Supported: the grid world and every tabular task (`TabularEnv`: the move, reward, end
-flags and, in a stochastic task, the outcome's draw read from its tables, `_Tables`), rows tables, the packed dense memory
-or none (AC), both E6 rules, the E2 variant, constant step sizes. Anything else runs the XLA
-loop (`kernel_unsupported` says why).
+flags and, in a stochastic task, the outcome's draw read from its tables, `_Tables`), rows
+tables, the packed dense memory or none (AC), both E6 rules, the E2 variant, constant step
+sizes. Anything else runs the XLA loop (`kernel_unsupported` says why).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
@@ -75,6 +75,7 @@ def kernel_unsupported(env: Any, cfg: Any) -> str | None:
 class _Tables:
     """The environment's part of a chance: its tables (kernel inputs, `arrays`) and the move,
     r̃ and start read from them, as `GridWorld` / `TabularEnv` compute them (G3–G5, E3, E5, X1, X2).
+    `arrays` (name → table) are passed to the kernel in their order; `bind` names its refs.
 
     Both encode a move (s, a) as one word, 2·s' + bumped (`decode_move`). The grid world's
     reward and end follow from s' (`move_reward`: its goal is the one terminal state); a
@@ -88,49 +89,54 @@ class _Tables:
         self.n_actions, self.n_chances, self.n_starts = env.n_actions, env.n_chances, env.n_starts
         if self.grid:
             self.goal, self.shaped, self.outcomes = env.map.goal_index, True, 1
-            self.arrays = (np.asarray(env._moves, np.int32), np.asarray(env.goal_distance, np.float32),
-                           np.asarray(env._start_cells, np.int32))
+            self.arrays = {"moves": np.asarray(env._moves, np.int32),
+                           "distance": np.asarray(env.goal_distance, np.float32),
+                           "starts": np.asarray(env._start_cells, np.int32)}
             return
         self.shaped = env.goal_distance is not None
         self.outcomes = env._next.shape[1]  # K: 1 for a deterministic task
         moves = 2 * env._next.astype(np.int64) + env._bumped  # [S·A, K]
-        ends = env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1)
-        distance = env.goal_distance if self.shaped else np.zeros(env.n_states)
-        cumulative = (np.asarray(env._cumulative, np.float32).reshape(-1),) if self.outcomes > 1 else ()
-        self.arrays = (moves.reshape(-1).astype(np.int32), np.asarray(env._reward, np.float32).reshape(-1), ends,
-                       np.asarray(distance, np.float32), *cumulative, np.asarray(env._starts, np.int32))
+        self.arrays = {
+            "moves": moves.reshape(-1).astype(np.int32),
+            "reward": np.asarray(env._reward, np.float32).reshape(-1),
+            "ends": env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1),
+            "distance": np.asarray(env.goal_distance if self.shaped else np.zeros(env.n_states), np.float32),
+            "starts": np.asarray(env._starts, np.int32),
+        }
+        if self.outcomes > 1:  # [S·A, K − 1]
+            self.arrays["cumulative"] = np.asarray(env._cumulative, np.float32).reshape(-1)
 
     def bind(self, refs) -> None:
-        """The kernel's refs of `arrays`, in order."""
-        self.refs = refs
+        """The kernel's refs of `arrays`, in their order."""
+        self.ref = dict(zip(self.arrays, refs, strict=True))
 
     def move(self, s, action, words, trial, chance):
         """(s', reward, terminated, success, bumped) of action `action` at s in chance `chance` of
         trial `trial` (`env.move`)."""
         row = s * self.n_actions + action
         if self.grid:
-            s_next, bumped = decode_move(self.refs[0][row])
+            s_next, bumped = decode_move(self.ref["moves"][row])
             terminated = s_next == self.goal
             return s_next, move_reward(bumped, terminated), terminated, terminated, bumped
         at = row
         if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
             u = transition_uniform(words, trial, chance, self.n_chances)
-            below = [(u >= self.refs[4][row * (self.outcomes - 1) + j]).astype(jnp.int32)
+            below = [(u >= self.ref["cumulative"][row * (self.outcomes - 1) + j]).astype(jnp.int32)
                      for j in range(self.outcomes - 1)]
             at = row * self.outcomes + functools.reduce(lambda a, b: a + b, below)
-        s_next, bumped = decode_move(self.refs[0][at])
-        ends = self.refs[2][s_next]
-        return s_next, self.refs[1][at], (ends & 1) == 1, (ends & 2) == 2, bumped
+        s_next, bumped = decode_move(self.ref["moves"][at])
+        ends = self.ref["ends"][s_next]
+        return s_next, self.ref["reward"][at], (ends & 1) == 1, (ends & 2) == 2, bumped
 
     def rtilde(self, s_next, bumped, goal_known, reward):
         """E5/X2's r̃ at s' (`env.rtilde`): shaped by the distance to the goal, or the reward."""
         if not self.shaped:
             return reward
-        return shaped_reward(self.refs[1 if self.grid else 3][s_next], bumped, goal_known)
+        return shaped_reward(self.ref["distance"][s_next], bumped, goal_known)
 
     def start(self, words, trial):
         """G3: the start cell of trial `trial` (`env.start`)."""
-        return self.refs[-1][start_index(words, trial, self.n_chances, self.n_starts)]
+        return self.ref["starts"][start_index(words, trial, self.n_chances, self.n_starts)]
 
 
 def _sample(logits: list, allowed: list, u):
@@ -311,7 +317,7 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
         words[:, 0], words[:, 1],
         *(jnp.broadcast_to(jnp.asarray(x, f32), (n_lanes,))
           for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature)),
-        *(jnp.asarray(x) for x in _Tables(env).arrays),
+        *(jnp.asarray(x) for x in _Tables(env).arrays.values()),
     )
     n_in = len(consts)
     out = pl.pallas_call(
