@@ -37,7 +37,7 @@ def _lanes(cfg, n, trials_done=0, env=ENV):
 
 
 def _task(name: str, chances: int | None = None, rtilde: str = "shaped") -> TabularEnv:
-    """A registered deterministic task's tables, with fewer chances to keep interpreted runs short."""
+    """A registered task's tables, with fewer chances to keep interpreted runs short."""
     return TabularEnv(make(name).task, chances, rtilde)
 
 
