@@ -576,3 +576,27 @@ def test_running_column_sums_are_the_whole_arrays(n):
     cols = [z, z * 3, np.cos(z)]
     direct = np.stack(cols, 1)[: n - 1].mean(0)
     np.testing.assert_array_equal(large.stacked_means(cols, n - 1, block=16), direct)
+
+
+@pytest.mark.parametrize("trials", [1, 7, 8, 9, 13, 200, 203])
+def test_measures_from_packed_bits_are_those_of_the_unpacked_rows(trials):
+    """`per_seed_codes` reads `SuccessBits` byte by byte (set bits and their positions per byte);
+    every code equals the unpacked bool path's, dtype included, on empty, full and random rows,
+    and bits past the last trial (a damaged pad) change nothing."""
+    from jaxeac.stats.rundir import per_seed_codes
+
+    rng = np.random.default_rng(trials)
+    success = rng.random((40_000, trials)) < rng.choice([0.0, 0.02, 0.5, 0.98, 1.0], size=(40_000, 1))
+    success[0], success[1] = False, True
+    packed = SuccessBits.pack(success)
+    dirty = SuccessBits(packed.bits.copy(), trials)
+    if trials % 8:
+        dirty.bits[:, -1] |= np.uint8(0xFF << (trials % 8) & 0xFF)  # the pad bits set
+    want = per_seed_codes(success)
+    for bits in (packed, dirty):
+        got = per_seed_codes(bits)
+        assert list(got) == list(want)
+        for name, value in want.items():
+            a, b = getattr(value, "codes", value), getattr(got[name], "codes", got[name])
+            assert a.dtype == b.dtype and np.array_equal(a, b), name
+    assert want["successes"].codes[1] == trials and want["first_success"].codes[0] == trials + 1
