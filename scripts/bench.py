@@ -57,18 +57,25 @@ def command_line() -> str:
     return " ".join(["python", *sys.argv])
 
 
+def paper_preset(algo: str, tables: str = "auto", lanes: int | None = None, kernel: str = "auto",
+                 jump: str = "auto"):
+    """(env, RunConfig) of the paper preset (SPEC G6) that every grid row runs."""
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.running.config import RunConfig
+
+    env = GridWorld(get_map("paper"), 40)
+    return env, RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
+                          lanes=lanes, kernel=kernel, jump=jump)
+
+
 def bench_grid(algo: str, n_seeds: int, chunk: int, repeats: int, tables: str = "auto",
                lanes: int | None = None, kernel: str = "auto", jump: str = "auto") -> dict:
     """One row: compile and best-of-`repeats` run time of `n_seeds` seeds of the paper preset."""
-    from jaxeac.algorithm.config import algorithm
-    from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.running.batch import run_seeds
-    from jaxeac.running.config import RunConfig
     from jaxeac.running.loops import state_bytes_per_seed
 
-    env = GridWorld(get_map("paper"), 40)
-    cfg = RunConfig(trials=200, agent=algorithm(algo, tables=tables), alpha=0.1, beta=0.3, gamma=0.9,
-                    lanes=lanes, kernel=kernel, jump=jump)
+    env, cfg = paper_preset(algo, tables, lanes, kernel, jump)
     resolved = cfg.resolve(env)  # what the row ran: every `auto` decided
     best, compile_s, steps, mean = float("inf"), None, 0, 0.0
     for _ in range(repeats):
@@ -128,20 +135,26 @@ def prepare_peers(names: list[str], threads: int | None) -> dict:
     return ready
 
 
-def bench_peer(name: str, algo: str, n_seeds: int, repeats: int = 1, threads: int | None = None) -> dict:
-    """A compiled peer (C or numba, SPEC-equal in distribution) on the same work, best of `repeats`.
-
-    Useful agent-steps as jaxeac counts them: chances actually taken, over all trials and seeds."""
+def run_peer(name: str, algo: str, n_seeds: int, threads: int | None = None) -> tuple[float, dict]:
+    """(seconds, output) of one run of a compiled peer on the paper preset's work."""
     import importlib
 
     module, fn = COMPILED_PEERS[name]
     run = getattr(importlib.import_module(module), fn)
+    t0 = time.perf_counter()
+    out = run("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
+              temperature=1.0, n_seeds=n_seeds, seed=0, threads=threads)
+    return time.perf_counter() - t0, out
+
+
+def bench_peer(name: str, algo: str, n_seeds: int, repeats: int = 1, threads: int | None = None) -> dict:
+    """A compiled peer (C or numba, SPEC-equal in distribution) on the same work, best of `repeats`.
+
+    Useful agent-steps as jaxeac counts them: chances actually taken, over all trials and seeds."""
     best = float("inf")
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = run("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
-                  temperature=1.0, n_seeds=n_seeds, seed=0, threads=threads)
-        best = min(best, time.perf_counter() - t0)
+        seconds, out = run_peer(name, algo, n_seeds, threads)
+        best = min(best, seconds)
     steps = int(out["agent_steps"].sum())
     return {"run_s": best, "agent_steps": steps, "steps_per_s": steps / best,
             "mean_successes": float(out["successes"].mean())}
@@ -187,7 +200,8 @@ def builds_record(args) -> dict:
 
     child = ["--seeds", *map(str, args.seeds), "--numpy-seeds", "--chunk", str(args.chunk),
              "--repeats", str(args.repeats), "--tables", args.tables, "--kernel", args.kernel,
-             "--algos", *args.algos, "--jump", *args.jump, *(["--lanes", str(args.lanes)] if args.lanes else [])]
+             "--algos", *args.algos, "--jump", *args.jump,
+             *(["--lanes", str(args.lanes)] if args.lanes else [])]
     record = {"environment": environment(), "command": command_line(), "rows": [],
               "builds": [b.name for b in args.builds]}
     with tempfile.TemporaryDirectory() as tmp:
@@ -249,12 +263,14 @@ def _render_scale(path: Path, rec: dict) -> list[str]:
 
 def _render_kernel_check(path: Path, rec: dict) -> list[str]:
     env = any("env" in r for r in rec["rows"])  # --envs: a column naming each row's task
+    first = "| env " if env else ""
     out = [*_devices_heading(path, rec),
-           "| " + ("env | " if env else "") + "algo | seeds | trials | seeds with identical successes and steps | "
+           first + "| algo | seeds | trials | seeds with identical successes and steps | "
            "seeds with identical policy | mean successes | XLA run s | kernel run s |",
            "|---" * (9 if env else 8) + "|"]
     for r in rec["rows"]:
-        out.append(("| " + r.get("env", "") + " " if env else "") + f"| {r['algo']} | {r['seeds']:,} | {r['trials']} | "
+        cell = f"| {r['env']} " if env else ""
+        out.append(cell + f"| {r['algo']} | {r['seeds']:,} | {r['trials']} | "
                    f"{r['seeds_identical_success_and_steps']:,} | {r['seeds_identical_policy']:,} | "
                    f"{r['mean_successes']:.2f} | {r['xla_run_s']:.2f} | {r['kernel_run_s']:.2f} |")
     return out + [""]

@@ -2,10 +2,10 @@
 
 For every algorithm the kernel supports, N seeds × T trials of the paper preset (or of
 each registered task named by ``--envs``) run once with ``kernel="xla"`` and once with
-``kernel="pallas"`` (same seeds, all local
-devices), and the per-seed records are compared: successes and steps per trial must be
-identical for every seed; greedy policies are counted as identical or not (an argmax
-tie may round apart, see tests/test_kernel.py). Exit status 1 if any seed differs.
+``kernel="pallas"`` (same seeds, all local devices), and the per-seed records are
+compared: successes and steps per trial must be identical for every seed; greedy
+policies are counted as identical or not (an argmax tie may round apart, see
+tests/test_kernel.py). Exit status 1 if any seed differs.
 
     python scripts/check_kernel.py --seeds 20000 --out kernel_check.json
     python scripts/check_kernel.py --envs FourRooms-v0 CliffWalking-v1 --seeds 20000
@@ -48,7 +48,8 @@ def main() -> int:
     from jaxeac.running.batch import run_seeds
     from jaxeac.running.config import RunConfig
 
-    envs = {name: make(name) for name in args.envs} if args.envs else {"paper": GridWorld(get_map("paper"), 40)}
+    paper = {"paper": GridWorld(get_map("paper"), 40)}
+    envs = {name: make(name) for name in args.envs} if args.envs else paper
     record = {"environment": environment(), "command": command_line(), "rows": []}
     all_equal = True
     for (name, env), algo in [(e, a) for e in envs.items() for a in args.algos]:

@@ -94,18 +94,12 @@ def child(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: int)
     print the row as JSON. Only the runs lie between the two lines (the parent samples them alone):
     counting the steps afterwards converts arrays on the host, which is no part of a run."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import importlib
-
     import bench  # noqa: E402  (configures XLA before JAX starts, as jaxeac does)
 
     if impl == "jaxeac":
-        from jaxeac.algorithm.config import algorithm
-        from jaxeac.envs.grid import GridWorld, get_map
         from jaxeac.running.batch import run_seeds
-        from jaxeac.running.config import RunConfig
 
-        env = GridWorld(get_map("paper"), 40)  # as bench.bench_grid
-        cfg = RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3, gamma=0.9, jump=jump)
+        env, cfg = bench.paper_preset(algo, jump=jump)
 
         def run():
             r = run_seeds(env, cfg, root_key=0, n_seeds=seeds, chunk_size=chunk)
@@ -117,14 +111,8 @@ def child(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: int)
         if not bench.prepare_peers([impl], None):
             print(json.dumps({"skip": f"the {impl} peer cannot run here"}), flush=True)
             return
-        module, fn = bench.COMPILED_PEERS[impl]
-        peer = getattr(importlib.import_module(module), fn)
-
-        def run():  # as bench.bench_peer
-            t0 = time.perf_counter()
-            out = peer("paper", algo=algo, trials=200, chances=40, alpha=0.1, beta=0.3, gamma=0.9,
-                       temperature=1.0, n_seeds=seeds, seed=0, threads=None)
-            return time.perf_counter() - t0, out
+        def run():
+            return bench.run_peer(impl, algo, seeds)
 
         def steps(out) -> int:
             return int(out["agent_steps"].sum())
@@ -165,8 +153,9 @@ def profile(impl: str, algo: str, seeds: int, jump: str, repeats: int, chunk: in
         proc.stdin.flush()
         row = json.loads(proc.stdout.readline())
         proc.wait()
-        report = subprocess.run(["perf", "report", "-i", data, "--sort", "dso,sym", "--stdio", "--no-children",
-                                 "--percent-limit", "0"], capture_output=True, text=True, check=True).stdout
+        report = subprocess.run(["perf", "report", "-i", data, "--sort", "dso,sym", "--stdio",
+                                 "--no-children", "--percent-limit", "0"],
+                                capture_output=True, text=True, check=True).stdout
     rows = parse_report(report)
     return {"impl": impl, "algo": algo, "jump": jump if impl == "jaxeac" else None, "seeds": seeds, **row,
             **summarize(rows)}
@@ -195,8 +184,8 @@ def main() -> None:
             row = profile(impl, algo, args.seeds, args.jump, args.repeats, args.chunk, args.frequency)
             record["rows"].append(row)
             shares = " ".join(f"{k} {v:.0%}" for k, v in row.get("shares", {}).items())
-            print(f"{impl:7s} {algo:4s} {row.get('steps_per_s', 0):.3g} steps/s  {shares or row.get('skipped')}",
-                  flush=True)
+            rate = row.get("steps_per_s", 0)
+            print(f"{impl:7s} {algo:4s} {rate:.3g} steps/s  {shares or row.get('skipped')}", flush=True)
     if args.out:
         args.out.write_text(json.dumps(record, indent=1) + "\n")
 

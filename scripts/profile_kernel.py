@@ -96,8 +96,9 @@ def summarize_sass(path: Path, top: int = 12) -> dict:
     waits = []
     for i in sorted(order):
         j = waits_for(i)
-        waits.append({"index": i, "instruction": sass[i], "long_scoreboard_share": round(num(data[i], "stall_long_sb")
-                      / total, 4), "waits_for": None if j is None else {"index": j, "instruction": sass[j]}})
+        share = round(num(data[i], "stall_long_sb") / total, 4)
+        waits.append({"index": i, "instruction": sass[i], "long_scoreboard_share": share,
+                      "waits_for": None if j is None else {"index": j, "instruction": sass[j]}})
     loads = [{"index": i, "instruction": sass[i], "executed": int(executed[i])} for i in range(len(sass))
              if "LDG" in sass[i]]
     return {"file": path.name, "instructions": len(sass), "samples": int(total),
@@ -117,7 +118,8 @@ def print_sass_summary(summary: dict) -> None:
     for w in summary["top_waits"]:
         load = w["waits_for"]
         src = f"[{load['index']}] {load['instruction']}" if load else "-"
-        print(f"  {w['long_scoreboard_share']:6.1%}  [{w['index']}] {w['instruction'][:44]:44s} waits for {src}")
+        at = f"[{w['index']}] {w['instruction'][:44]}"
+        print(f"  {w['long_scoreboard_share']:6.1%}  {at:50s} waits for {src}")
 
 
 def main() -> None:

@@ -64,7 +64,8 @@ def _block_equals_xla_slots(env, algo, blocks=3, rtol=1e-6, atol=1e-7):
     assert (cfg.jump == "on") == jumps
     run, words, hyper = _lanes(cfg, LANES_PER_PROGRAM, env=env)
     slot = jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h))
-    xla = jax.jit(lambda r: jax.lax.fori_loop(0, blocks * env.n_chances, lambda _, x: slot(x, words, hyper), r))
+    xla = jax.jit(lambda r: jax.lax.fori_loop(
+        0, blocks * env.n_chances, lambda _, x: slot(x, words, hyper), r))
     kernel = jax.jit(lambda r: jax.lax.fori_loop(
         0, blocks, lambda _, x: advance_chances(env, cfg, x, words, hyper, interpret=True), r))
     want, got = xla(run), kernel(run)

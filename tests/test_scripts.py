@@ -96,7 +96,8 @@ def test_check_kernel_runs_registered_tasks(tmp_path):
     rec = json.loads(out.read_text())
     assert [(r["env"], r["algo"], r["seeds_identical_success_and_steps"]) for r in rec["rows"]] == [
         ("CliffWalking-v1", "ac", 40), ("CliffWalking-v1", "eac", 40)]
-    assert "| CliffWalking-v1 | eac | 40 | 6 | 40 |" in _script("scripts/bench.py", "--render", str(out)).stdout
+    table = _script("scripts/bench.py", "--render", str(out)).stdout
+    assert "| CliffWalking-v1 | eac | 40 | 6 | 40 |" in table
 
 
 def test_bench_tasks_records_every_task_and_algorithm(tmp_path):
@@ -209,8 +210,8 @@ def test_cpu_loop_ops_counts_the_chance_loops_operations(tmp_path):
 
 def _sass_csv(path: Path) -> None:
     """A toy ncu source page: two loads, a use of each, and a predicated select that keeps a loaded value."""
-    head = ["Address", "Source", "Warp Stall Sampling (All Samples)", "Instructions Executed", "stall_long_sb",
-            "stall_wait"]
+    head = ["Address", "Source", "Warp Stall Sampling (All Samples)", "Instructions Executed",
+            "stall_long_sb", "stall_wait"]
     rows = [
         ["0x00", "LDG.E R5, desc[UR6][R2.64]", "0", "40", "0", "0"],
         ["0x10", "LDG.E R8, desc[UR6][R2.64+0x10]", "0", "40", "0", "0"],

@@ -163,14 +163,13 @@ def _sample(logits: list, allowed: list, u):
     return jnp.minimum(action, len(logits) - 1)
 
 
-def _chance_kernel(env, cfg, names: tuple[str, ...], *refs):
+def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
     """C chances of `LANES_PER_PROGRAM` lanes (see the module docstring)."""
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
 
     agent = cfg.agent
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
-    tables = _Tables(env)
     n_in = 6 + len(tables.arrays)
     (w0_ref, w1_ref, alpha_ref, beta_ref, gamma_ref, temp_ref) = refs[:6]
     tables.bind(refs[6:n_in])
@@ -313,15 +312,16 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
             state["shadow"] = run.jumps.shadow.position
     names = tuple(state)
     f32 = agent.tables.rows.dtype
+    tables = _Tables(env)
     consts = (
         words[:, 0], words[:, 1],
         *(jnp.broadcast_to(jnp.asarray(x, f32), (n_lanes,))
           for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature)),
-        *(jnp.asarray(x) for x in _Tables(env).arrays.values()),
+        *(jnp.asarray(x) for x in tables.arrays.values()),
     )
     n_in = len(consts)
     out = pl.pallas_call(
-        functools.partial(_chance_kernel, env, cfg, names),
+        functools.partial(_chance_kernel, env, cfg, tables, names),
         out_shape=[jax.ShapeDtypeStruct(x.shape, x.dtype) for x in state.values()],
         grid=(n_lanes // LANES_PER_PROGRAM,),
         input_output_aliases={n_in + i: i for i in range(len(names))},

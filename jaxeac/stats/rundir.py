@@ -352,8 +352,7 @@ def _narrow_uint(largest: int) -> np.dtype:
     return np.dtype(np.int64)
 
 
-#: Per byte value: its set bits, the sum of their positions, and its lowest set bit (8 if none).
-_BYTE_COUNT = np.bitwise_count(np.arange(256, dtype=np.uint8)).astype(np.int64)
+#: Per byte value: the sum of its set bits' positions, and its lowest set bit (8 if none).
 _BYTE_POSITIONS = np.array([sum(b for b in range(8) if v >> b & 1) for v in range(256)], np.int64)
 _BYTE_LOWEST = np.array([(v & -v).bit_length() - 1 if v else 8 for v in range(256)], np.int64)
 
@@ -361,16 +360,16 @@ _BYTE_LOWEST = np.array([(v & -v).bit_length() - 1 if v else 8 for v in range(25
 def _codes_of_bits(bits: np.ndarray, trials: int, late: int) -> tuple[np.ndarray, ...]:
     """(successes, late successes, first success or T + 1, Σ_t success_t (T − t)) of rows of
     `SuccessBits.bits` (bit b of byte j is trial 8j + b), read from the bytes without unpacking
-    them: per byte, its set bits and the sum of their positions (`_BYTE_COUNT`, `_BYTE_POSITIONS`).
+    them: per byte, its set bits (`np.bitwise_count`) and the sum of their positions (`_BYTE_POSITIONS`).
     Bits past the last trial are ignored. Exactly the unpacked rows' integers (tested)."""
     n, width = bits.shape
     position = 8 * np.arange(width)[:, None] + np.arange(8)  # [bytes, 8] trial of each bit
     keep = np.packbits(position < trials, axis=1, bitorder="little")[:, 0]  # bits that are trials
     in_late = np.packbits((position >= trials - late) & (position < trials), axis=1, bitorder="little")[:, 0]
     bits = bits & keep
-    per_byte = _BYTE_COUNT[bits]  # [n, bytes]
+    per_byte = np.bitwise_count(bits).astype(np.int64)  # [n, bytes]
     count = per_byte.sum(1)
-    late_count = _BYTE_COUNT[bits & in_late].sum(1)
+    late_count = np.bitwise_count(bits & in_late).sum(1)
     nonzero = bits != 0
     j = np.argmax(nonzero, axis=1)
     first = np.where(nonzero.any(1), 8 * j + _BYTE_LOWEST[bits[np.arange(n), j]] + 1, trials + 1)
