@@ -115,7 +115,6 @@ def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatc
     beside the run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as
     after them."""
     import jaxeac.cli as cli
-
     from jaxeac import plots
 
     monkeypatch.setitem(cli.STATISTICS_BESIDE_FIGURES, "cpu", True)
