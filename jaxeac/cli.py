@@ -235,17 +235,15 @@ def cmd_grid(args: argparse.Namespace) -> int:
         return _grid_sequential(args, settings, design, out)
     ahead = _compile_statistics_ahead(settings, compare=not args.no_compare)
     statistics: list[Future] = []  # the comparison's statistics, started as soon as the results are in
-    beside = _compares(settings, compare=not args.no_compare) and _statistics_beside_figures(settings.seeds)
 
     def start_statistics(run) -> None:
-        if beside:
+        if _compares(run, compare=not args.no_compare) and _statistics_beside_figures(settings.seeds):
             statistics.append(_start_statistics(run, out, ahead))
 
     with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
               desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
         run, summary = run_grid_to_folder(settings, out, options=_output_options(args, settings.seeds),
-                                          progress=bar.update, on_results=start_statistics,
-                                          figures_apart=beside and FIGURES_APART)
+                                          progress=bar.update, on_results=start_statistics)
     print(summary_table(summary))
     print(f"results in {out}/")
     if ahead is not None and not statistics:
@@ -265,10 +263,6 @@ STATISTICS_BESIDE_FIGURES = {"gpu": True, "tpu": True}
 #: RSS from 3.0-3.3 GiB to 3.8-4.2 GiB (records gpu_h100_e2e_10m_grow.json and
 #: gpu_h100_e2e_10m_overlap.json).
 STATISTICS_BESIDE_FIGURES_SEEDS = 1 << 22
-#: Whether the run's figures are then drawn in a child process (`plots.FigureProcess`) rather than on
-#: the main thread, where their Python code takes turns with the statistics' threads for the
-#: interpreter's lock (BENCHMARKS.md, *Figures apart from the statistics*).
-FIGURES_APART = True
 
 
 def _statistics_beside_figures(seeds: int) -> bool:
@@ -357,9 +351,9 @@ def _finish_grid(run, out, *, compare: bool, quiet: bool, options=None) -> int:
     return _compare_grid(run, out, compare=compare, quiet=quiet)
 
 
-def _compares(settings, *, compare: bool) -> bool:
-    """Whether `jaxeac grid` compares a run of these `GridSettings` (AC and EAC, at least two seeds each)."""
-    return compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2
+def _compares(run, *, compare: bool) -> bool:
+    """Whether `jaxeac grid` compares this run (AC and EAC, at least two seeds each)."""
+    return compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2
 
 
 def _grid_run_data(run, out, sequential: dict | None = None):
@@ -378,7 +372,7 @@ def _compare_grid(run, out, *, compare: bool, quiet: bool, sequential: dict | No
     its statistics, already started by `_start_statistics`). The folder is written, so all but
     the success curves are dropped from `run` first: the statistics get the memory of the other
     per-seed columns."""
-    if not _compares(run.settings, compare=compare):
+    if not _compares(run, compare=compare):
         return 0
     from jaxeac.running.batch import trim_host_memory
 

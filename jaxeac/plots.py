@@ -1,9 +1,7 @@
 """Figures of the grid experiment: Fig. 3-style learning curves and Fig. 2-style policies.
 
 Matplotlib with the Agg backend; every function writes PNGs into a folder and
-returns their file names. `FigureProcess` draws a grid run's figures in a child process,
-so that drawing (Python, holding the interpreter's lock) does not slow statistics
-computed at the same time on host threads.
+returns their file names.
 """
 
 from __future__ import annotations
@@ -18,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import special  # noqa: E402
 
+from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
 
 COLORS = {"ac": "tab:blue", "eac": "tab:red"}
@@ -67,27 +66,21 @@ def count_percentile(counts: np.ndarray, q: float) -> np.ndarray:
 
 def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, paper: dict | None = None):
     """Fig. 3: mean cumulative successes over trials per algorithm, with a pointwise 95 % CI band
-    and the seeds' 5–95 % spread, all from per-trial counts of the cumulative values.
-    `success`: {algo: bool [N, T] or `SuccessBits`}."""
-    draw_cumulative_successes({a: cumulative_counts(s) for a, s in success.items()}, path, paper=paper)
-
-
-def draw_cumulative_successes(counts: dict[str, np.ndarray], path: Path, *, paper: dict | None = None):
-    """`cumulative_success_figure` from each algorithm's `cumulative_counts` [T, T + 1]."""
+    and the seeds' 5–95 % spread, all from per-trial counts of the cumulative values."""
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
-    for algo, c in counts.items():
-        t = c.shape[0]
-        n = int(c[0].sum())
+    for algo, s in success.items():
+        counts = cumulative_counts(s)
+        n, t = s.shape
         values = np.arange(t + 1)
-        mean = c @ values / n
+        mean = counts @ values / n
         trials = np.arange(1, t + 1)
         color = COLORS.get(algo)
         ax.plot(trials, mean, color=color, label=f"{LABELS.get(algo, algo)} (mean of {n} seeds)")
         if n > 1:
-            sd = np.sqrt((c * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
+            sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
             half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
             ax.fill_between(trials, mean - half, mean + half, color=color, alpha=0.25, lw=0)
-            lo, hi = count_percentile(c, 5), count_percentile(c, 95)
+            lo, hi = count_percentile(counts, 5), count_percentile(counts, 95)
             ax.plot(trials, lo, color=color, lw=0.6, ls=":")
             ax.plot(trials, hi, color=color, lw=0.6, ls=":")
         if paper and algo in paper and t == GRID_TRIALS:
@@ -103,10 +96,8 @@ def draw_cumulative_successes(counts: dict[str, np.ndarray], path: Path, *, pape
     plt.close(fig)
 
 
-def greedy_path(grid, policy: np.ndarray, start: int, max_steps: int) -> list[int]:
+def greedy_path(grid: GridMap, policy: np.ndarray, start: int, max_steps: int) -> list[int]:
     """Follow `policy` deterministically from `start` until the goal, a wall loop or `max_steps`."""
-    from jaxeac.envs.grid import transition_tables
-
     next_cell = transition_tables(grid)[0]  # G4
     path, s, seen = [start], start, {start}
     for _ in range(max_steps):
@@ -123,7 +114,7 @@ def greedy_path(grid, policy: np.ndarray, start: int, max_steps: int) -> list[in
 POLICY_ARROW_SIDE = 64
 
 
-def policy_axes(ax, grid, policy: np.ndarray, start: int, max_steps: int, title: str):
+def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: int, title: str):
     """Fig. 2: one arrow per free cell (the final greedy action) and one greedy path."""
     h, w = grid.height, grid.width
     ax.imshow(grid.obstacles, cmap="Greys", vmin=0, vmax=1.5, origin="upper")
@@ -134,8 +125,6 @@ def policy_axes(ax, grid, policy: np.ndarray, start: int, max_steps: int, title:
     free[grid.goal_index] = False
     arrows = max(h, w) <= POLICY_ARROW_SIDE  # larger maps: too small to see, and hours to draw
     if arrows:
-        from jaxeac.envs.grid import ACTION_DELTAS
-
         d = np.array(ACTION_DELTAS)[policy.astype(int)]
         # y grows downwards (row index), as in the map, so dy is drawn as is.
         ax.quiver(xs[free], ys[free], d[free, 0], d[free, 1], angles="xy", scale_units="xy",
@@ -155,7 +144,7 @@ def policy_axes(ax, grid, policy: np.ndarray, start: int, max_steps: int, title:
     ax.set_ylim(h - 0.5, -0.5)
 
 
-def policy_figure(grid, policies: dict[str, np.ndarray], path: Path, *, seed: int, max_steps: int):
+def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *, seed: int, max_steps: int):
     """Fig. 2: AC beside EAC, the final policy of one seed and the greedy path from one start."""
     start = int(grid.start_cells[0])
     fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 4.4), squeeze=False)
@@ -166,117 +155,20 @@ def policy_figure(grid, policies: dict[str, np.ndarray], path: Path, *, seed: in
     plt.close(fig)
 
 
-def grid_figures(run, folder: Path, *, seed: int = 0, drawer: FigureProcess | None = None) -> list[str]:
-    """Both grid figures of a `GridRun` into `folder`; returns the file names. `drawer`: draw
-    them in that child process (the curves are reduced here first, `grid_figure_data`)."""
-    data = grid_figure_data(run, seed=seed)
-    return draw_grid_figures(data, folder) if drawer is None else drawer.draw_grid(data, folder)
-
-
-def grid_figure_data(run, *, seed: int = 0) -> dict:
-    """What `draw_grid_figures` draws of a `GridRun`: per algorithm the `cumulative_counts` of its
-    successes and seed `seed`'s final policy, the map, and the paper's successes where they apply;
-    NumPy arrays and plain values (small, and picklable for a `FigureProcess`)."""
+def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
+    """Both grid figures of a `GridRun` into `folder`; returns the file names."""
     from jaxeac.experiments.presets import make
 
     s = run.settings
     paper_world = s.map_file is None and s.env is None and not s.slip
-    return {
-        "counts": {a: cumulative_counts(r.success) for a, r in run.results.items()},
-        "paper": make(s.preset).paper_successes if paper_world else None,  # its curve on its own world only
-        "grid_map": run.grid_map,
-        "policies": None if run.grid_map is None else {a: r.policy_of(seed) for a, r in run.results.items()},
-        "seed": seed,
-        "max_steps": s.chances,
-    }
-
-
-def draw_grid_figures(data: dict, folder) -> list[str]:
-    """Draw `grid_figure_data`'s figures into `folder`; returns the file names."""
-    folder = Path(folder)
-    draw_cumulative_successes(data["counts"], folder / "fig3_cumulative_successes.png", paper=data["paper"])
-    if data["grid_map"] is None:  # a non-grid environment: no map to draw the policies on
+    paper = make(s.preset).paper_successes if paper_world else None  # the paper's curve on its own world only
+    cumulative_success_figure({a: r.success for a, r in run.results.items()},
+                              folder / "fig3_cumulative_successes.png", paper=paper)
+    if run.grid_map is None:  # a non-grid environment: no map to draw the policies on
         return ["fig3_cumulative_successes.png"]
-    policy_figure(data["grid_map"], data["policies"], folder / "fig2_policies.png", seed=data["seed"],
-                  max_steps=data["max_steps"])
+    policy_figure(run.grid_map, {a: r.policy_of(seed) for a, r in run.results.items()},
+                  folder / "fig2_policies.png", seed=seed, max_steps=s.chances)
     return ["fig3_cumulative_successes.png", "fig2_policies.png"]
-
-
-def serve_figures() -> None:
-    """A `FigureProcess` child: read pickled (data, folder) requests from stdin, draw each with
-    `draw_grid_figures` and write back pickled (True, file names) or (False, the exception);
-    end at the end of the input (the parent has finished or gone). Ctrl-C is left to the parent,
-    and anything printed goes to stderr (stdout carries the replies)."""
-    import pickle
-    import signal
-    import sys
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    replies = os.fdopen(os.dup(1), "wb")
-    os.dup2(2, 1)
-    requests = sys.stdin.buffer
-    while True:
-        try:
-            data, folder = pickle.load(requests)
-        except EOFError:
-            return
-        try:
-            reply = (True, draw_grid_figures(data, folder))
-        except Exception as exc:  # noqa: BLE001 - handed to the parent, which raises it
-            reply = (False, exc)
-        pickle.dump(reply, replies)
-        replies.flush()
-
-
-class FigureProcess:
-    """A child process that draws a grid run's figures (`serve_figures`), started at once so that
-    it imports Matplotlib while the run computes. Matplotlib runs Python code under the
-    interpreter's lock, so drawn on a thread of the process that computes statistics it takes
-    turns with every NumPy call of the statistics' threads: on a 16-core GPU host a
-    Python-bound thread beside them made the 10^6-seed statistics 1.8× slower (4.6 s against
-    2.6 s), a process beside them 1.09× (BENCHMARKS.md, *Figures apart from the statistics*).
-    The child is a fresh interpreter (nothing of the parent's ``__main__`` runs again), keeps
-    JAX off the accelerator, and ends when its input closes. Should it be gone, the figures
-    are drawn here. Use as a context manager, or call `close`."""
-
-    def __init__(self) -> None:
-        import subprocess
-        import sys
-
-        env = dict(os.environ, JAX_PLATFORMS="cpu")
-        root = str(Path(__file__).resolve().parents[1])  # this jaxeac, whatever the child's path
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-        self._proc = subprocess.Popen([sys.executable, "-c", "from jaxeac.plots import serve_figures; "
-                                       "serve_figures()"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                      env=env)
-
-    def draw_grid(self, data: dict, folder) -> list[str]:
-        """`draw_grid_figures(data, folder)` in the child; its errors are raised here."""
-        import pickle
-
-        try:
-            pickle.dump((data, str(folder)), self._proc.stdin)
-            self._proc.stdin.flush()
-            ok, value = pickle.load(self._proc.stdout)
-        except (OSError, EOFError, pickle.UnpicklingError):  # the child is gone: draw here
-            return draw_grid_figures(data, folder)
-        if not ok:
-            raise value
-        return value
-
-    def close(self) -> None:
-        """Close the child's input: it ends (nothing waits for it)."""
-        for stream in (self._proc.stdin, self._proc.stdout):
-            try:
-                stream.close()
-            except OSError:
-                pass
-
-    def __enter__(self) -> FigureProcess:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def angle_figure(angles: dict[str, np.ndarray], path: Path, *, seed: int = 0):

@@ -115,20 +115,15 @@ def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatc
     beside the run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as
     after them."""
     import jaxeac.cli as cli
-    from jaxeac import plots
 
     monkeypatch.setitem(cli.STATISTICS_BESIDE_FIGURES, "cpu", True)
-    started, apart = [], []
+    started = []
     start = cli._start_statistics
     monkeypatch.setattr(cli, "_start_statistics", lambda *a: started.append(1) or start(*a))
-    draw = plots.FigureProcess.draw_grid
-    monkeypatch.setattr(plots.FigureProcess, "draw_grid", lambda *a: apart.append(1) or draw(*a))
     argv = ["grid", "--seeds", "6", "--trials", "8", "--chances", "12", "--quiet"]
-    assert main([*argv, "--out", str(tmp_path / "beside")]) == 0 and started == [1] and apart == [1]
+    assert main([*argv, "--out", str(tmp_path / "beside")]) == 0 and started == [1]
     monkeypatch.setattr(cli, "STATISTICS_BESIDE_FIGURES_SEEDS", 5)
-    assert main([*argv, "--out", str(tmp_path / "after")]) == 0 and started == [1] and apart == [1]
-    for fig in ("fig3_cumulative_successes.png", "fig2_policies.png"):  # drawn apart, then here: the same
-        assert (tmp_path / "beside" / fig).read_bytes() == (tmp_path / "after" / fig).read_bytes()
+    assert main([*argv, "--out", str(tmp_path / "after")]) == 0 and started == [1]
 
     def stats(name):
         d = json.loads((tmp_path / name / "stats.json").read_text())
@@ -136,25 +131,6 @@ def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatc
 
     assert stats("beside") == stats("after") and stats("beside")["primary"]["measure"] == "successes"
     assert {"report.md", "fig3_cumulative_successes.png"} <= set(result_files(tmp_path / "beside"))
-
-
-def test_figure_process_raises_its_errors_here_and_draws_here_when_gone(tmp_path):
-    """`plots.FigureProcess`: a drawing error in the child is raised in the parent, as the same
-    exception; a child that has died leaves the figures to the parent, not lost."""
-    from jaxeac import plots
-    from jaxeac.experiments.grid import GridSettings, run_grid
-
-    run = run_grid(GridSettings(seeds=3, trials=4, chances=6).resolved())
-    data = plots.grid_figure_data(run)
-    with plots.FigureProcess() as drawer:
-        with pytest.raises(FileNotFoundError, match="no_such_folder"):
-            drawer.draw_grid(data, tmp_path / "no_such_folder")
-        assert drawer.draw_grid(data, tmp_path) == ["fig3_cumulative_successes.png", "fig2_policies.png"]
-        drawer._proc.kill()
-        drawer._proc.wait()
-        (tmp_path / "here").mkdir()
-        assert drawer.draw_grid(data, tmp_path / "here") == ["fig3_cumulative_successes.png", "fig2_policies.png"]
-    assert (tmp_path / "here" / "fig2_policies.png").read_bytes() == (tmp_path / "fig2_policies.png").read_bytes()
 
 
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, capsys):

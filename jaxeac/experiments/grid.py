@@ -402,9 +402,8 @@ def per_seed_csv(run: GridRun) -> str:
 
 
 def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool,
-                   diagnosed: tuple[dict, float] | None = None, drawer=None) -> dict:
-    """Everything of a run folder but results.parquet, into the staging folder (`drawer`: a
-    `plots.FigureProcess` that draws the figures)."""
+                   diagnosed: tuple[dict, float] | None = None) -> dict:
+    """Everything of a run folder but results.parquet, into the staging folder."""
     summary["outputs"] = dataclasses.asdict(options)
     summary |= memory_diagnostics(run, diagnosed=diagnosed)
     if options.per_seed_csv:
@@ -412,7 +411,7 @@ def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOpti
     if figures:
         from jaxeac import plots
 
-        summary["figures"] = plots.grid_figures(run, stage, drawer=drawer)
+        summary["figures"] = plots.grid_figures(run, stage)
     atomic_write_json(stage / "summary.json", summary)
     return summary
 
@@ -431,17 +430,14 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
 
 def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
                        figures: bool = True, progress: Callable[[int], None] | None = None,
-                       on_results: Callable[[GridRun], None] | None = None,
-                       figures_apart: bool = False) -> tuple[GridRun, dict]:
+                       on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
     run goes (`run_algorithms`: one pipeline of compiles and chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
     midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before
-    the folder's figures and summary (`jaxeac grid` starts its statistics there). `figures_apart`:
-    draw the figures in a child process (`plots.FigureProcess`, started with the run), for when
-    `on_results` starts work on host threads that would otherwise take turns with the drawing.
-    Returns the run and its summary.json content.
+    the folder's figures and summary (`jaxeac grid` starts its statistics there). Returns the run
+    and its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
@@ -449,29 +445,21 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
     pool = ThreadPoolExecutor(max_workers=1)
     # On accelerators E8's programs compile (and run) while the device runs the seeds, and then the
     # figures' modules load (half a second); on CPUs the run has every core, and they follow it.
-    early = drawer = None
+    early = None
     if DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False):
         if diagnosed := diagnostic_seeds(settings):
             early = pool.submit(diagnose_grid, settings, grid_map, diagnosed)
         if figures:
             pool.submit(importlib.import_module, "jaxeac.plots")
-    if figures and figures_apart:
-        from jaxeac.plots import FigureProcess
-
-        drawer = FigureProcess()
     try:
-        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results,
-                         drawer)
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early, on_results)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
-        if drawer is not None:
-            drawer.close()
 
 
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
-              seeds: np.ndarray, early, on_results, drawer) -> tuple[GridRun, dict]:
-    """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None; `drawer`:
-    the figures' `plots.FigureProcess`, or None."""
+              seeds: np.ndarray, early, on_results) -> tuple[GridRun, dict]:
+    """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
     with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
         with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
             algos = settings.algos
@@ -485,7 +473,7 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
         if on_results is not None:
             on_results(run)
         return run, _finish_folder(run, stage, summarize(run), options, figures,
-                                   diagnosed=early.result() if early is not None else None, drawer=drawer)
+                                   diagnosed=early.result() if early is not None else None)
 
 
 
