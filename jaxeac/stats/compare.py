@@ -130,8 +130,10 @@ def _analyse(
     chunk: int,
     perm_chunk: int,
     higher_is_better: Mapping | None,
+    moments=None,
 ) -> dict:
-    """Measures (and optionally curves) from one shared bootstrap and permutation draw."""
+    """Measures (and optionally curves) from one shared bootstrap and permutation draw.
+    `moments`: above `large.LARGE_N`, the curves' `large.curve_moments` if already dispatched."""
     names = list(mb)
     if list(mt) != names:
         raise UsageError(
@@ -140,9 +142,8 @@ def _analyse(
         )
     nb, nt = mb[names[0]].size, mt[names[0]].size
     if large.is_large(nb, nt):
-        return _analyse_large(
-            mb, mt, key, curves=curves, resamples=resamples, alpha=alpha, higher_is_better=higher_is_better
-        )
+        return _analyse_large(mb, mt, key, curves=curves, resamples=resamples, alpha=alpha,
+                              higher_is_better=higher_is_better, moments=moments)
     mb, mt = ({k: as_values(v) for k, v in m.items()} for m in (mb, mt))
     xb = np.stack([mb[k] for k in names], 1)
     xt = np.stack([mt[k] for k in names], 1)
@@ -318,18 +319,19 @@ def _measure_large(
 
 
 def _analyse_large(
-    mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better
+    mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better, moments=None
 ) -> dict:
-    """`_analyse` above `large.LARGE_N` seeds per method: same results dict, scalable methods."""
+    """`_analyse` above `large.LARGE_N` seeds per method: same results dict, scalable methods.
+    `moments`: the curves' `large.curve_moments` waiters, if already dispatched."""
     names = list(mb)
     nb, nt = mb[names[0]].size, mt[names[0]].size
     k_b, k_t, k_p = jax.random.split(as_key(key), 3)
     pieces: dict = {}
     t0 = time.perf_counter()
-    moments = binary = None
+    binary = None
     if curves is not None:  # per-chunk sums on the device while the host does the measures
         binary = is_binary(*curves)
-        moments = [large.curve_moments(c) for c in curves]
+        moments = moments or [large.curve_moments(c) for c in curves]
     pieces["dispatch_curve_sums"] = time.perf_counter() - t0
     def one(j: int, name: str):  # a measure's closed forms and resampling (on a host thread)
         with large.HOST_BUDGET.hold(large.job_bytes(nb, nt)):
@@ -415,7 +417,6 @@ def _analyse_large(
         "resample_seconds": time.perf_counter() - t0,
         "pieces": pieces,
         "scale": scale,
-        "curve_moments": None if curves is None else mom,
     }
 
 
@@ -486,7 +487,8 @@ def calibrate(
     labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
     already started (the draws then overlap other work). Above `large.LARGE_N` seeds
     the halves are drawn per distinct value (measures) and per block of seeds (curves),
-    see `_calibrate_large`; moments: the curves' `large.curve_moments`, if at hand.
+    see `_calibrate_large`; moments: the curves' `large.curve_moments` (the dict, or the function
+    that waits for it), if at hand.
     """
     names = list(measures)
     n = measures[names[0]].size
@@ -651,7 +653,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         base = tot - treat
         t_split = welch_t_stat(h, base[:, :T], part(base, sq), h, treat[:, :T], part(treat, sq))
         max_split = np.abs(t_split).max(1)
-        mom = moments
+        mom = moments() if callable(moments) else moments
         if mom is None or mom["n"] != N:
             if mom is not None and mom["n"] == N + 1:  # drop the odd seed out
                 last = (curves.rows(N, N + 1)[0] if packed else np.asarray(curves)[N]).astype(np.float64)
