@@ -306,8 +306,8 @@ def _measure_large(
     }
     out["p_permutation"] = float(large.normal_permutation_p(t_obs))
     if bootstrap:
-        out["diff"] = large.abc_two_sample("mean_diff", xc, yc, alpha)
-        out["hedges_g"] = large.abc_two_sample("hedges_g", xc, yc, alpha)
+        abc = large.abc_intervals(("mean_diff", "hedges_g"), xc, yc, alpha)
+        out["diff"], out["hedges_g"] = abc["mean_diff"], abc["hedges_g"]
     if iqm:
         out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
         for side, z in (("baseline", xc), ("treatment", yc)):
