@@ -47,6 +47,7 @@ def environment() -> dict:
         import jaxeac
 
         info["jaxeac"] = jaxeac.__version__
+        info["jaxeac_from"] = str(Path(jaxeac.__file__).resolve().parent.parent)
     except ImportError:  # pragma: no cover
         pass
     return info
@@ -212,8 +213,10 @@ def builds_record(args) -> dict:
                     [str(build.resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]))
                 subprocess.run([sys.executable, __file__, *child, "--out", str(out)], env=env, check=True,
                                stdout=subprocess.DEVNULL)
-                for row in json.loads(out.read_text())["rows"]:
-                    row |= {"impl": f"jaxeac {build.name}", "build": build.name, "round": i}
+                got = json.loads(out.read_text())
+                for row in got["rows"]:
+                    row |= {"impl": f"jaxeac {build.name}", "build": build.name, "round": i,
+                            "jaxeac_from": got["environment"].get("jaxeac_from")}
                     print(json.dumps(row), flush=True)
                     record["rows"].append(row)
     return record

@@ -36,9 +36,11 @@ BETAS = "0.05,0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9"
 
 
 def jaxeac(argv: list[str], env: dict | None = None) -> dict:
-    """Run ``jaxeac ARGV`` in a fresh process: wall seconds and peak RSS (GiB)."""
+    """Run ``jaxeac ARGV`` in a fresh process: wall seconds and peak RSS (GiB). Python's ``-P``
+    keeps the working directory off the front of its path, so a build put first on PYTHONPATH
+    (`builds_record`) is the jaxeac imported even when run from a checkout's root."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "jaxeac", *argv], stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen([sys.executable, "-P", "-m", "jaxeac", *argv], stdout=subprocess.DEVNULL,
                             env=None if env is None else os.environ | env)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0

@@ -68,6 +68,9 @@ def test_bench_compares_builds_taking_turns(tmp_path):
     assert rec["builds"] == ["one", "two"]
     assert [(r["build"], r["round"], r["algo"]) for r in rec["rows"]] == [
         (b, i, a) for i in (0, 1) for b in ("one", "two") for a in ("ac", "eac")]
+    # each build's own package, even under the editable install of this checkout
+    assert {(r["build"], r["jaxeac_from"]) for r in rec["rows"]} == {(b, str((tmp_path / b).resolve()))
+                                                                      for b in ("one", "two")}
     table = _script("scripts/bench.py", "--render", str(out)).stdout
     assert "| jaxeac two | eac |" in table and "AC at 40 seeds, best of 2 rounds: one " in table
     assert "×** one)" in table
