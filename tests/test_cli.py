@@ -182,6 +182,17 @@ def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
         assert proc.stdout.split() == expected.split()
 
 
+def test_command_line_gives_numpy_one_blas_thread_unless_the_user_chose():
+    """`jaxeac` sets NumPy's BLAS to one thread per call before NumPy loads (the statistics' own
+    threads oversubscribed the host otherwise, BENCHMARKS.md); a value the user set is kept."""
+    code = ("import sys, jaxeac.__main__ as m; loaded = 'numpy' in sys.modules; "
+            "env = {'MKL_NUM_THREADS': '4'}; m.one_blas_thread(env); "
+            "print(loaded, env['OPENBLAS_NUM_THREADS'], env['MKL_NUM_THREADS'])")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["False", "1", "4"]  # NumPy not yet loaded: the setting is in time
+
+
 def test_configure_xla_adds_each_gpu_flag_unless_the_user_set_it():
     """Each of jaxeac's GPU flags is added on its own; one the user set keeps the user's value
     (XLA keeps a flag's last value, so appending jaxeac's would override it). The compile-time
