@@ -372,8 +372,9 @@ def _codes_of_bits(bits: np.ndarray, trials: int, late: int) -> tuple[np.ndarray
     nonzero = bits != 0
     j = np.argmax(nonzero, axis=1)
     first = np.where(nonzero.any(1), 8 * j + _BYTE_LOWEST[bits[np.arange(n), j]] + 1, trials + 1)
-    # Σ over set bits of (T − 8j − b) = Σ_j [count_j (T − 8j) − Σ b], where a byte's Σ b (at most
-    # 28) counts bit b once in each of the masks 0xAA (b's bit 0), 0xCC (bit 1) and 0xF0 (bit 2)
+    # Σ over set bits of (T − 8j − b) = Σ_j [count_j (T − 8j) − Σ b], where a byte x's Σ b
+    # (at most 28) is |x & 0xAA| + 2|x & 0xCC| + 4|x & 0xF0|: the masks hold the positions b
+    # whose bit 0, 1 and 2 is set
     positions = (np.bitwise_count(bits & np.uint8(0xAA)) + 2 * np.bitwise_count(bits & np.uint8(0xCC))
                  + 4 * np.bitwise_count(bits & np.uint8(0xF0)))
     area = per_byte.astype(np.int64) @ (trials - 8 * np.arange(width)) - positions.sum(1, dtype=np.int64)
