@@ -191,6 +191,13 @@ def test_command_line_gives_numpy_one_blas_thread_unless_the_user_chose():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["False", "1", "4"]  # NumPy not yet loaded: the setting is in time
+    # the command itself (`jaxeac --help` through the console entry point) makes the setting
+    command = ("import atexit, os, sys; import jaxeac.__main__ as m; sys.argv = ['jaxeac', '--help']; "
+               "atexit.register(lambda: print('BLAS', os.environ.get('OPENBLAS_NUM_THREADS'))); m.run()")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "BLAS 1"
 
 
 def test_configure_xla_adds_each_gpu_flag_unless_the_user_set_it():
