@@ -7,6 +7,7 @@ through `jaxeac.io.staged_dir`.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import threading
 import time
@@ -50,6 +51,15 @@ PAIRED_STREAM = 2_000_000
 DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
 #: What stats.json states the versions of (`jaxeac.experiments.common.versions`).
 STATS_PACKAGES = ("jaxeac", "jax", "jaxlib", "numpy", "scipy")
+
+
+def _beside(*calls) -> list[Future]:
+    """Futures of `calls` (functions of no argument), run one after another on a thread of their
+    own beside the caller (NumPy frees the interpreter's lock); the thread ends with the last."""
+    pool = ThreadPoolExecutor(max_workers=1)
+    futures = [pool.submit(call) for call in calls]
+    pool.shutdown(wait=False)
+    return futures
 
 
 def _key_record(key) -> dict:
@@ -167,9 +177,7 @@ def compare_experiment(
                 return paired_analysis(as_values(vb[k]), as_values(vt[k]), pair_keys[j], resamples=resamples,
                                        alpha=alpha)
 
-        pool = ThreadPoolExecutor(max_workers=1)  # one thread beside the rest
-        paired_jobs = [pool.submit(pair, j, k) for j, k in enumerate(names)]
-        pool.shutdown(wait=False)  # the threads end with their jobs
+        paired_jobs = _beside(*(functools.partial(pair, j, k) for j, k in enumerate(names)))
     hib = {k: MEASURES[k][0] for k in names}
     # above large.LARGE_N the curves' sums start on the device now, for the analysis and the calibration
     moments = [large.curve_moments(c) for c in curves] if large.is_large(sb.shape[0], st.shape[0]) else None
@@ -190,9 +198,7 @@ def compare_experiment(
             )
             return cal, time.perf_counter() - t
 
-        pool = ThreadPoolExecutor(max_workers=1)
-        calibration = pool.submit(calibration_job)
-        pool.shutdown(wait=False)  # the thread ends with its job
+        (calibration,) = _beside(calibration_job)
     res = _analyse(
         vb,
         vt,
