@@ -44,6 +44,7 @@ from jaxeac.cli_args import (  # noqa: F401  (the flag types, importable from he
     show,
     solver_settings,
 )
+from jaxeac import runtime
 from jaxeac.errors import UsageError
 
 
@@ -374,7 +375,7 @@ def _compare_grid(run, out, *, compare: bool, quiet: bool, sequential: dict | No
     per-seed columns."""
     if not _compares(run, compare=compare):
         return 0
-    from jaxeac.running.batch import trim_host_memory
+    from jaxeac.runtime import trim_host_memory
 
     data = _grid_run_data(run, out, sequential)
     run.results = {}
@@ -616,47 +617,6 @@ COMMANDS = {
 }
 
 
-#: CUDA graphs for whole loop bodies: ~10 % faster single-GPU runs, better multi-GPU scaling.
-GPU_XLA_FLAGS = ("--xla_gpu_enable_command_buffer=FUSION,CUSTOM_CALL,WHILE,CONDITIONAL",)
-#: For the grid-like commands (`COMPILE_FLAG_COMMANDS`): matrix products (the statistics' exact
-#: sums) through cuBLAS rather than XLA's Triton GEMMs, and no autotuning of kernels at compile
-#: time. On one H100 a first 10^6-seed `jaxeac grid` compiled seconds faster (the curve sums'
-#: program 0.6 s instead of 3.7 s beside the run's, EAC's run program 1.7 s instead of 3.6 s),
-#: with the same results and run speed. Not for bowling: MJX's float32 physics ran at 0.72x
-#: with them and knocked other pins (BENCHMARKS.md, *Compiling less after the run*).
-GPU_COMPILE_FLAGS = ("--xla_gpu_enable_triton_gemm=false", "--xla_gpu_autotune_level=0")
-COMPILE_FLAG_COMMANDS = frozenset({"grid", "run", "sweep", "study", "compare", "merge"})
-#: JAX's GPU allocator grows as needed rather than reserving 75 % of the device up front.
-GPU_PREALLOCATE = "false"
-
-
-def configure_xla(command: str | None = None) -> None:
-    """Set XLA up for jaxeac before JAX starts: every CPU core a device; on GPUs, CUDA graphs
-    (`GPU_XLA_FLAGS`), for the grid-like `command`s cuBLAS matrix products without compile-time
-    autotuning (`GPU_COMPILE_FLAGS`), and device memory taken as it is needed.
-
-    XLA runs one computation on one thread; with ``n`` host devices the runner splits each
-    chunk of seeds over ``n`` threads (results are identical, SPEC R1). On GPUs JAX by default
-    reserves 75 % of the device's memory at its first allocation, and that reservation held
-    ~1.5 GiB of *host* memory before any result on an H100 and doubled the peak of a 10^6-seed
-    run (BENCHMARKS.md, *Host memory of the GPU process*); jaxeac lets the allocator grow
-    instead (`GPU_PREALLOCATE`), at the same speed there. Settings already in the environment
-    are kept; nothing changes once JAX has started.
-    """
-    if "jax" in sys.modules:
-        return
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags:
-        count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        flags += f" --xla_force_host_platform_device_count={count or 1}"
-    gpu = GPU_XLA_FLAGS + (GPU_COMPILE_FLAGS if command in COMPILE_FLAG_COMMANDS else ())
-    for flag in gpu:  # each unless the environment sets it (XLA keeps a flag's last value)
-        if flag.split("=")[0] not in flags:
-            flags += " " + flag
-    os.environ["XLA_FLAGS"] = flags.strip()
-    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", GPU_PREALLOCATE)
-
-
 def _fail(message: str, code: int = 2) -> int:
     """Print ``error: message`` as one line on stderr; return `code`."""
     line = " ".join(str(message).split("\n")).replace("\r", " ")
@@ -713,11 +673,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     try:
         words = list(sys.argv[1:] if argv is None else argv)
-        configure_xla(words[0] if words else None)
+        runtime.configure(words[0] if words else None, force=True)
         with contextlib.ExitStack() as cleanup:
-            from jaxeac.running.cache import use_compilation_cache
-
-            use_compilation_cache()  # a rerun loads its programs instead of compiling them
             args = build_parser().parse_args(argv)
             args._cleanup = cleanup
             return COMMANDS[args.command](args)

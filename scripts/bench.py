@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxeac.cli import configure_xla
+from jaxeac.runtime import configure
 
-configure_xla("grid")  # before JAX starts: one host device per core, as `jaxeac` does
+configure("grid", start_jax=False)  # before JAX starts: one host device per core, as `jaxeac` does
 
 
 def environment() -> dict:

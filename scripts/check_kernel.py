@@ -20,9 +20,9 @@ import json
 import sys
 from pathlib import Path
 
-from jaxeac.cli import configure_xla
+from jaxeac.runtime import configure
 
-configure_xla("grid")  # before JAX starts, as `jaxeac` does
+configure("grid", start_jax=False)  # before JAX starts, as `jaxeac` does
 
 ALGOS = ("ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only")
 

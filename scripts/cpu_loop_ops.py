@@ -27,8 +27,8 @@ from pathlib import Path
 FREE = {"parameter", "get-tuple-element", "tuple", "constant", "bitcast"}
 RUN = """
 import sys
-from jaxeac.cli import configure_xla
-configure_xla("grid")
+from jaxeac.runtime import configure
+configure("grid", start_jax=False)
 from jaxeac.algorithm.config import algorithm
 from jaxeac.envs.grid import GridWorld, get_map
 from jaxeac.running.batch import run_seeds

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxeac.cli import configure_xla
+from jaxeac.runtime import configure
 
-configure_xla("grid")  # before JAX starts, as `jaxeac` does (CUDA graphs on GPUs, all CPU cores)
+configure("grid", start_jax=False)  # before JAX starts, as `jaxeac` does
 
 import jax  # noqa: E402
 

@@ -24,7 +24,7 @@ T0 = time.perf_counter()
 
 
 def child(mode: str) -> dict:
-    from jaxeac.cli import configure_xla
+    from jaxeac.runtime import configure
 
     configure_xla("grid")
     import jax

@@ -172,7 +172,7 @@ def test_command_uses_every_cpu_core(tmp_path):
 def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
     """`configure_xla` (run by `jaxeac` before JAX starts) turns JAX's up-front reservation of
     GPU memory off (it held ~1.5 GiB of host memory, BENCHMARKS.md) unless the user set it."""
-    code = ("import os; from jaxeac.cli import configure_xla; configure_xla(); "
+    code = ("import os; from jaxeac.runtime import configure; configure_xla(); "
             "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'], 'command_buffer' in os.environ['XLA_FLAGS'])")
     base = {k: v for k, v in os.environ.items() if k not in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_FLAGS")}
     for env, expected in (({}, "false True"), ({"XLA_PYTHON_CLIENT_PREALLOCATE": "true"}, "true True")):
@@ -204,7 +204,7 @@ def test_configure_xla_adds_each_gpu_flag_unless_the_user_set_it():
     """Each of jaxeac's GPU flags is added on its own; one the user set keeps the user's value
     (XLA keeps a flag's last value, so appending jaxeac's would override it). The compile-time
     flags are for the grid-like commands only: bowling's MJX physics is slower with them."""
-    code = ("import os, sys; from jaxeac.cli import configure_xla; configure_xla(sys.argv[1]); "
+    code = ("import os, sys; from jaxeac.runtime import configure; configure_xla(sys.argv[1]); "
             "print(os.environ['XLA_FLAGS'])")
     base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     user = "--xla_gpu_enable_triton_gemm=true"

@@ -1,7 +1,7 @@
-"""What the experiments share: input checks, versions, per-seed intervals and the summary.json core.
+"""What the experiments share: input checks, per-seed intervals and the summary.json core.
 
 The checks raise `UsageError` so that bad input fails before any compute (the CLI turns
-it into a one-line error); `versions` is the one place that states what a result ran on.
+it into a one-line error).
 """
 
 from __future__ import annotations
@@ -9,16 +9,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import platform
 import sys
 from collections.abc import Callable
-from importlib import metadata
 
 import jax
 import numpy as np
 from scipy import special
 
-from jaxeac import __version__
+from jaxeac.runtime import versions
 from jaxeac.algorithm.config import ALGORITHMS, algorithm
 from jaxeac.errors import UsageError
 
@@ -320,33 +318,6 @@ def check_compare_resources(resamples: int, trials: int) -> None:
         raise UsageError(f"--resamples {resamples:,} cannot fit in memory: the resampled statistics of "
                          f"{trials:,} trials need at least {fmt_bytes(need)}, but this machine has "
                          f"{fmt_bytes(memory)}; use at most --resamples {most:,} (10,000 is the default)")
-
-
-# ------------------------------------------------------------------ versions
-
-#: What a run folder's summary.json states (`versions()`), in this order.
-RUN_PACKAGES = ("jaxeac", "python", "jax", "jaxlib", "numpy", "optax", "mujoco", "matplotlib", "platform")
-#: Stated only where installed: the MJX backends' physics.
-OPTIONAL_PACKAGES = ("mujoco-mjx", "warp-lang")
-
-
-def versions(packages: tuple[str, ...] = RUN_PACKAGES,
-             optional: tuple[str, ...] = OPTIONAL_PACKAGES) -> dict[str, str]:
-    """Versions of the packages a result depends on, keyed by name (``-`` → ``_``).
-
-    Each of `packages` is stated ("unknown" where not installed); each of `optional` only
-    where installed. "python" and "platform" are the interpreter and the machine.
-    """
-    builtin = {"jaxeac": lambda: __version__, "python": platform.python_version,
-               "platform": platform.platform}
-    out = {}
-    for name in (*packages, *optional):
-        try:
-            out[name.replace("-", "_")] = builtin[name]() if name in builtin else metadata.version(name)
-        except metadata.PackageNotFoundError:
-            if name in packages:
-                out[name.replace("-", "_")] = "unknown"
-    return out
 
 
 # ------------------------------------------------------------------ per-seed summaries

@@ -9,10 +9,7 @@ the device count or the seeds beside it, and reruns are bit-identical (R2).
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import os
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -25,6 +22,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxeac.algorithm.config import Hyper
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
+from jaxeac.runtime import trim_host_memory
 from jaxeac.running.config import RunConfig, auto_chunk_size
 from jaxeac.running.loops import Env, flat_batch, trials_batch
 from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
@@ -83,22 +81,6 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     n_chunks = -(-n // chunk_size)
     even = -(-n // n_chunks)
     return -(-even // n_devices) * n_devices
-
-
-def trim_host_memory() -> None:
-    """Hand memory the process has freed back to the system (glibc's ``malloc_trim``; elsewhere
-    nothing; and pyarrow's allocator's, if pyarrow is loaded). XLA's compiler frees gigabytes
-    after a GPU compile that malloc would otherwise keep, and pyarrow's allocator keeps what
-    reading results.parquet freed (1.7 GiB at 10^7 seeds), so the peak resident memory is the
-    data's, not theirs."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        pass
-    arrow = sys.modules.get("pyarrow")
-    if arrow is not None:
-        arrow.default_memory_pool().release_unused()
 
 
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)

@@ -18,9 +18,8 @@ import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
-from jaxeac.experiments.common import versions
 from jaxeac.io import staged_dir, to_jsonable
-from jaxeac.running.batch import trim_host_memory
+from jaxeac.runtime import start_device, trim_host_memory, versions
 from jaxeac.running.outputs import SuccessBits, as_bool
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
@@ -49,7 +48,7 @@ CALIBRATION_SPLITS = 200
 #: unpaired results stay as they were).
 PAIRED_STREAM = 2_000_000
 DECLARED_TESTS = {"first_success": "log-rank"}  # every other measure: Welch
-#: What stats.json states the versions of (`jaxeac.experiments.common.versions`).
+#: What stats.json states the versions of (`jaxeac.runtime.versions`).
 STATS_PACKAGES = ("jaxeac", "jax", "jaxlib", "numpy", "scipy")
 
 
@@ -318,21 +317,6 @@ def compare_experiment(
     return stats, plot
 
 
-def _start_device() -> threading.Thread:
-    """Start JAX's default device on a thread: on a GPU, creating its context and loading its
-    libraries takes a second or two, which the host's reading and per-seed measures can hide
-    (JAX initialises a backend once, under a lock, so the main thread simply finds it ready).
-    Returns the thread: a command that fails before using the device waits for it, since the
-    interpreter aborts if it exits while that thread is still inside JAX's start-up."""
-    def work() -> None:
-        with contextlib.suppress(Exception):  # a failure shows up, with its message, at first use
-            jax.block_until_ready(jax.numpy.zeros(1))
-
-    thread = threading.Thread(target=work, daemon=True)
-    thread.start()
-    return thread
-
-
 def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
     """Whether row i of both methods is the same seed i (then their results share its key)."""
     nb, nt = len(data.success[baseline]), len(data.success[treatment])
@@ -422,7 +406,7 @@ def compare_run_dir(
                     calibration_splits=calibration_splits, calibration_resamples=calibration_resamples,
                     chunk=chunk, unpaired=unpaired, require_paired=require_paired)
     t_load, bar = time.perf_counter(), None
-    starter = _start_device() if analysed is None else None  # a GPU's context starts while the host reads
+    starter = start_device() if analysed is None else None  # a GPU's context starts while the host reads
     try:
         if data is None and analysed is None:
             data = load_run_dir(run_dir, baseline, treatment)
