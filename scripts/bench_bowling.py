@@ -61,7 +61,7 @@ from jaxeac.envs.bowling import (  # noqa: E402
 )
 from jaxeac.envs.bowling.scene import MJX_IMPL, check_backend  # noqa: E402
 from jaxeac.errors import UsageError  # noqa: E402
-from jaxeac.experiments.common import OPTIONAL_PACKAGES, versions  # noqa: E402
+from jaxeac.runtime import OPTIONAL_PACKAGES, versions  # noqa: E402
 
 
 def _inputs(batch: int, cfg: BowlingConfig, seed: int):

@@ -208,9 +208,9 @@ def bench_tidy(args) -> None:
 
 
 def main() -> None:
-    from jaxeac.__main__ import one_blas_thread
+    from jaxeac.runtime import configure
 
-    one_blas_thread()  # NumPy's BLAS as the `jaxeac` command sets it, before NumPy loads
+    configure("compare", start_jax=False)  # as the `jaxeac` command: one BLAS thread, before NumPy loads
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[10_000], help="seeds per method (one or more)")
     ap.add_argument("--trials", type=int, default=200)
