@@ -148,3 +148,21 @@ def test_bench_bowling_standalone_warp_without_warp_is_refused(tmp_path):
     assert proc.returncode == 2
     assert 'pip install "jaxeac[warp]"' in proc.stderr.splitlines()[-1], proc.stderr[-500:]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("name", ["bench", "bench_tasks", "bench_stats", "bench_bowling", "e2e", "scale",
+                                  "check_kernel", "figures"])
+def test_every_benchmark_script_documents_itself(name):
+    """Each kept benchmark answers --help with its usage and exits 0."""
+    proc = _script(f"scripts/{name}.py", "--help")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.startswith("usage:")
+
+
+def test_figures_are_drawn_from_the_kept_records(tmp_path):
+    """scripts/figures.py reads only scripts/bench_results/ and writes its three PNGs."""
+    pytest.importorskip("matplotlib")
+    proc = _script("scripts/figures.py", "--out", str(tmp_path))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in ("throughput_vs_seeds.png", "end_to_end_vs_seeds.png", "peers.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
