@@ -51,6 +51,7 @@ GPU_XLA_FLAGS = ("--xla_gpu_enable_command_buffer=FUSION,CUSTOM_CALL,WHILE,CONDI
 GPU_COMPILE_FLAGS = ("--xla_gpu_enable_triton_gemm=false", "--xla_gpu_autotune_level=0")
 #: Work that keeps XLA's compile defaults (`GPU_COMPILE_FLAGS` is for everything else).
 DEFAULT_COMPILE_WORK = frozenset({"bowling", "throw"})
+PREALLOCATE_VARIABLE = "XLA_PYTHON_CLIENT_PREALLOCATE"
 GPU_PREALLOCATE = "false"
 
 CACHE_VARIABLE = "JAXEAC_COMPILATION_CACHE"
@@ -76,14 +77,15 @@ def configure(work: str | None = None, *, start_jax: bool = True, force: bool = 
     """Apply every process setting (module docstring) that can still take effect; idempotent.
 
     `work` is the command's name (``"grid"``, ``"bowling"``, ...; None: grid-like work) and
-    picks the GPU compile flags. ``start_jax=False`` applies only what must precede NumPy and
-    JAX (environment variables; nothing is imported). `force` ignores `OPT_OUT` (the command
-    line). Returns what was applied, by setting.
+    picks the GPU compile flags; until JAX is imported a later call with other work replaces
+    the flags an earlier call chose. ``start_jax=False`` applies only what must precede NumPy
+    and JAX (environment variables; nothing is imported). `force` ignores `OPT_OUT` (the
+    command line). Returns what was applied, by setting.
     """
     if not force and opted_out():
         return {}
     with _LOCK:
-        if "environment" not in _APPLIED:
+        if "jax" not in sys.modules:
             _APPLIED["environment"] = _set_environment(work)
         if "blas" not in _APPLIED and "numpy" in sys.modules:
             _APPLIED["blas"] = _set_loaded_blas_threads()
@@ -92,17 +94,23 @@ def configure(work: str | None = None, *, start_jax: bool = True, force: bool = 
         return dict(_APPLIED)
 
 
-def _set_environment(work: str | None, environ=os.environ) -> dict:
-    """The variables read when NumPy's BLAS and JAX's backends start (each unless set)."""
+#: The variables `configure` sets, as the user had them before its first call.
+_USERS: dict[str, str | None] = {}
+
+
+def _set_environment(work: str | None) -> dict:
+    """The variables read when NumPy's BLAS and JAX's backends start, each unless the user set it
+    (computed from the user's own values, so a second call replaces what the first added)."""
+    environ = os.environ
+    if not _USERS:
+        _USERS.update({k: environ.get(k) for k in (*BLAS_THREAD_VARIABLES, "XLA_FLAGS", PREALLOCATE_VARIABLE)})
     done = {}
     if "numpy" not in sys.modules:
         for name in BLAS_THREAD_VARIABLES:
-            environ.setdefault(name, "1")
+            if _USERS[name] is None:
+                environ[name] = "1"
         done["blas_threads"] = environ.get("OPENBLAS_NUM_THREADS")
-    if "jax" in sys.modules:  # too late for XLA's flags: JAX keeps the ones it started with
-        done["xla_flags"] = None
-        return done
-    flags = environ.get("XLA_FLAGS", "")
+    flags = _USERS["XLA_FLAGS"] or ""
     if "xla_force_host_platform_device_count" not in flags:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         flags += f" --xla_force_host_platform_device_count={count or 1}"
@@ -111,7 +119,8 @@ def _set_environment(work: str | None, environ=os.environ) -> dict:
         if flag.split("=")[0] not in flags:
             flags += " " + flag
     environ["XLA_FLAGS"] = done["xla_flags"] = flags.strip()
-    environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", GPU_PREALLOCATE)
+    if _USERS[PREALLOCATE_VARIABLE] is None:
+        environ[PREALLOCATE_VARIABLE] = GPU_PREALLOCATE
     return done
 
 

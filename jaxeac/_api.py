@@ -1,0 +1,288 @@
+"""The public face of the package: `run`, `trace`, `compare` and `load` (re-exported by `jaxeac`).
+
+Each function checks its arguments at entry (``ValueError``/``TypeError`` naming the argument,
+the value and the fix) and applies the process settings of `jaxeac.runtime` on first use, so
+a notebook runs with the command line's settings and gets its numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import numbers
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxeac import runtime
+
+#: Trials of a run named by its algorithm alone (the paper's grid experiment, G6).
+DEFAULT_TRIALS = 200
+
+
+def _check_count(name: str, value, *, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"{name} must be a positive integer (got {value!r})")
+
+
+def _env(env):
+    """An environment object, from itself or its registered name."""
+    from jaxeac.envs import make
+
+    if isinstance(env, str):
+        return make(env)
+    if not all(hasattr(env, a) for a in ("n_states", "n_actions", "n_chances")):
+        raise TypeError(f"env must be an environment (jaxeac.make(NAME)) or a registered name "
+                        f"(jaxeac.registered() lists them), got {type(env).__name__}")
+    return env
+
+
+def _config(config):
+    """A `RunConfig` from itself or an algorithm's name (`DEFAULT_TRIALS`, the paper's rates)."""
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.running.config import RunConfig
+
+    if isinstance(config, str):
+        return RunConfig(trials=DEFAULT_TRIALS, agent=algorithm(config))
+    if not isinstance(config, RunConfig):
+        raise TypeError(f"config must be a RunConfig or an algorithm's name such as 'eac' "
+                        f"(got {type(config).__name__})")
+    return config
+
+
+def _configs(config) -> tuple[dict[str, Any], bool]:
+    """{name: RunConfig} and whether one config was given (not a sequence or a mapping)."""
+    if isinstance(config, Mapping):
+        if not config:
+            raise ValueError("config is an empty mapping; give at least one algorithm")
+        return {str(k): _config(v) for k, v in config.items()}, False
+    if isinstance(config, Sequence) and not isinstance(config, str):
+        cfgs = [_config(c) for c in config]
+        if not cfgs:
+            raise ValueError("config is an empty sequence; give at least one algorithm")
+        names = [_name(c) for c in cfgs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"config names an algorithm twice ({names}); use a mapping {{name: RunConfig}} "
+                             "to run two settings of one algorithm")
+        return dict(zip(names, cfgs, strict=True)), False
+    cfg = _config(config)
+    return {_name(cfg): cfg}, True
+
+
+def _name(cfg) -> str:
+    """The registered algorithm a config runs (`jaxeac.algorithm`'s names), with any memory layout."""
+    from jaxeac.algorithm.config import ALGORITHMS, BASELINES
+
+    for name, agent in (ALGORITHMS | BASELINES).items():
+        layout = {f: getattr(cfg.agent, f) for f in ("memory", "capacity", "tables")}
+        if dataclasses.replace(agent, **layout) == cfg.agent:
+            return name
+    raise ValueError("config's agent is none of the named algorithms (jaxeac.algorithm's names); give "
+                     "configs as a mapping {name: RunConfig}")
+
+
+def run(env, config="eac", *, seeds: int, key=0, chunk_size: int | None = None, progress: bool = False,
+        out: str | os.PathLike | None = None):
+    """Run seeds 0 … seeds−1 of one algorithm or several, side by side (SPEC R1: seed i's key is
+    ``fold_in(key, i)``, whatever the chunk size or device count).
+
+    `env`: an environment (`jaxeac.make`) or its registered name. `config`: a `RunConfig`, an
+    algorithm's name (``"eac"``: 200 trials at the paper's rates), or a sequence or mapping of
+    these. `key`: an integer 0 … 2³²−1 or a JAX key. Returns a `SeedsResult` (success [N, T],
+    steps, policy, ...) for one config, else ``{name: SeedsResult}``.
+
+    `out`: also write the run folder that ``jaxeac run`` writes (results.parquet, summary.json,
+    figures; read by `compare` and `load`). It needs `env` as a registered name and configs the
+    command line can state (no schedules); the folder is the command's, byte for byte.
+    """
+    from jaxeac.running.batch import run_algorithms
+    from jaxeac.running.outputs import SeedsResult
+
+    _check_count("seeds", seeds)
+    _check_count("chunk_size", chunk_size, allow_none=True)
+    cfgs, single = _configs(config)
+    if out is not None:
+        results = _run_to_folder(env, cfgs, seeds=seeds, key=key, chunk_size=chunk_size, out=out)
+    else:
+        environment = _env(env)
+        runtime.configure()
+        bar = _progress(progress, seeds * len(cfgs))
+        try:
+            runs = run_algorithms(environment, list(cfgs.values()), root_key=key, n_seeds=seeds,
+                                  chunk_size=chunk_size, progress=None if bar is None else bar.update)
+        finally:
+            if bar is not None:
+                bar.close()
+        results = dict(zip(cfgs, runs, strict=True))
+    assert all(isinstance(r, SeedsResult) for r in results.values())
+    return next(iter(results.values())) if single else results
+
+
+def _progress(progress: bool, total: int):
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="seed")
+
+
+def _run_to_folder(env, cfgs: dict, *, seeds: int, key, chunk_size, out) -> dict:
+    """`run(..., out=)`: the command line's settings for these configs, run and written as it does."""
+    from jaxeac.experiments.grid import GridRun, GridSettings, write_grid_outputs
+    from jaxeac.running.batch import run_algorithms
+
+    if not isinstance(env, str):
+        raise TypeError("out= writes the folder of a command-line run, which names its environment: "
+                        "pass env as a registered name (jaxeac.registered())")
+    first = next(iter(cfgs.values()))
+    if any(name != _name(cfg) for name, cfg in cfgs.items()):
+        raise ValueError("out= needs each config under its algorithm's name (the folder's 'algo' column)")
+    settings = GridSettings(env=env, algos=tuple(cfgs), seeds=seeds, key=_int_key(key), chunk_size=chunk_size,
+                            trials=first.trials, alpha=first.alpha, beta=first.beta, gamma=first.gamma,
+                            temperature=first.temperature, epsilon=first.epsilon, lanes=first.lanes,
+                            memory=first.agent.memory, capacity=first.agent.capacity)
+    settings = settings.resolved()
+    for name, cfg in cfgs.items():
+        stated = settings.run_config(name)
+        if stated != cfg:
+            differ = [f.name for f in dataclasses.fields(cfg) if getattr(cfg, f.name) != getattr(stated, f.name)]
+            raise ValueError(f"out= writes a folder the command line can read, and {name}'s config differs from "
+                             f"what its flags state in {', '.join(differ)}; run without out= to keep the results "
+                             "in memory")
+    runtime.configure()
+    environment = settings.make_env()
+    runs = run_algorithms(environment, [settings.run_config(a) for a in settings.algos], root_key=settings.key,
+                          n_seeds=seeds, chunk_size=chunk_size)
+    results = dict(zip(settings.algos, runs, strict=True))
+    write_grid_outputs(GridRun(settings, settings.grid_map(), results), out)
+    return results
+
+
+def _int_key(key) -> int:
+    """The 32-bit integer of a root key (an int or a JAX key), as a run folder records it."""
+    from jaxeac import rng
+
+    root = getattr(rng, "root_key_int", None)
+    if root is not None:
+        return root(key)
+    if isinstance(key, bool) or not isinstance(key, numbers.Integral) or not 0 <= key < 2**32:
+        raise ValueError(f"key must be an integer in 0 … 2**32 - 1 (got {key!r})")
+    return int(key)
+
+
+def trace(env, config, key=0, seed=0):
+    """One seed's whole run as a pure function: ``(final agent, per-trial record)``, with each
+    trial's states, actions, r̃ and outcome (the literal `trials` loop; jit and vmap it freely:
+    `key` and `seed` may be traced)."""
+    import jax
+
+    from jaxeac.rng import seed_key
+    from jaxeac.running.loops import trace_run
+
+    environment, cfg = _env(env), _config(config)
+    runtime.configure()
+    if isinstance(key, numbers.Integral) and not isinstance(key, bool):
+        key = jax.random.key(_int_key(key))
+    return trace_run(environment, cfg, seed_key(key, seed), cfg.hyper())
+
+
+def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: float = 0.95,
+            names: tuple[str, str] = ("ac", "eac")):
+    """Compare two methods, treatment − baseline.
+
+    - ``compare(folder)``: a run folder (``jaxeac run``/`run(..., out=)`): writes stats.json,
+      report.md and figures into it, as ``jaxeac compare FOLDER`` does; `names` are the two
+      algorithms; returns the stats.json content.
+    - ``compare(a, b)``: per-seed values (1-D arrays, ``{measure: array}``, or `SeedsResult`s,
+      compared on successes): difference of means with a BCa interval, Welch and permutation
+      tests, Hedges' g, A12, power; returns ``{measure: results}``.
+
+    `level`: the confidence level of every interval (0.95: 95 %).
+    """
+    _check_count("resamples", resamples)
+    if isinstance(level, bool) or not isinstance(level, numbers.Real) or not 0.5 <= level < 1:
+        raise ValueError(f"level is the confidence level, in [0.5, 1) (got {level!r}); e.g. 0.95 for 95 % intervals")
+    runtime.configure()
+    if treatment is None:
+        if not isinstance(baseline, str | os.PathLike):
+            raise TypeError("compare(folder) takes a run folder's path; to compare arrays give two: compare(a, b)")
+        from jaxeac.stats import compare_run_dir
+
+        b, t = names
+        return compare_run_dir(baseline, baseline=b, treatment=t, resamples=resamples, alpha=1 - level,
+                               key=key, progress=False)
+    from jaxeac.stats import compare_measures
+
+    return compare_measures(_values(baseline, "baseline"), _values(treatment, "treatment"), key,
+                            resamples=resamples, alpha=1 - level)
+
+
+def _values(x, name: str):
+    if hasattr(x, "successes") and hasattr(x, "success"):
+        return {"successes": np.asarray(x.successes, float), "first_success": np.asarray(x.first_success, float)}
+    if isinstance(x, Mapping):
+        return {k: np.asarray(v, float) for k, v in x.items()}
+    arr = np.asarray(x)
+    if arr.ndim != 1 or arr.size < 2 or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be per-seed numbers, a 1-D array of at least 2 (got shape {arr.shape}, "
+                         f"dtype {arr.dtype})")
+    return arr.astype(float)
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """A run folder read back (`load`): its summary.json, and per algorithm the per-seed columns
+    (``per_seed[algo]["successes"]``, ...) and success per trial (``success(algo)``: bool [N, T])."""
+
+    path: Path
+    experiment: str
+    algos: tuple[str, ...]
+    trials: int
+    summary: dict
+    per_seed: dict
+    _success: dict = dataclasses.field(repr=False)
+
+    def success(self, algo: str) -> np.ndarray:
+        """bool [N, T]: seed i succeeded in trial t."""
+        if algo not in self._success:
+            raise KeyError(f"{algo!r} is not in this run; it holds {', '.join(self.algos)}")
+        value = self._success[algo]
+        return value.unpack() if hasattr(value, "unpack") else np.asarray(value, bool)
+
+
+def load(folder) -> Run:
+    """Read a run folder written by ``jaxeac run``/``bowling`` or `run(..., out=)`: every algorithm's
+    per-seed results (grid folders: seed, successes, first_success, steps_total, finite, and
+    trial_steps and policy where kept; bowling: the per_seed.csv columns)."""
+    from jaxeac.io import json_field, read_json_object
+
+    path = Path(folder)
+    if not (path / "summary.json").is_file():
+        raise ValueError(f"{path} holds no run (no summary.json); pass a folder written by 'jaxeac run' "
+                         "or jaxeac.run(..., out=FOLDER)")
+    summary = read_json_object(path / "summary.json", "re-run the experiment")
+    where = path / "summary.json"
+    algos = tuple(json_field(summary, "algos", list, where, "re-run the experiment"))
+    trials = json_field(summary, "trials", int, where, "re-run the experiment")
+    if (path / "results.parquet").is_file():
+        from jaxeac.results import load_grid_results
+
+        loaded = load_grid_results(path, algos, trials)
+        fields = ("seeds", "successes", "first_success", "steps_total", "finite", "trial_steps", "policy")
+        per_seed = {a: {f: getattr(r, f) for f in fields if getattr(r, f) is not None} for a, r in loaded.items()}
+        success = {a: r.success for a, r in loaded.items()}
+        return Run(path, summary.get("experiment", "grid"), algos, trials, summary, per_seed, success)
+    from jaxeac.stats.rundir import load_run_dir
+
+    per_seed, success = {}, {}
+    for other in algos[1:] or algos[:1]:
+        data = load_run_dir(path, algos[0], other) if other != algos[0] else None
+        if data is None:
+            raise ValueError(f"{path} holds one algorithm only; a run folder holds two or more")
+        per_seed |= data.per_seed
+        success |= data.success
+    return Run(path, summary.get("experiment", "bowling"), algos, trials, summary, per_seed, success)
