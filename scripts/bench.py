@@ -193,7 +193,7 @@ def measure(args) -> dict:
 
 
 def builds_record(args) -> dict:
-    """`--builds`: this benchmark's jaxeac rows for each source tree in one sitting, the builds
+    """`--builds`: this benchmark's jaxeac rows for each source tree on one machine, the builds
     taking turns for `--rounds` rounds (a drifting machine slows each alike). Each row is
     labelled ``jaxeac <dir name>`` and keeps its round."""
     import subprocess
@@ -420,7 +420,7 @@ def main() -> None:
                    help="EAC's memory jumps (RunConfig.jump), a row for each (e.g. `--jump on off` for "
                         "a same-run ratio); auto as jaxeac")
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
-                   help="compare these source trees (e.g. `git archive` of two commits) in one sitting: "
+                   help="compare these source trees (e.g. `git archive` of two commits) on one machine: "
                         "jaxeac rows only, each build in turn (`--rounds` times), no peers")
     p.add_argument("--rounds", type=int, default=2, help="--builds: rounds of the builds taking turns")
     p.add_argument("--out", type=Path, help="write the JSON record here")

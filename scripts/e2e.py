@@ -15,7 +15,7 @@ are recorded too.
 
     python scripts/e2e.py --only grid --grid-seeds 1000000 --warm-up --builds A B --repeats 3
 
-compares source trees A and B (e.g. ``git worktree add A COMMIT``) in one sitting:
+compares source trees A and B (e.g. ``git worktree add A COMMIT``) on one machine:
 the plain command's first runs taking turns, then a cached run of each.
 """
 
@@ -113,7 +113,7 @@ def warm_up() -> float:
 
 def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, command: list[str] | None = None
                   ) -> dict:
-    """A same-sitting comparison of source trees (`git worktree` checkouts or `git archive`
+    """A comparison on one machine of source trees (`git worktree` checkouts or `git archive`
     exports of commits, each put first on PYTHONPATH): the plain grid command (or `command`, the
     arguments of another jaxeac command, without --out) with an empty compilation cache, the
     builds taking turns, `repeats` rounds, then once each with its cache."""
@@ -145,7 +145,7 @@ def main() -> None:
                    help="first start JAX once in a process of its own (`warm_up`), so the first run's time "
                         "is its compiles, not the OS reading the GPU libraries from disk")
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
-                   help="grid only: compare these source trees in one sitting (`builds_record`)")
+                   help="grid only: compare these source trees on one machine, taking turns (`builds_record`)")
     p.add_argument("--repeats", type=int, default=3, help="--builds: rounds of first runs")
     p.add_argument("--builds-command", metavar="ARGS",
                    help="--builds: time `jaxeac ARGS --out DIR` instead of the grid command (e.g. 'run --env "

@@ -52,7 +52,7 @@ def throughput_vs_seeds(records: Path, out: Path) -> Path:
     rows = load(records, "cpu_grid_seeds.json")["rows"]
     for algo, label in (("ac", "AC"), ("eac", "EAC, before memory jumps")):
         _line(cpu, _jaxeac(rows, algo), marker="o", color=COLORS[algo],
-              label=f"jaxeac {label} (cpu_grid_seeds.json: earlier build, slow sitting)")
+              label=f"jaxeac {label} (cpu_grid_seeds.json: earlier build, a slower run)")
     for r in (r for r in rows if r["impl"] == "numpy"):
         cpu.plot(r["seeds"], r["steps_per_s"], marker="s", ls="none", color=COLORS["numpy"],
                  mfc="none" if r["algo"] == "eac" else COLORS["numpy"],
