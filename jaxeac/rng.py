@@ -10,20 +10,142 @@ trial's last chance from a third (`bootstrap_uniform`). No key is split per step
 loop (the literal trials loop, the flat loop, the fused GPU kernel, bowling) draws the
 same numbers, and the same root key gives bit-identical results (R2).
 Bowling's execution noise (B3) comes from ``fold_in(fold_in(seed_key, trial), chance)``.
+
+A user's key enters through `root_key_int` (a run's 32-bit root, as a run folder records it)
+or `as_key` (any JAX key, traced or not): see `root_key_int` for how a JAX key maps.
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations
 
+import numbers
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxeac.pytree import pytree_dataclass
 
+#: Root keys are 32-bit (R1): ``jax.random.key(k)`` keeps only k mod 2^32, so a larger (or a
+#: negative) integer would silently give another key's results; such keys are refused.
+KEY_LIMIT = 1 << 32
+KEY_IMPL = "threefry2x32"  # the PRNG whose two key words `seed_words` feeds to `step_uniform`
 
-def seed_key(root_key: jax.Array, seed: jax.Array) -> jax.Array:
-    """R1: the key of seed i is ``fold_in(root_key, i)``."""
-    return jax.random.fold_in(root_key, seed)
+
+def _is_traced(value) -> bool:
+    return isinstance(value, jax.core.Tracer)
+
+
+def _is_new_key(value) -> bool:
+    """A new-style JAX key array (``jax.random.key``), traced or not."""
+    return isinstance(value, jax.Array) and jax.dtypes.issubdtype(value.dtype, jax.dtypes.prng_key)
+
+
+def _is_legacy_key(value) -> bool:
+    """A legacy raw key (``jax.random.PRNGKey``): uint32 [2], a JAX or NumPy array, traced or not."""
+    return (isinstance(value, jax.Array | np.ndarray) and value.dtype == np.uint32
+            and tuple(value.shape) == (2,))
+
+
+def _key_range(name: str) -> str:
+    return (f"pass an integer in 0..{KEY_LIMIT - 1} (2^32 - 1), jax.random.key(k) or "
+            f"jax.random.PRNGKey(k) with k in that range")
+
+
+def _check_int_key(value, name: str) -> int:
+    key = int(value)
+    if not 0 <= key < KEY_LIMIT:
+        alias = (f"; JAX keeps only k mod 2^32, so it would silently give key {key % KEY_LIMIT}'s run"
+                 if key >= KEY_LIMIT or key < 0 else "")
+        raise ValueError(f"{name} must lie in 0..{KEY_LIMIT - 1} (got {key}){alias}; {_key_range(name)}")
+    return key
+
+
+def root_key_int(key, name: str = "root_key") -> int:
+    """The run's 32-bit root (R1) from a user's key; seed i's key is ``fold_in(jax.random.key(root), i)``.
+
+    * An integer k in 0..2^32−1 (Python or NumPy, or a 0-d integer array; not a bool): k.
+      Others are refused (ValueError): JAX keeps only k mod 2^32, so 2^40 would run key 0's
+      seeds and −1 key 2^32−1's.
+    * A JAX key of the default threefry2x32 PRNG, new-style (``jax.random.key(k)``, shape ())
+      or legacy (``jax.random.PRNGKey(k)``, uint32 [2], a NumPy copy too): its two data words
+      (`jax.random.key_data`) are [0, k] for every k in 0..2^32−1, and the root is k, so
+      ``key(7)``, ``PRNGKey(7)`` and ``7`` give the same run. A key whose first word is not 0
+      (from ``split`` or ``fold_in``) has no 32-bit root: ValueError (pass the integer it was
+      made from). A key is data, not the int it came from: JAX has already folded an int
+      outside 0..2^32−1 into 32 bits when it built the key (``key(-1)`` is ``key(2**32 - 1)``).
+
+    A value traced under jit/vmap cannot be checked: TypeError (use `as_key` inside traced code).
+    Anything else: TypeError naming `name`, the value and what to pass.
+    """
+    if _is_traced(key):
+        raise TypeError(f"{name} must be a concrete value, not one traced under jit/vmap (got {key!r}); "
+                        "pass it from outside the traced function")
+    if _is_new_key(key) or _is_legacy_key(key):
+        if _is_new_key(key):
+            impl = str(jax.random.key_impl(key))
+            if key.shape != () or impl != KEY_IMPL:
+                raise TypeError(f"{name} must be one {KEY_IMPL} key (got a key array of shape {key.shape}, "
+                                f"impl {impl}); {_key_range(name)}")
+            words = np.asarray(jax.random.key_data(key)).reshape(-1)
+        else:
+            words = np.asarray(key).reshape(-1)
+        if int(words[0]) != 0:
+            raise ValueError(f"{name} is a JAX key with data words [{int(words[0])}, {int(words[1])}]: "
+                             "a run's root is 32-bit, and only a key made from an integer k in "
+                             f"0..{KEY_LIMIT - 1} (words [0, k]) has one; keys from split or fold_in "
+                             f"do not; {_key_range(name)}")
+        return int(words[1])
+    if isinstance(key, bool | np.bool_):
+        raise TypeError(f"{name} must be an integer key, not a bool (got {key!r}); {_key_range(name)}")
+    if isinstance(key, numbers.Integral):
+        return _check_int_key(key, name)
+    if isinstance(key, numbers.Real):  # 1.5, 2.0, NaN: a number, but no integer key
+        raise ValueError(f"{name} must be an integer (got {key!r}); {_key_range(name)}")
+    if (isinstance(key, jax.Array | np.ndarray) and key.shape == ()
+            and np.issubdtype(key.dtype, np.integer)):
+        return _check_int_key(key, name)
+    raise TypeError(f"{name} must be an integer or a JAX key (got {key!r} of type {type(key).__name__}); "
+                    f"{_key_range(name)}")
+
+
+def as_key(key, name: str = "key") -> jax.Array:
+    """A new-style threefry2x32 key from a user's key, usable inside traced code: a JAX key
+    (new-style, or legacy uint32 [2]: wrapped, the same words) is kept as it is, traced or not
+    (any key, e.g. a seed's, from ``fold_in``); an integer becomes ``jax.random.key(root_key_int(k))``
+    (refused outside 0..2^32−1). Anything else: TypeError naming `name`."""
+    if _is_new_key(key):
+        impl = str(jax.random.key_impl(key))
+        if key.shape != () or impl != KEY_IMPL:
+            raise TypeError(f"{name} must be one {KEY_IMPL} key (got a key array of shape {key.shape}, "
+                            f"impl {impl}; vmap over a batch of keys)")
+        return key
+    if _is_legacy_key(key):
+        return jax.random.wrap_key_data(jnp.asarray(key), impl=KEY_IMPL)
+    if _is_traced(key):
+        raise TypeError(f"{name} must be a JAX key when traced (got {key!r}); "
+                        "pass jax.random.key(k), or the integer k from outside the traced function")
+    return jax.random.key(root_key_int(key, name))
+
+
+def check_seed_index(seed, name: str = "seed") -> None:
+    """A concrete seed index must be an integer in 0..2^32−1 (`fold_in` keeps 32 bits; R1);
+    traced ones are not checked."""
+    if _is_traced(seed) or (isinstance(seed, jax.Array | np.ndarray) and seed.ndim > 0):
+        return
+    if isinstance(seed, bool | np.bool_) or not isinstance(seed, numbers.Integral | np.ndarray | jax.Array) \
+            or not np.issubdtype(np.asarray(seed).dtype, np.integer):
+        raise TypeError(f"{name} must be an integer seed index (got {seed!r}); pass e.g. 0")
+    if not 0 <= int(seed) < KEY_LIMIT:
+        raise ValueError(f"{name} must lie in 0..{KEY_LIMIT - 1} (got {int(seed)}); "
+                         "pass a seed index in range")
+
+
+def seed_key(root_key, seed) -> jax.Array:
+    """R1: the key of seed i is ``fold_in(root_key, i)``. `root_key`: a JAX key (kept as it is,
+    traced or not) or an integer k in 0..2^32−1 (``jax.random.key(k)``); see `as_key`."""
+    check_seed_index(seed)
+    return jax.random.fold_in(as_key(root_key, "root_key"), seed)
 
 
 def seed_words(key: jax.Array) -> jax.Array:
