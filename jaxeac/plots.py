@@ -33,7 +33,7 @@ def cumulative_counts(success, chunk: int = 1 << 12) -> np.ndarray:
     on a 16-core GPU host, the peak of `jaxeac grid` at 10^7 seeds (BENCHMARKS.md)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from jaxeac.running.outputs import SuccessBits
+    from jaxeac.bits import SuccessBits
 
     n, t = success.shape
     offsets = np.arange(t, dtype=np.int32) * (t + 1)

@@ -56,7 +56,7 @@ def write_synthetic_run(path: Path, seeds: int, trials: int, seed: int = 0, fmt:
     if fmt == "parquet":
         from types import SimpleNamespace
 
-        from jaxeac.experiments.results import OutputOptions, write_grid_results
+        from jaxeac.results import OutputOptions, write_grid_results
 
         results = {
             algo: SimpleNamespace(

@@ -9,7 +9,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxeac.errors import UsageError
-from jaxeac.experiments.results import (
+from jaxeac.plots import count_percentile, cumulative_counts
+from jaxeac.results import (
     CSV_SEEDS,
     FULL_OUTPUT_SEEDS,
     RESULTS_FILE,
@@ -18,7 +19,6 @@ from jaxeac.experiments.results import (
     unpack_success,
     write_grid_results,
 )
-from jaxeac.plots import count_percentile, cumulative_counts
 from jaxeac.running.outputs import CompactSeeds, SeedsResult, SuccessBits, as_bool
 
 
@@ -34,7 +34,7 @@ def fake_results(rng, n, trials=13, states=7, algos=("ac", "eac")):
 
 @pytest.mark.parametrize("trials", [1, 8, 13, 200])
 def test_round_trip_is_exact(tmp_path, rng, trials, monkeypatch):
-    import jaxeac.experiments.results as results
+    import jaxeac.results as results
 
     monkeypatch.setattr(results, "ROW_GROUP", 5)  # several row groups, one short
     res = fake_results(rng, 23, trials=trials)
@@ -89,7 +89,7 @@ def test_success_bits_match_the_bool_matrix(rng, trials, monkeypatch):
 def test_streamed_run_folder_equals_the_in_memory_one(tmp_path, monkeypatch):
     """`run_grid_to_folder` (results written a chunk at a time, `CompactSeeds` kept) writes the
     same results.parquet, per_seed.csv and summary figures as `run_grid` + `write_grid_outputs`."""
-    import jaxeac.experiments.results as results
+    import jaxeac.results as results
     from jaxeac.experiments.grid import GridSettings, run_grid, run_grid_to_folder, write_grid_outputs
 
     monkeypatch.setattr(results, "ROW_GROUP", 4)
@@ -116,7 +116,7 @@ def test_arrow_arrays_built_on_numpy_buffers_equal_pyarrows_own(rng, dtype):
     own constructor imports pandas first): the same Arrow arrays, sliced views and odd lengths too."""
     import pyarrow as pa
 
-    from jaxeac.experiments.results import _from_numpy, _strings
+    from jaxeac.results import _from_numpy, _strings
 
     values = rng.integers(-100, 100, size=37).astype(dtype)
     for view in (values, values[3:], values[::2], values[:0]):

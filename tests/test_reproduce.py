@@ -121,7 +121,7 @@ def test_report_numbers_equal_the_step_json(run):
         assert row in ab
 
     # the step JSONs agree with the run folders they summarise
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
 
     npz = {a: r.success for a, r in load_grid_results(out / "grid", ("ac", "eac"), 200).items()}
     assert grid["successes"]["eac"]["mean"] == pytest.approx(npz["eac"].sum(1).mean())
@@ -174,7 +174,7 @@ def test_new_claims_state_their_rule_before_the_result(run):
     assert f"{split['paper_position']['eac']['percentile']:.1f} | {TINY.bowling_seeds} |" in b4
 
     # the per-seed measures behind the numbers, recomputed from the run folders
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
 
     success = {a: r.success for a, r in load_grid_results(out / "grid", ("ac", "eac"), 200).items()}
     rise = rate_change(success["ac"], 180, 20)["rise"]
@@ -215,7 +215,7 @@ def test_start_cells_of_the_run_fit_its_paths(run):
     """Every successful trial of the recorded run took at least the fewest moves from the start cell
     `start_states` gives it; start cells of another root key break this, so the check has teeth."""
     from jaxeac.experiments.grid import GridSettings
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
     from jaxeac.running.batch import start_states
 
     out, _ = run

@@ -24,8 +24,8 @@ import jax
 import numpy as np
 import pytest
 
+from jaxeac.bits import SuccessBits
 from jaxeac.io import to_jsonable
-from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import bca_ci, compare_experiment, curve_bands, iqm_ci, permutation_test
 
 #: Output keys that did not exist when the pins were taken (dotted paths).

@@ -28,7 +28,7 @@ def test_study_compares_every_algorithm_with_ac_and_holm_spans_the_family(study)
     np.testing.assert_allclose([r["p_holm"] for r in rows], holm([r["p_welch"] for r in rows]))
     assert result["comparisons_in_family"] == 4
     # the per-task numbers are those of the task's own run folder
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
 
     loaded = load_grid_results(out / "tasks" / "FrozenLake-4x4-v1", ("ac", "eac"), 30)
     means = {a: float(loaded[a].successes.mean()) for a in ("ac", "eac")}

@@ -42,14 +42,14 @@ from jaxeac.experiments.common import (  # noqa: F401  (re-exported: imported fr
     welch_diff_ci95,
 )
 from jaxeac.experiments.presets import make as make_preset
-from jaxeac.experiments.results import (
+from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, json_field, read_json_object, staged_dir
+from jaxeac.results import (
     RESULTS_FILE,
     OutputOptions,
     ResultsWriter,
     load_grid_results,
     write_grid_results,
 )
-from jaxeac.io import RUN_FOLDER_FILES, atomic_write_json, json_field, read_json_object, staged_dir
 from jaxeac.running.batch import run_algorithms, run_seeds
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import CompactCollector, CompactSeeds, SeedsResult, as_bool

@@ -106,8 +106,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, figures."""
     from jaxeac import plots
     from jaxeac.experiments.grid import run_grid_to_folder
-    from jaxeac.experiments.results import OutputOptions
     from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
+    from jaxeac.results import OutputOptions
     from jaxeac.stats import holm
     from jaxeac.stats.tidy import compare_samples
 
@@ -156,7 +156,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
 
 def _successes(folder: Path, grid: GridSettings) -> dict[str, np.ndarray]:
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
 
     loaded = load_grid_results(folder, grid.algos, grid.trials)
     return {a: np.asarray(loaded[a].success, bool) for a in grid.algos}

@@ -29,8 +29,8 @@ from concurrent.futures import ThreadPoolExecutor
 import jax
 import numpy as np
 
+from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
-from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key

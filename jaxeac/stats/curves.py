@@ -14,8 +14,8 @@ from __future__ import annotations
 import jax
 import numpy as np
 
+from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
-from jaxeac.running.outputs import SuccessBits
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.resample import bootstrap_sums, permutation_sums
 

@@ -76,7 +76,7 @@ import numpy as np
 from jax import lax
 from scipy import special
 
-from jaxeac.running.outputs import SuccessBits
+from jaxeac.bits import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import mulhi32, random_words, warm_key_programs
 from jaxeac.stats.rundir import Coded, as_values, joint_counts

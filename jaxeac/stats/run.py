@@ -6,10 +6,8 @@ through `jaxeac.io.staged_dir`.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import json
-import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -17,10 +15,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxeac.bits import SuccessBits, as_bool
 from jaxeac.errors import UsageError
 from jaxeac.io import staged_dir, to_jsonable
 from jaxeac.runtime import start_device, trim_host_memory, versions
-from jaxeac.running.outputs import SuccessBits, as_bool
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
 from jaxeac.io import json_field, read_json_object
-from jaxeac.running.outputs import SuccessBits
+from jaxeac.results import load_grid_results
 
 LATE_FRACTION = 0.2
 _BLOCK = 16_384  # seeds per block of the area sums
@@ -96,7 +97,7 @@ def _read_per_seed(path: Path) -> dict:
 
 def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunData:
     """Read and cross-check summary.json and the per-seed results: results.parquet (grid runs,
-    `jaxeac.experiments.results`) or per_seed.csv and curves.npz (bowling, and older grid runs)."""
+    `jaxeac.results`) or per_seed.csv and curves.npz (bowling, and older grid runs)."""
     path = Path(run_dir)
     columnar = (path / "results.parquet").is_file()
     for name in ("summary.json",) + (() if columnar else ("per_seed.csv", "curves.npz")):
@@ -189,8 +190,6 @@ def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunDa
 
 
 def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunData:
-    from jaxeac.experiments.results import load_grid_results
-
     loaded = load_grid_results(path, pair, trials, compact=True)
     success, per_seed = {}, {}
     for algo, r in loaded.items():

@@ -133,7 +133,7 @@ def _say(progress: bool, text: str) -> None:
 def _grid_run(folder: Path, settings, progress: bool, *, figures: bool, label: str) -> None:
     """Run (unless already on disk with the same config) and write one grid run folder."""
     from jaxeac.experiments.grid import run_grid, write_grid_outputs
-    from jaxeac.experiments.results import RESULTS_FILE, OutputOptions
+    from jaxeac.results import RESULTS_FILE, OutputOptions
 
     expect = {k: getattr(settings, k) for k in ("preset", "seeds", "key", "algos", "trials", "chances",
                                                 "alpha", "beta", "gamma", "temperature")}
@@ -158,7 +158,7 @@ def _bowling_run(folder: Path, settings, progress: bool, *, figures: bool, label
 
 def _grid_data(folder: Path, algos, trials: int) -> tuple[dict, dict]:
     """(success [N, T], final policies [N, S]) per algorithm, read back from a run folder."""
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
 
     loaded = load_grid_results(folder, algos, trials)
     return ({a: r.success for a, r in loaded.items()},
@@ -197,7 +197,7 @@ def step_grid(folder: Path, sizes: Sizes, key: int, progress: bool) -> dict:
     (GRID-4), Fig. 2 reach and path lengths (GRID-5)."""
     from jaxeac import plots
     from jaxeac.experiments.grid import GridSettings
-    from jaxeac.experiments.results import load_grid_results
+    from jaxeac.results import load_grid_results
     from jaxeac.stats import compare_run_dir, curve_bands
 
     settings = GridSettings(preset="paper", seeds=sizes.grid_seeds, key=key,
