@@ -155,13 +155,14 @@ def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *,
     plt.close(fig)
 
 
-def grid_figures(run, folder: Path, *, seed: int = 0) -> list[str]:
-    """Both grid figures of a `GridRun` into `folder`; returns the file names."""
-    from jaxeac.experiments.presets import make
+def grid_figures(run, folder: Path, *, seed: int = 0, paper: dict[str, int] | None = None) -> list[str]:
+    """Both grid figures of a `GridRun` into `folder`; returns the file names.
 
+    `paper`: the paper's successes per algorithm (its preset's ``paper_successes``), marked on
+    the curves when the run used the preset's own world (no map file, environment or slip)."""
     s = run.settings
     paper_world = s.map_file is None and s.env is None and not s.slip
-    paper = make(s.preset).paper_successes if paper_world else None  # the paper's curve on its own world only
+    paper = paper if paper_world else None  # the paper's curve on its own world only
     cumulative_success_figure({a: r.success for a, r in run.results.items()},
                               folder / "fig3_cumulative_successes.png", paper=paper)
     if run.grid_map is None:  # a non-grid environment: no map to draw the policies on

@@ -411,7 +411,8 @@ def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOpti
     if figures:
         from jaxeac import plots
 
-        summary["figures"] = plots.grid_figures(run, stage)
+        summary["figures"] = plots.grid_figures(run, stage,
+                                                paper=make_preset(run.settings.preset).paper_successes)
     atomic_write_json(stage / "summary.json", summary)
     return summary
 
