@@ -165,8 +165,8 @@ from scipy import stats as sps  # noqa: E402
 
 from jaxeac.stats import closed_form as cf  # noqa: E402
 from jaxeac.stats import large  # noqa: E402
-from jaxeac.stats.compare import _measure_large  # noqa: E402
 from jaxeac.stats.curves import curve_results, curve_results_large  # noqa: E402
+from jaxeac.stats.measure_large import measure_large  # noqa: E402
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation  # noqa: E402
 
 BIG = 200_000  # seeds per method for the checks against exact references (large path: > LARGE_N)
@@ -342,7 +342,7 @@ def test_normal_permutation_p_matches_exact_permutation():
     y = rng.gamma(2.0, 1.0, BIG)
     se = np.sqrt(x.var(ddof=1) / BIG + y.var(ddof=1) / BIG)
     y = np.round((y + 2.0 * se - (y.mean() - x.mean())) * 500) / 500  # Welch t near 2: p near 0.05
-    res = _measure_large(x, y, jax.random.key(2), resamples=10, alpha=0.05, bootstrap=False)
+    res = measure_large(x, y, jax.random.key(2), resamples=10, alpha=0.05, bootstrap=False)
     assert res["distinct_values"] > large.MAX_DISTINCT
     t = large.ValueTable(x, y)
     c = np.r_[x, y].mean()

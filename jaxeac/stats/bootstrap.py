@@ -1,106 +1,33 @@
 """Bootstrap intervals: BCa (Efron 1987) and the IQM (SPEC §6).
 
-`bca_interval` follows Efron & Tibshirani (1993, ch. 14) exactly as
-`scipy.stats.bootstrap(method="BCa")` does: bias correction from the share of
-replicates below the estimate, acceleration from jackknife influence values
-summed over the samples. Jackknife values are closed-form here (leave-one-out
-means, variances and trimmed means), so no statistic is recomputed n times.
+The resampling here; the interval arithmetic (`bca_interval`, the closed-form jackknife
+values) in `jaxeac.stats.bca`, whose names this module also offers. Above `large.LARGE_N`
+seeds `bca_ci` takes the large-N path of `jaxeac.stats.measure_large`.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import special, stats
+from scipy import stats
 
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction, hedges_from_moments
+from jaxeac.stats.bca import (  # noqa: F401 (offered here too: this module's names before jaxeac.stats.bca)
+    bca_interval,
+    bca_two_sample,
+    bca_two_sample_counts,
+    jackknife_iqm,
+    jackknife_means,
+    jackknife_moments,
+)
+from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction
+from jaxeac.stats.measure_large import measure_large
 from jaxeac.stats.resample import bootstrap_sums
-
-
-def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -> tuple[float, float]:
-    """BCa interval from bootstrap replicates and per-sample jackknife values (Efron 1987).
-
-    jackknife: a list with one 1-D array of leave-one-out estimates per sample, or per
-    sample a pair (estimates, counts): the leave-one-out estimate of each distinct value
-    and how many units have it (the large-N path, `jaxeac.stats.large`).
-    """
-    theta_star = np.asarray(theta_star, np.float64)
-    if not np.isfinite(theta_hat):  # e.g. Hedges' g of two constant samples
-        return float(theta_hat), float(theta_hat)
-    b = theta_star.size
-    pct = ((theta_star < theta_hat).sum() + (theta_star <= theta_hat).sum()) / (2 * b)
-    z0 = special.ndtri(pct)
-    nums, dens = 0.0, 0.0
-    for jk in jackknife:
-        if isinstance(jk, tuple):  # (estimate per distinct value, units with that value)
-            jk, w = (np.asarray(a, np.float64) for a in jk)
-            if not np.isfinite(jk).all():
-                nums, dens = 0.0, 0.0
-                break
-            n = w.sum()
-            u = (n - 1) * ((w @ jk) / n - jk)
-            nums += (w @ u**3) / n**3
-            dens += (w @ u**2) / n**2
-            continue
-        jk = np.asarray(jk, np.float64)
-        if not np.isfinite(jk).all():
-            nums, dens = 0.0, 0.0  # undefined influence values: no acceleration
-            break
-        n = jk.size
-        u = (n - 1) * (jk.mean() - jk)
-        nums += (u**3).sum() / n**3
-        dens += (u**2).sum() / n**2
-    a = nums / (6 * dens**1.5) if dens > 0 else 0.0
-    za = special.ndtri(alpha / 2)
-    if np.isfinite(z0):
-        lo_q = special.ndtr(z0 + (z0 + za) / (1 - a * (z0 + za)))
-        hi_q = special.ndtr(z0 + (z0 - za) / (1 - a * (z0 - za)))
-    else:  # all replicates on one side: fall back to the percentile interval
-        lo_q, hi_q = alpha / 2, 1 - alpha / 2
-    with np.errstate(invalid="ignore"):
-        lo, hi = np.percentile(theta_star, [100 * lo_q, 100 * hi_q])
-    return float(lo), float(hi)
-
-
-def jackknife_means(x: np.ndarray) -> np.ndarray:
-    """Leave-one-out means."""
-    return (x.sum() - x) / (x.size - 1)
-
-
-def jackknife_moments(x: np.ndarray):
-    """Leave-one-out (n, sum, sum of squares) of a centred sample."""
-    return x.size - 1, x.sum() - x, (x**2).sum() - x**2
 
 
 def iqm(x) -> float:
     """Interquartile mean: mean of the middle 50 % (`scipy.stats.trim_mean(x, 0.25)`; Agarwal et al. 2021)."""
     return float(stats.trim_mean(check_sample(x), 0.25))
-
-
-def jackknife_iqm(x: np.ndarray) -> np.ndarray:
-    """Leave-one-out IQMs in O(n log n) from prefix sums of the sorted sample."""
-    order = np.argsort(x, kind="stable")
-    xs = x[order]
-    n = xs.size
-    m = n - 1
-    g = m // 4
-    a, b = g, m - g
-    pre = np.concatenate([[0.0], np.cumsum(xs)])
-    j = np.arange(n)
-    s_after = pre[b] - pre[a]  # removed unit sorts after the kept block
-    s_before = pre[b + 1] - pre[a + 1]  # removed unit sorts before it
-    s_inside = (pre[np.minimum(j, b)] - pre[a]) + (pre[b + 1] - pre[np.minimum(j + 1, b + 1)])
-    s = np.where(j >= b, s_after, np.where(j < a, s_before, s_inside))
-    out = np.empty(n)
-    out[order] = s / (b - a)
-    return out
-
-
-def _two_sample_stat(statistic, n1, s1, ss1, n2, s2, ss2):
-    if statistic == "mean_diff":
-        return s2 / n2 - s1 / n1
-    return hedges_from_moments(n1, s1, ss1, n2, s2, ss2)
 
 
 def bca_ci(
@@ -124,41 +51,13 @@ def bca_ci(
     y = check_sample(x_treatment, "x_treatment")
     kb, kt = _split2(key)
     if large.is_large(x.size, y.size):  # per-value bootstrap or ABC (`jaxeac.stats.large`)
-        from jaxeac.stats.compare import _measure_large
-
-        res = _measure_large(x, y, (kb, kt, None), resamples=resamples, alpha=alpha, permutation=False)
+        res = measure_large(x, y, (kb, kt, None), resamples=resamples, alpha=alpha, permutation=False)
         return res["diff" if statistic == "mean_diff" else "hedges_g"]
     centre = np.concatenate([x, y]).mean()
     x, y = x - centre, y - centre
     sb, _ = bootstrap_sums(kb, np.stack([x, x**2], 1), resamples, chunk=chunk)
     st, _ = bootstrap_sums(kt, np.stack([y, y**2], 1), resamples, chunk=chunk)
     return bca_two_sample(statistic, x, y, sb[:, 0], sb[:, 1], st[:, 0], st[:, 1], alpha)
-
-
-def bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
-    nx, ny = x.size, y.size
-    # A few seeds per method: resamples and leave-one-out samples without spread give g = ±inf
-    # or NaN (0/0), which the interval below takes as they are; numpy need not warn of them.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        est = float(_two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), ny, y.sum(), (y**2).sum()))
-        star = _two_sample_stat(statistic, nx, sb1, sb2, ny, st1, st2)
-        jx = _two_sample_stat(statistic, *jackknife_moments(x), ny, y.sum(), (y**2).sum())
-        jy = _two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), *jackknife_moments(y))
-        lo, hi = bca_interval(est, star, [jx, jy], alpha)
-    return Estimate(est, lo, hi, 1 - alpha)
-
-
-def bca_two_sample_counts(statistic, vb, kb, vt, kt, sb1, sb2, st1, st2, alpha) -> Estimate:
-    """`bca_two_sample` from distinct values and their counts (v*, k*) per sample: the
-    estimate and the jackknife in O(distinct values) (the large-N path)."""
-    nb, nt = kb.sum(), kt.sum()
-    b1, b2, t1, t2 = kb @ vb, kb @ vb**2, kt @ vt, kt @ vt**2
-    est = float(_two_sample_stat(statistic, nb, b1, b2, nt, t1, t2))
-    star = _two_sample_stat(statistic, nb, sb1, sb2, nt, st1, st2)
-    jx = _two_sample_stat(statistic, nb - 1, b1 - vb, b2 - vb**2, nt, t1, t2)
-    jy = _two_sample_stat(statistic, nb, b1, b2, nt - 1, t1 - vt, t2 - vt**2)
-    lo, hi = bca_interval(est, star, [(jx, kb), (jy, kt)], alpha)
-    return Estimate(est, lo, hi, 1 - alpha)
 
 
 def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int = 1000) -> Estimate:

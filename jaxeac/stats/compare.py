@@ -34,13 +34,9 @@ from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.bootstrap import (
-    bca_interval,
-    bca_two_sample,
-    bca_two_sample_counts,
-    jackknife_iqm,
-)
+from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary, welch_t_stat
+from jaxeac.stats.measure_large import measure_large, perm_p
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
 from jaxeac.stats.rundir import Coded, as_values, event_counts, fill_values, value_counts
 
@@ -63,18 +59,6 @@ def _as_measures(x, name: str) -> dict:
     return out
 
 
-def _perm_p(t_obs, t_star):
-    """Two-sided Monte-Carlo permutation p = (1 + #{|t*| ≥ |t|}) / (P + 1) (Phipson & Smyth 2010)."""
-    return (1 + (np.abs(t_star) >= _threshold(t_obs)).sum(0)) / (t_star.shape[0] + 1)
-
-
-def _threshold(t_obs):
-    """|t| less a relative 1e-6, so float32 sums of the same labelling count as ties."""
-    a = np.abs(np.asarray(t_obs, np.float64))
-    with np.errstate(invalid="ignore"):
-        return np.where(np.isfinite(a), a - 1e-6 * np.maximum(a, 1e-12), a)
-
-
 def permutation_test(
     x_baseline, x_treatment, key, *, resamples: int = 10_000, chunk: int = 1000
 ) -> cf.TestResult:
@@ -86,7 +70,7 @@ def permutation_test(
     x = cf.check_sample(x_baseline, "x_baseline")
     y = cf.check_sample(x_treatment, "x_treatment")
     if large.is_large(x.size, y.size):
-        res = _measure_large(x, y, key, resamples=resamples, alpha=0.05, bootstrap=False, iqm=False)
+        res = measure_large(x, y, key, resamples=resamples, alpha=0.05, bootstrap=False, iqm=False)
         return cf.TestResult(res["t_welch"], res["p_permutation"])
     c = np.concatenate([x, y]).mean()
     x, y = x - c, y - c
@@ -95,7 +79,7 @@ def permutation_test(
     tot = z.sum(0)
     t_obs = welch_t_stat(x.size, x.sum(), (x**2).sum(), y.size, y.sum(), (y**2).sum())
     t_star = welch_t_stat(x.size, tot[0] - pt[:, 0], tot[1] - pt[:, 1], y.size, pt[:, 0], pt[:, 1])
-    return cf.TestResult(float(t_obs), float(_perm_p(t_obs, t_star[:, None])[0]))
+    return cf.TestResult(float(t_obs), float(perm_p(t_obs, t_star[:, None])[0]))
 
 
 def _rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, higher_is_better: bool, power: dict) -> dict:
@@ -213,7 +197,7 @@ def _analyse(
         t_obs = welch_t_stat(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
         out[name]["diff_ci95"] = [diff.low, diff.high]
         out[name]["hedges_g_ci95"] = [g.low, g.high]
-        out[name]["p_permutation"] = float(_perm_p(t_obs, t_star[:, None])[0])
+        out[name]["p_permutation"] = float(perm_p(t_obs, t_star[:, None])[0])
     # IQM per method of the first (primary) measure
     first = names[0]
     for side, x, q, n_ in (("baseline", xb[:, 0], iqm_b, nb), ("treatment", xt[:, 0], iqm_t, nt)):
@@ -243,79 +227,6 @@ def _analyse(
         "curve_bands_and_maxT": time.perf_counter() - t1,
     }
     return {"measures": out, "curves": curve, "resample_seconds": t_resample, "pieces": pieces}
-
-
-def _measure_large(
-    x, y, key, *, resamples, alpha, bootstrap=True, permutation=True, iqm=False, centre=None, table=None,
-    centred=False,
-) -> dict:
-    """Resampled results of one measure above `large.LARGE_N` seeds (see `jaxeac.stats.large`).
-
-    key: (bootstrap baseline, bootstrap treatment, permutation) keys, or one key to split.
-    x, y: raw per-seed values; the sums use them less `centre` (default: the pooled mean).
-    centred: x and y are already less `centre` (then `table`, of the raw values, is needed).
-    Returns the t statistic and the sums it comes from (of the centred values and their
-    squares), p_permutation (permutation=True), diff and Hedges' g intervals (bootstrap=True),
-    the IQM intervals (iqm=True) and the methods used.
-    """
-    if not isinstance(key, tuple):
-        key = tuple(jax.random.split(as_key(key), 3))
-    k_b, k_t, k_p = key
-    c = np.concatenate([x, y]).mean() if centre is None else centre
-    xc, yc = (x, y) if centred else (x - c, y - c)
-    nb, nt = x.size, y.size
-    sums = (xc.sum(), (xc**2).sum(), yc.sum(), (yc**2).sum())
-    t_obs = float(welch_t_stat(nb, *sums[:2], nt, *sums[2:]))
-    table = large.ValueTable(x, y) if table is None else table
-    v = table.values - c
-    out = {"t_welch": t_obs, "sums": sums, "distinct_values": table.distinct}
-    if table.exact:
-        out["methods"] = {
-            "bootstrap": large.REFERENCES["bootstrap_per_value"],
-            "permutation": large.REFERENCES["permutation_per_value"],
-        }
-        if permutation:
-            pooled = table.kb + table.kt
-            h = large.hypergeometric_counts(large.host_rng(k_p), pooled, nt, resamples)
-            pt1, pt2 = large.moment_sums(h, v)
-            tot1, tot2 = pooled @ v, pooled @ (v * v)
-            t_star = welch_t_stat(nb, tot1 - pt1, tot2 - pt2, nt, pt1, pt2)
-            out["p_permutation"] = float(_perm_p(t_obs, t_star[:, None])[0])
-        if bootstrap or iqm:  # everything below is O(distinct values) per resample
-            sums, groups = [], []
-            for side, k, counts in (("baseline", k_b, table.kb), ("treatment", k_t, table.kt)):
-                keep = counts > 0
-                kk, vv = counts[keep].astype(np.float64), v[keep]
-                groups.append((vv, kk))
-                cnt = large.multinomial_counts(large.host_rng(k), counts[keep], resamples)
-                sums.append(large.moment_sums(cnt, vv))
-                if iqm:
-                    q = large.iqm_from_counts(cnt, vv)
-                    est = float(large.iqm_from_counts(kk[None], vv)[0])
-                    jk = (large.jackknife_iqm_counts(kk, vv), kk)
-                    lo, hi = bca_interval(est, q, [jk], alpha)
-                    out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
-            (vb, kb), (vt, kt) = groups
-            if bootstrap:
-                for stat, name in (("mean_diff", "diff"), ("hedges_g", "hedges_g")):
-                    out[name] = bca_two_sample_counts(stat, vb, kb, vt, kt, *sums[0], *sums[1], alpha)
-        return out
-    out["methods"] = {
-        "bootstrap": large.REFERENCES["abc"],
-        "permutation": large.REFERENCES["normal_permutation"],
-    }
-    out["p_permutation"] = float(large.normal_permutation_p(t_obs))
-    if bootstrap:
-        abc = large.abc_intervals(("mean_diff", "hedges_g"), xc, yc, alpha)
-        out["diff"], out["hedges_g"] = abc["mean_diff"], abc["hedges_g"]
-    if iqm:
-        out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
-        for side, z in (("baseline", xc), ("treatment", yc)):
-            n_ = z.size
-            est = float(np.mean(np.sort(z)[n_ // 4 : n_ - n_ // 4]))
-            lo, hi = large.normal_bca(est, jackknife_iqm(z), alpha)
-            out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
-    return out
 
 
 def _analyse_large(
@@ -354,7 +265,7 @@ def _analyse_large(
             table = large.ValueTable(mb[name], mt[name])
             pooled -= c
             t2 = time.perf_counter()
-            res = _measure_large(
+            res = measure_large(
                 xr,
                 yr,
                 tuple(jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)),
@@ -542,7 +453,7 @@ def calibrate(
             split_sums[:, j],
             split_sums[:, M + j],
         )
-        p_perm = _perm_p(tstats(split_sums, cols, sq)[:, 0], tstats(ref_sums, cols, sq))
+        p_perm = perm_p(tstats(split_sums, cols, sq)[:, 0], tstats(ref_sums, cols, sq))
         p_bm = cf.brunner_munzel_masks(x[:, j], masks, alpha)[3]
         rates["welch"][name] = _rate(p_w, alpha)
         rates["permutation"][name] = _rate(p_perm, alpha)
@@ -620,7 +531,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         t_split = welch_t_stat(h, tot1 - a1, tot2 - a2, h, a1, a2)
         if exact:
             r1, r2 = s1[splits:], s2[splits:]
-            p_perm = _perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
+            p_perm = perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
         else:
             p_perm = large.normal_permutation_p(t_split)
         p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
