@@ -37,9 +37,8 @@ with contextlib.redirect_stdout(io.StringIO()):  # MJX prints "Failed to import 
     from mujoco import mjx
     from mujoco.mjx import warp as _mjx_warp
 
-from jaxeac.errors import UsageError
-
 from .backend_c import load_model
+from .engines import IMPLS, check_impl  # noqa: F401  (IMPLS, check_impl: re-exported)
 from .scene import (
     DEFAULT_SCENE,
     DEFAULT_SOLVER,
@@ -54,23 +53,12 @@ from .scene import (
     throw_start,
 )
 
-IMPLS = ("jax", "warp")  # MJX implementations (B7)
-
 # Hard bounds of the scene's contacts, from its explicit pair list (xmls/bowling.xml):
 # ball-floor 1, ball-pin 10 x 1, pin-floor 10 x 2 (capsule-plane), foot-floor 30 x 1,
 # pin-pin 45 x 2 (capsule-capsule) = 151 contacts; rows: 121 condim-3 contacts x 4
 # (pyramidal cone) + 30 condim-1 feet = 514. Sized so, Warp never overflows.
 WARP_CONTACTS = 151
 WARP_ROWS = 514
-
-
-def check_impl(impl: str) -> str:
-    """Return impl if MJX offers it here, else raise UsageError naming the fix."""
-    if impl not in IMPLS:
-        raise UsageError(f"unknown MJX implementation {impl!r}: use one of {', '.join(IMPLS)}")
-    if impl == "warp" and not _mjx_warp.WARP_INSTALLED:
-        raise UsageError('the warp backend needs warp-lang: pip install "jaxeac[warp]" (NVIDIA GPUs)')
-    return impl
 
 
 def _engine_model(solver: SolverSettings, scene: Scene):

@@ -21,6 +21,8 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 
+from .engines import BACKENDS, MJX_IMPL, check_backend, default_backend  # noqa: F401  (re-exported)
+
 XML_PATH = Path(__file__).resolve().parent / "xmls" / "bowling.xml"
 
 N_PINS = 10
@@ -110,8 +112,6 @@ NQ, NV = 77, 66
 TIMESTEP = 0.005  # s, as in the MJCF file
 MAX_STEPS = 2000  # 10 s: parked pins must not reach the floor
 
-BACKENDS = ("c", "mjx", "warp")  # B7: C engine; MJX in JAX; MJX with its Warp implementation (NVIDIA GPUs)
-MJX_IMPL = {"mjx": "jax", "warp": "warp"}  # the MJX implementation behind each MJX backend
 SOLVERS = ("newton", "cg")  # MuJoCo's constraint solvers offered (B7: chosen by measurement)
 
 
@@ -210,32 +210,6 @@ class BowlingConfig:
 def angles(cfg: BowlingConfig) -> np.ndarray:
     """The K shoulder angles evenly spaced on [-theta_max, theta_max] (B2)."""
     return np.linspace(-cfg.theta_max, cfg.theta_max, cfg.n_angles)
-
-
-def default_backend() -> str:
-    """B7's ``auto``: the fastest maintained engine where JAX runs: the C engine on CPUs; on
-    accelerators MJX with its Warp implementation when warp-lang is installed, else MJX in JAX."""
-    import jax
-
-    if jax.default_backend() == "cpu":
-        return "c"
-    try:
-        return check_backend("warp")
-    except UsageError:
-        return "mjx"
-
-
-def check_backend(backend: str) -> str:
-    """Return backend if known (``auto``: `default_backend`), else raise UsageError (B7)."""
-    if backend == "auto":
-        return default_backend()
-    if backend not in BACKENDS:
-        raise UsageError(f"unknown bowling backend {backend!r}: use one of auto, {', '.join(BACKENDS)}")
-    if backend in MJX_IMPL:
-        from .backend_mjx import check_impl  # imports MJX; only when an MJX backend is asked for
-
-        check_impl(MJX_IMPL[backend])
-    return backend
 
 
 def check_angles(angle, cfg: BowlingConfig) -> np.ndarray:
