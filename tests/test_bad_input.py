@@ -96,7 +96,7 @@ def test_bad_keys(value, tmp_path, capsys):
 @pytest.mark.parametrize("value", ["0", " 0", "+0", "-0", "00", "4294967295"])
 def test_keys_at_the_ends_of_their_range_are_accepted(value):
     """Keys are 0..2^32 - 1 (R1): the ends of the range, as a user may type them, parse."""
-    from jaxeac.cli_args import prng_key
+    from jaxeac.cli.flags import prng_key
 
     assert prng_key(value) == int(value)
 
@@ -150,7 +150,7 @@ def test_good_values_parse():
 
 def test_key_beyond_32_bits_is_refused_not_wrapped(tmp_path, capsys):
     """jax.random.key keeps key mod 2^32: 2^32 would silently rerun key 0 under another name."""
-    for command in (["grid", *TINY, "--out", str(tmp_path / "o")], ["throw", "--angles", "0"],
+    for command in (["grid", *TINY, "--out", str(tmp_path / "o")], ["throw", "--angle", "0"],
                     ["bowling", "--seeds", "2", "--out", str(tmp_path / "o")]):
         for key in (2**32, 2**64):
             refused(capsys, [*command, "--key", str(key)], tmp_path, r"0\.\.4294967295")
@@ -237,7 +237,7 @@ def test_empty_out_and_bad_render_paths(tmp_path, capsys, monkeypatch):
         refused(capsys, [*command, "--out=  "], tmp_path, "empty name")
     refused(capsys, ["compare", ""], tmp_path, "empty name")
     (tmp_path / "folder").mkdir()
-    throw = ["throw", "--angles", "0", "--render"]
+    throw = ["throw", "--angle", "0", "--render"]
     refused(capsys, [*throw, str(tmp_path / "missing" / "deck.png")], tmp_path, "does not exist")
     refused(capsys, [*throw, str(tmp_path / "folder")], tmp_path, "is a folder")
     refused(capsys, [*throw, ""], tmp_path, "not a file name")
@@ -278,12 +278,13 @@ def test_two_seeds_compare_without_warnings(tmp_path, capsys, key):
 
 
 def test_throw_noise_that_underflows_is_refused(tmp_path, capsys):
-    refused(capsys, ["throw", "--angles", "0", "--noise=5e-324"], tmp_path, "scales the noise to 0")
-    refused(capsys, ["throw", "--angles", "0", "--noise=1e-40"], tmp_path, "smallest normal")
+    throw = ["throw", "--angle", "0"]
+    refused(capsys, [*throw, "--noise-angle=5e-324"], tmp_path, "noise_angle.*smallest normal")
+    refused(capsys, [*throw, "--noise-speed=1e-40"], tmp_path, "noise_speed.*smallest normal")
 
 
 def test_render_reports_the_file_it_wrote(tmp_path, capsys):
-    assert main(["throw", "--angles", "0", "--render", str(tmp_path / "deck")]) == 0
+    assert main(["throw", "--angle", "0", "--render", str(tmp_path / "deck")]) == 0
     reported = json.loads(capsys.readouterr().out)["render"]
     assert reported == [str(tmp_path / "deck.png")] and (tmp_path / "deck.png").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["deck.png"]
@@ -323,7 +324,7 @@ def test_closed_stdout_is_quiet(monkeypatch, capfd):
             pass
 
     monkeypatch.setattr(sys, "stdout", Closed())
-    assert main(["throw", "--angles", "0"]) == 141
+    assert main(["throw", "--angle", "0"]) == 141
     assert capfd.readouterr().err == ""
 
 
@@ -391,8 +392,8 @@ def full_disk(tmp_path):
 
 def test_full_disk_is_one_line_and_leaves_nothing(full_disk, capsys):
     refused(capsys, ["grid", *TINY, "--out", str(full_disk / "run")], full_disk, "disk is full")
-    refused(capsys, ["throw", "--angles", "0", "0.05", "--render", str(full_disk / "deck.png")], full_disk,
-            "disk is full")  # two pictures do not fit: neither is left half-drawn
+    refused(capsys, ["throw", "--angle", "0", "--angle", "0.05", "--render", str(full_disk / "deck.png")],
+            full_disk, "disk is full")  # two pictures do not fit: neither is left half-drawn
     assert list(full_disk.iterdir()) == []
 
 
@@ -400,8 +401,8 @@ def test_full_disk_is_one_line_and_leaves_nothing(full_disk, capsys):
 
 
 @pytest.mark.parametrize(("argv", "match"), [
-    (["compare", "run", "--alpha", "5e-324"], "--alpha must lie in"),  # 1 - alpha/2 rounds to 1
-    (["compare", "run", "--alpha", "1e-40"], "--alpha must lie in"),
+    (["compare", "run", "--level", "0.99999999999999"], "--level .* beyond double precision"),  # α/2 ~ 0
+    (["compare", "run", "--level", "1"], r"--level must lie in \(0, 1\)"),
     (["sweep", "--seeds", "2", "--set", "alpha=0.1,,0.2"], "empty"),  # was run with the empty value dropped
     (["sweep", "--seeds", "2", "--set", "alpha=0.1,"], "empty"),
     (["grid", *TINY, "--map", ""], "empty name is not a map file"),  # was the preset's map
@@ -410,8 +411,8 @@ def test_full_disk_is_one_line_and_leaves_nothing(full_disk, capsys):
     (["bowling", "--seeds", "2", "--noise-angle", "1e12"], "noise_angle"),
     (["bowling", "--seeds", "2", "--theta-max", "1e-40"], "theta_max"),  # every angle 0 in float32
     (["bowling", "--seeds", "2", "--noise-angle", "5e-324"], "noise_angle"),
-    (["throw", "--angles", "0", "--noise", "1e308"], "--noise"),
-    (["throw", "--angles", "0", "--theta-max", "5e-324"], "theta_max"),
+    (["throw", "--angle", "0", "--noise-speed", "1e308"], "--noise-speed.*noise_speed"),
+    (["throw", "--angle", "0", "--theta-max", "5e-324"], "theta_max"),
 ])
 def test_extreme_values_found_by_the_campaign(argv, match, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -421,7 +422,7 @@ def test_extreme_values_found_by_the_campaign(argv, match, tmp_path, capsys, mon
 
 def test_smallest_compare_alpha_is_accepted():
     """The check above refuses what double precision cannot resolve, not small levels as such."""
-    from jaxeac.cli_args import MIN_TEST_ALPHA
+    from jaxeac.cli.flags import MIN_TEST_ALPHA
     from jaxeac.stats.closed_form import seeds_for_power
 
     assert seeds_for_power(0.5, 0.8, MIN_TEST_ALPHA) is not None
@@ -468,7 +469,6 @@ def test_policy_figure_of_a_large_map_draws_no_arrow_per_cell(tmp_path, monkeypa
     (["run", "--env", "FrozenLake-4x4-v1", "--slip", "-0.1"], "slip must be non-negative"),
     (["run", "--env", "FrozenLake-4x4-v1", "--epsilon", "2"], r"epsilon must lie in \[0, 1\]"),
     (["run", "--env", "FrozenLake-4x4-v1", "--algos", "ac", "dqn"], "unknown algorithm 'dqn'; choose from .*sarsa"),
-    (["run"], "the following arguments are required: --env"),
     (["study", "--tasks", "Nowhere-v9"], "unknown environment 'Nowhere-v9'"),
     (["study", "--tasks", "FrozenLake-4x4-v1:slip=2"], r"slip must lie in \[0, 1\]"),
     (["study", "--tasks", "FrozenLake-4x4-v1:wind=2"], "write NAME or NAME:slip=P"),

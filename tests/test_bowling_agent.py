@@ -131,13 +131,13 @@ def test_bowling_cli_end_to_end(tmp_path, capsys):
     (["bowling", "--noise-angle", "-0.1"], "noise_angle"),
     (["bowling", "--noise-speed", "-1"], "noise_speed"),
     (["bowling", "--theta-max", "0"], "theta_max"),
-    (["throw", "--angles", "0.5"], "outside"),
-    (["throw", "--angles", "0", "--noise", "-1"], "noise"),
-    (["throw", "--angles", "0", "--backend", "cuda"], "backend"),
+    (["throw", "--angle", "0.5"], "outside"),
+    (["throw", "--angle", "0", "--noise-angle", "-1"], "noise_angle"),
+    (["throw", "--angle", "0", "--backend", "cuda"], "backend"),
     (["bowling", "--solver", "pgs"], "unknown solver 'pgs'"),
     (["bowling", "--iterations", "0"], "positive integer"),
-    (["throw", "--angles", "0", "--contact-cap", "0"], "positive integer"),
-    (["throw", "--angles", "0", "--pair-cap", "-2"], "non-negative"),
+    (["throw", "--angle", "0", "--contact-cap", "0"], "positive integer"),
+    (["throw", "--angle", "0", "--pair-cap", "-2"], "non-negative"),
 ])
 def test_bowling_bad_input(argv, message, tmp_path, capsys):
     out = tmp_path / "never"
@@ -155,7 +155,7 @@ def test_warp_backend_without_warp_lang_is_a_usage_error(command, monkeypatch, t
 
     monkeypatch.setattr(backend_mjx._mjx_warp, "WARP_INSTALLED", False)
     out = tmp_path / "never"
-    argv = ["--seeds", "2", "--out", str(out)] if command == "bowling" else ["--angles", "0"]
+    argv = ["--seeds", "2", "--out", str(out)] if command == "bowling" else ["--angle", "0"]
     argv = [command, *argv]
     assert main([*argv, "--backend", "warp"]) == 2
     err = capsys.readouterr().err
@@ -164,7 +164,7 @@ def test_warp_backend_without_warp_lang_is_a_usage_error(command, monkeypatch, t
 
 
 def test_throw_cli_json(capsys, tmp_path):
-    assert main(["throw", "--angles", "0", "0.1", "--render", str(tmp_path / "deck.png")]) == 0
+    assert main(["throw", "--angle", "0", "--angle", "0.1", "--render", str(tmp_path / "deck.png")]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["theta_max"] == 0.1
     centre, miss = data["throws"]

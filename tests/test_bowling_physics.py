@@ -257,12 +257,12 @@ def test_warp_and_c_agree_in_distribution():
 def test_throw_command_and_render(tmp_path):
     """CLI function: deterministic at noise 0, JSON-ready, writes a PNG."""
     png = tmp_path / "deck.png"
-    out = throw_command([0.0, -CFG.theta_max], 0.0, "c", str(png), CFG)
+    out = throw_command([0.0, -CFG.theta_max], "c", str(png), CFG)
     json.dumps(out)
     assert out["theta_max"] == CFG.theta_max
     assert out["throws"][0]["knocked"] >= 5 and out["throws"][1]["knocked"] == 0
     assert len(out["throws"][0]["standing"]) == 10
-    assert out == throw_command([0.0, -CFG.theta_max], 0.0, "c", str(png), CFG)
+    assert out == throw_command([0.0, -CFG.theta_max], "c", str(png), CFG)
     for p in out["render"]:
         assert open(p, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
     res = throw(initial_pins(1), [0.0], jnp.zeros((1, 2)), cfg=CFG)
@@ -314,9 +314,9 @@ def test_bad_throw_input_raises_usage_error(tmp_path):
     with pytest.raises(UsageError, match="PinState"):
         throw(np.zeros((2, 10)), 0.0, key)
     with pytest.raises(UsageError):
-        throw_command([0.0], -1.0, "c", None, CFG)
+        throw_command([0.0], "c", None, CFG, noise_angle=-1.0)
     with pytest.raises(UsageError):
-        throw_command([], 1.0, "c", None, CFG)
+        throw_command([], "c", None, CFG)
     with pytest.raises(UsageError):
         initial_pins(0)
     with pytest.raises(UsageError):
@@ -545,7 +545,7 @@ def test_bad_scene_is_refused():
         Scene(ball_radius=0.5)
     with pytest.raises(UsageError, match="pins must not touch"):
         Scene(pin_spacing=0.1)
-    assert main(["throw", "--angles", "0", "--scene", "wide"]) == 2
+    assert main(["throw", "--angle", "0", "--scene", "wide"]) == 2
 
 
 def test_pin_rest_height_is_where_the_rack_settles():

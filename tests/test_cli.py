@@ -1,4 +1,5 @@
-"""The `jaxeac grid` command line: outputs, and bad input → one-line error, exit 2, nothing written."""
+"""The `jaxeac run` (alias `grid`) command line: outputs, and bad input → one-line error, exit 2,
+nothing written; one meaning per flag name."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxeac.cli import main
-from jaxeac.experiments.results import load_grid_results
+from jaxeac.results import load_grid_results
 
 SMALL = ["--seeds", "4", "--trials", "6", "--chances", "10", "--quiet", "--no-compare"]
 
@@ -114,15 +115,15 @@ def test_statistics_beside_the_figures_give_the_same_report(tmp_path, monkeypatc
     """`jaxeac grid` on accelerators starts the comparison's statistics as soon as the results are in,
     beside the run's own figures (up to `STATISTICS_BESIDE_FIGURES_SEEDS`): the same stats.json as
     after them."""
-    import jaxeac.cli as cli
+    import jaxeac.experiments.pipeline as pipeline
 
-    monkeypatch.setitem(cli.STATISTICS_BESIDE_FIGURES, "cpu", True)
+    monkeypatch.setitem(pipeline.STATISTICS_BESIDE_FIGURES, "cpu", True)
     started = []
-    start = cli._start_statistics
-    monkeypatch.setattr(cli, "_start_statistics", lambda *a: started.append(1) or start(*a))
+    start = pipeline._start_statistics
+    monkeypatch.setattr(pipeline, "_start_statistics", lambda *a: started.append(1) or start(*a))
     argv = ["grid", "--seeds", "6", "--trials", "8", "--chances", "12", "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "beside")]) == 0 and started == [1]
-    monkeypatch.setattr(cli, "STATISTICS_BESIDE_FIGURES_SEEDS", 5)
+    monkeypatch.setattr(pipeline, "STATISTICS_BESIDE_FIGURES_SEEDS", 5)
     assert main([*argv, "--out", str(tmp_path / "after")]) == 0 and started == [1]
 
     def stats(name):
@@ -169,61 +170,6 @@ def test_command_uses_every_cpu_core(tmp_path):
     assert len(devices) == len(os.sched_getaffinity(0))
 
 
-def test_configure_xla_lets_gpu_memory_grow_and_keeps_the_users_choice():
-    """`configure_xla` (run by `jaxeac` before JAX starts) turns JAX's up-front reservation of
-    GPU memory off (it held ~1.5 GiB of host memory, BENCHMARKS.md) unless the user set it."""
-    code = ("import os; from jaxeac.runtime import configure; configure_xla(); "
-            "print(os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'], 'command_buffer' in os.environ['XLA_FLAGS'])")
-    base = {k: v for k, v in os.environ.items() if k not in ("XLA_PYTHON_CLIENT_PREALLOCATE", "XLA_FLAGS")}
-    for env, expected in (({}, "false True"), ({"XLA_PYTHON_CLIENT_PREALLOCATE": "true"}, "true True")):
-        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=base | env,
-                              timeout=120)
-        assert proc.returncode == 0, proc.stderr
-        assert proc.stdout.split() == expected.split()
-
-
-def test_command_line_gives_numpy_one_blas_thread_unless_the_user_chose():
-    """`jaxeac` sets NumPy's BLAS to one thread per call before NumPy loads (the statistics' own
-    threads oversubscribed the host otherwise, BENCHMARKS.md); a value the user set is kept."""
-    code = ("import sys, jaxeac.__main__ as m; loaded = 'numpy' in sys.modules; "
-            "env = {'MKL_NUM_THREADS': '4'}; m.one_blas_thread(env); "
-            "print(loaded, env['OPENBLAS_NUM_THREADS'], env['MKL_NUM_THREADS'])")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.split() == ["False", "1", "4"]  # NumPy not yet loaded: the setting is in time
-    # the command itself (`jaxeac --help` through the console entry point) makes the setting
-    command = ("import atexit, os, sys; import jaxeac.__main__ as m; sys.argv = ['jaxeac', '--help']; "
-               "atexit.register(lambda: print('BLAS', os.environ.get('OPENBLAS_NUM_THREADS'))); m.run()")
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    proc = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True, env=env, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.splitlines()[-1] == "BLAS 1"
-
-
-def test_configure_xla_adds_each_gpu_flag_unless_the_user_set_it():
-    """Each of jaxeac's GPU flags is added on its own; one the user set keeps the user's value
-    (XLA keeps a flag's last value, so appending jaxeac's would override it). The compile-time
-    flags are for the grid-like commands only: bowling's MJX physics is slower with them."""
-    code = ("import os, sys; from jaxeac.runtime import configure; configure_xla(sys.argv[1]); "
-            "print(os.environ['XLA_FLAGS'])")
-    base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    user = "--xla_gpu_enable_triton_gemm=true"
-
-    def flags(command: str, env: dict) -> list[str]:
-        proc = subprocess.run([sys.executable, "-c", code, command], capture_output=True, text=True,
-                              env=base | env, timeout=120)
-        assert proc.returncode == 0, proc.stderr
-        return proc.stdout.split()
-
-    grid = flags("grid", {"XLA_FLAGS": user})
-    assert grid.count(user) == 1 and "--xla_gpu_enable_triton_gemm=false" not in grid
-    assert "--xla_gpu_autotune_level=0" in grid
-    assert any(f.startswith("--xla_gpu_enable_command_buffer=") for f in grid)
-    bowling = flags("bowling", {})
-    assert any(f.startswith("--xla_gpu_enable_command_buffer=") for f in bowling)
-    assert not any("autotune" in f or "triton_gemm" in f for f in bowling)
-
-
 def test_compilation_cache_is_kept_and_changes_no_result(tmp_path):
     """`jaxeac` keeps compiled programs in JAXEAC_COMPILATION_CACHE (XDG_CACHE_HOME/jaxeac/xla by
     default); a rerun that loads them writes the same results, and ``off`` writes no cache."""
@@ -243,3 +189,122 @@ def test_compilation_cache_is_kept_and_changes_no_result(tmp_path):
             assert any(p.is_file() for p in cache.rglob("*")), "no compiled program was cached"
     assert runs["first"].equals(runs["cached"]) and runs["first"].equals(runs["off"])
     assert not (tmp_path / "xdg" / "jaxeac").exists()
+
+
+# ------------------------------------------------------------------ one meaning per flag name
+
+RENAMED = [  # (argv with the old spelling, the new spelling the one error line names)
+    (["compare", "runs/x", "--alpha", "0.05"], "--level"),
+    (["compare", "--table", "t.csv", "--alpha=0.01"], "--level"),
+    (["throw", "--angles", "0", "0.05"], "--angle A"),
+    (["throw", "--angle", "0", "--noise", "1"], "--noise-angle S and --noise-speed S"),
+    (["sweep", "--set", "alpha=0.1,0.2", "--compare"], "--point-reports"),
+]
+
+
+@pytest.mark.parametrize(("argv", "new"), RENAMED)
+def test_old_flag_spellings_name_the_new_one(argv, new, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "was renamed" in err, err
+    assert new in err, err
+    assert result_files(tmp_path) == []
+
+
+def test_renamed_flags_are_hidden_and_each_name_has_one_meaning():
+    """No old spelling shows in the help, and the names shared by commands are listed once in
+    docs/CLI.md with the same meaning: bowling's --angles is the count, throw's --angle one angle."""
+    from jaxeac.cli import build_parser
+    from jaxeac.cli.reference import reference
+
+    text = reference()
+    for old in ("--noise N", "--noise S ", "--compare ", "--alpha ALPHA", "TEST_ALPHA"):
+        assert old not in text
+    args = build_parser().parse_args(
+        ["throw", "--angle", "0.05", "--angle", "-0.02"])
+    assert args.angles == [0.05, -0.02] and args.noise_angle == 0.0 and args.noise_speed == 0.0
+
+
+def test_grid_is_an_alias_of_run(tmp_path):
+    """`jaxeac grid` and `jaxeac run` (the paper's grid world by default) write the same folder."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["run", *SMALL, "--out", str(a)]) == 0
+    assert main(["grid", *SMALL, "--out", str(b)]) == 0
+    assert pq.read_table(a / "results.parquet").equals(pq.read_table(b / "results.parquet"))
+    from jaxeac.cli import build_parser
+
+    parse = build_parser().parse_args
+    assert vars(parse(["run"])) | {"command": "grid"} == vars(parse(["grid"]))
+
+
+def test_compare_level_sets_the_intervals_and_the_printed_percentage(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", *SMALL[:-1], "--out", str(out)]) == 0
+    assert "95% BCa CI" in capsys.readouterr().out
+    assert main(["compare", str(out), "--level", "0.99", "--resamples", "200"]) == 0
+    printed = capsys.readouterr().out
+    assert "99% BCa CI" in printed and "95%" not in printed
+    assert json.loads((out / "stats.json").read_text())["settings"]["alpha"] == 0.01
+
+
+def _tidy_table(path):
+    rows = ["algo,seed,value"] + [f"{a},{i},{i * (2 if a == 'b' else 1) % 7}" for a in "ab" for i in range(8)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_compare_reads_a_table_file_given_as_path(tmp_path, capsys):
+    """`jaxeac compare results.csv` reads the file as a table, as `--table results.csv` does."""
+    table = _tidy_table(tmp_path / "results.csv")
+    assert main(["compare", str(table), "--resamples", "200", "--out", str(tmp_path / "as_path")]) == 0
+    by_path = capsys.readouterr().out
+    argv = ["compare", "--table", str(table), "--resamples", "200", "--out", str(tmp_path / "as_table")]
+    assert main(argv) == 0
+    assert capsys.readouterr().out.replace("as_table", "as_path") == by_path and "95% CI" in by_path
+    stats = [json.loads((tmp_path / d / "stats_table.json").read_text()) for d in ("as_path", "as_table")]
+    assert stats[0] == stats[1]
+
+
+@pytest.mark.parametrize("name", ["notes.txt", "empty_folder", "missing"])
+def test_compare_of_something_not_a_run_folder_names_table(name, tmp_path, capsys):
+    path = tmp_path / name
+    if name.endswith(".txt"):
+        path.write_text("algo,seed,value\n")
+    elif name == "empty_folder":
+        path.mkdir()
+    assert main(["compare", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "--table PATH reads tables" in err, err
+
+
+def test_bowling_chunk_size_is_automatic_and_changes_no_result(tmp_path):
+    """`jaxeac bowling` without --chunk-size picks the chunk (`auto_chunk_size`); per-seed results
+    do not depend on it."""
+    from jaxeac.experiments.bowling import AUTO_CHUNK, BowlingSettings, auto_chunk_size
+
+    assert auto_chunk_size(BowlingSettings(seeds=3)) == 3
+    assert auto_chunk_size(BowlingSettings(seeds=10**6)) == AUTO_CHUNK
+    base = ["bowling", "--seeds", "3", "--trials", "2", "--quiet", "--no-compare"]
+    assert main([*base, "--out", str(tmp_path / "auto")]) == 0
+    assert main([*base, "--chunk-size", "1", "--out", str(tmp_path / "one")]) == 0
+    assert (tmp_path / "auto" / "per_seed.csv").read_text() == (tmp_path / "one" / "per_seed.csv").read_text()
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_throw_render_to_a_device_is_refused_before_any_throw(tmp_path, capsys, monkeypatch):
+    from jaxeac.envs import bowling
+
+    monkeypatch.setattr(bowling, "throw_command", lambda *a, **k: pytest.fail("threw"))
+    for target in ("/dev/full", "/dev/null"):
+        assert main(["throw", "--angle", "0", "--render", target]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and "not a regular file" in err, err
+    assert not os.path.exists("/dev/full.png")
+
+
+def test_sequential_error_rate_names_the_flag(tmp_path, capsys):
+    argv = ["run", *SMALL, "--seeds", "50", "--out", str(tmp_path / "o"), "--sequential", "--effect", "1"]
+    assert main([*argv, "--error-rate", "0.7"]) == 2
+    err = capsys.readouterr().err
+    assert err == "error: --error-rate must lie in (0, 0.5) (got 0.7)\n", err

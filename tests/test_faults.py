@@ -107,7 +107,7 @@ def test_ctrl_c_where_python_cannot_raise_it_is_sent_again(monkeypatch, capsys):
     import gc
     import weakref
 
-    from jaxeac import cli
+    from jaxeac.cli import process as cli
 
     sent, others = [], []
     monkeypatch.setattr(cli.os, "kill", lambda pid, sig: sent.append(sig))

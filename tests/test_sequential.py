@@ -97,7 +97,7 @@ def test_run_sequential_stops_at_the_first_decision_with_consecutive_batches():
     ({"effect": float("nan"), "max_seeds": 100}, "--effect must be a positive number"),
     ({"effect": 1.0, "max_seeds": 30, "looks": 5}, "too few for 5 looks"),
     ({"effect": 1.0, "max_seeds": 100, "spend": "linear"}, "unknown alpha spending 'linear'"),
-    ({"effect": 1.0, "max_seeds": 100, "alpha": 0.7}, "alpha must lie in"),
+    ({"effect": 1.0, "max_seeds": 100, "alpha": 0.7}, "--error-rate must lie in"),
 ])
 def test_bad_designs_are_one_clear_error(kwargs, message):
     with pytest.raises(UsageError, match=message):

@@ -370,6 +370,29 @@ class BowlingSettings:
                          gamma=self.gamma, temperature=self.temperature).resolve(None)
 
 
+#: Seeds per chunk when none is given (`auto_chunk_size`): the size every backend has run at.
+AUTO_CHUNK = 1000
+
+
+def auto_chunk_size(settings: BowlingSettings, devices=None) -> int:
+    """Seeds per chunk when none is given (`jaxeac bowling` without --chunk-size): `AUTO_CHUNK`, at
+    most the seeds, and at most what fits in half the memory of a device (of the host on CPUs) at
+    three copies of a seed's agent, as `check_bowling_resources` counts a chunk. Results do not
+    depend on it (R1)."""
+    from jaxeac.experiments.common import _device_memory, machine_memory
+
+    devices = list(devices) if devices is not None else jax.local_devices()
+    budget = _device_memory(devices[0]) or machine_memory()
+    state = 1
+    for algo in settings.algos:
+        cfg = settings.run_config(algo)
+        shapes = jax.eval_shape(
+            lambda cfg=cfg: init_agent(cfg.agent, 1024, settings.angles, 2, settings.trials))
+        state = max(state, sum(int(np.prod(x.shape, dtype=np.float64)) * x.dtype.itemsize
+                               for x in jax.tree.leaves(shapes)))
+    return max(1, min(settings.seeds, AUTO_CHUNK, budget // 2 // (3 * state)))
+
+
 @dataclasses.dataclass
 class BowlingResult:
     """All seeds of one algorithm: per-chance actions and pins, per-trial success; timings."""

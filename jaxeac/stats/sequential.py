@@ -156,7 +156,7 @@ class SequentialDesign:
                              f"needs at least {MIN_BATCH} seeds per method "
                              f"(use --seeds ≥ {self.looks * MIN_BATCH})")
         if not 0 < self.alpha < 0.5:
-            raise UsageError(f"alpha must lie in (0, 0.5) (got {self.alpha})")
+            raise UsageError(f"--error-rate must lie in (0, 0.5) (got {self.alpha:g})")
         if self.spend not in SPENDING:
             raise UsageError(f"unknown alpha spending {self.spend!r}; choose one of {', '.join(SPENDING)}")
 

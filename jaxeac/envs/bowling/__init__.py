@@ -33,7 +33,7 @@ Public API::
         -> ThrowResult(pins_after, knocked (B,), standing (B,10), rest_qpos, trajectory)
     make_mjx_throw(cfg, record_trajectory=False) -> throw_fn(pins, angle, key)  # one throw
     render_deck(result, path_png, *, index=0, method="auto", title=None) -> method used
-    throw_command(angles, noise, backend, render, cfg, seed=0) -> dict
+    throw_command(angles, backend, render, cfg, *, noise_angle=0, noise_speed=0, seed=0) -> dict
 """
 
 from .api import DEFAULT_CONFIG, throw

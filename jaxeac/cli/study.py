@@ -1,0 +1,51 @@
+"""`jaxeac study`: every task x AC, EAC, its ablations and the baselines, compared with AC."""
+
+from __future__ import annotations
+
+import argparse
+
+from jaxeac.cli.flags import finite_float, folder_name, positive_int, prng_key
+
+
+def add_parser(sub) -> None:
+    st = sub.add_parser("study", help="every task x AC, EAC, its ablations, Q-learning and SARSA, compared "
+                                      "with AC (resumable)")
+    st.add_argument("--tasks", nargs="+", metavar="NAME[:slip=P]",
+                    help="registered environments (default: the paper grid, plain and with slip 0.1, and "
+                         "every classic task)")
+    st.add_argument("--algos", nargs="+", metavar="ALGO", help="algorithms, ac among them (default: all)")
+    st.add_argument("--seeds", type=positive_int, default=10_000, metavar="N",
+                    help="seeds per algorithm and task")
+    st.add_argument("--trials", type=positive_int, metavar="T",
+                    help="trials per run (default: the preset's 200)")
+    st.add_argument("--epsilon", type=finite_float, default=0.1, metavar="E",
+                    help="ε of q_learning and sarsa")
+    st.add_argument("--resamples", type=positive_int, default=10_000, metavar="R", help="bootstrap resamples")
+    st.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    st.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
+                    help="seeds per compiled batch (default: automatic; results do not depend on it)")
+    st.add_argument("--lanes", type=positive_int, default=None, metavar="L",
+                    help="seeds in flight per device (default: automatic; results do not depend on it)")
+    st.add_argument("--out", type=folder_name, default="runs/study", metavar="DIR",
+                    help="study folder (default runs/study)")
+    st.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from jaxeac.cli.process import _claim_out
+    from jaxeac.experiments.common import check_grid_resources
+    from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS, StudySettings, run_study
+
+    settings = StudySettings(
+        tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
+        trials=args.trials, key=args.key, epsilon=args.epsilon, resamples=args.resamples,
+        chunk_size=args.chunk_size, lanes=args.lanes)
+    settings.validate()  # bad names and settings fail before any compute
+    for task in settings.tasks:  # sizes that cannot fit or finish fail here, for every task
+        grid = settings.task_settings(task)
+        check_grid_resources(grid, grid.make_env())
+    _claim_out(args, args.out, kind="study")
+    result = run_study(settings, args.out, progress=not args.quiet)
+    print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "
+          f"{result['comparisons_in_family']} comparisons with ac; report in {args.out}/report.md")
+    return 0
