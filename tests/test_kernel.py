@@ -21,8 +21,8 @@ from jaxeac.envs.tabular import TabularEnv, grid_world
 from jaxeac.errors import UsageError
 from jaxeac.rng import seed_key, seed_words
 from jaxeac.running.batch import run_seeds
-from jaxeac.running.config import RunConfig, resolved_kernel
-from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances, kernel_unsupported
+from jaxeac.running.config import RunConfig, kernel_unsupported, resolved_kernel
+from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
 from jaxeac.running.loops import flat_init, flat_slot
 
 ENV = GridWorld(get_map("paper"), 40)

@@ -108,3 +108,7 @@ class GymnaxEnv:
     def rtilde(self, transition: Transition, goal_known) -> jax.Array:
         """X2: the environment's reward."""
         return transition.reward
+
+    def kernel_tables(self) -> None:
+        """None: the fused kernel runs tabular tables only; a gymnax environment runs as XLA ops."""
+        return None

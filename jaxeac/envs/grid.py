@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.envs.protocol import Transition, UniformEnv
+from jaxeac.envs.protocol import KernelTables, Transition, UniformEnv
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import uniform_index
@@ -249,6 +249,33 @@ class GridWorld(UniformEnv):
         """E5 at the cell reached (`shaped_reward`)."""
         distance = jnp.asarray(self.goal_distance)[transition.state.position]
         return shaped_reward(distance, transition.bumped, goal_known)
+
+    def kernel_tables(self) -> GridKernelTables:
+        """The fused kernel's tables (`GridKernelTables`), built once."""
+        if getattr(self, "_kernel_tables", None) is None:
+            self._kernel_tables = GridKernelTables(self)
+        return self._kernel_tables
+
+
+class GridKernelTables(KernelTables):
+    """`GridWorld` in the fused kernel (`jaxeac.envs.protocol.KernelTables`): the packed ``moves``
+    (2·s' + bumped), ‖s − g‖₂ (``distance``) and the start cells. Reward and end follow from s'
+    (`move_reward`: the goal is the one terminal state, a success); r̃ is always E5's shaped form."""
+
+    def __init__(self, env: GridWorld):
+        super().__init__({"moves": np.asarray(env._moves, np.int32),
+                          "distance": np.asarray(env.goal_distance, np.float32),
+                          "starts": np.asarray(env._start_cells, np.int32)},
+                         env.n_actions, env.n_chances, env.n_starts)
+        self.goal = env.map.goal_index
+
+    def move(self, ref, s, action, words, trial, chance):
+        s_next, bumped = decode_move(ref["moves"][s * self.n_actions + action])
+        terminated = s_next == self.goal
+        return s_next, move_reward(bumped, terminated), terminated, terminated, bumped
+
+    def rtilde(self, ref, s_next, bumped, goal_known, reward):
+        return shaped_reward(ref["distance"][s_next], bumped, goal_known)
 
 
 def decode_move(move) -> tuple[jax.Array, jax.Array]:

@@ -19,7 +19,10 @@ draw the same numbers:
 * ``start(words, trial)`` — the first state of trial `trial` (G3);
 * ``move(state, action, words, trial, chance)`` — a `Transition` (G4, G5);
 * ``observation(state)`` — the state index; ``rtilde(transition, goal_known)`` — E5's r̃;
-* ``n_states``, ``n_actions``, ``n_chances``, ``deterministic``.
+* ``n_states``, ``n_actions``, ``n_chances``, ``deterministic``;
+* optionally ``kernel_tables()`` — the environment's `KernelTables` for the fused GPU kernel
+  (`jaxeac.running.kernel`), or None where the kernel cannot run it (the default: an
+  environment without the method runs as XLA ops).
 
 `UniformEnv` derives both APIs from an environment whose every random choice is one
 uniform in [0, 1) (the grid world and `jaxeac.envs.tabular.TabularEnv`);
@@ -35,7 +38,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import start_uniform, transition_uniform
+from jaxeac.rng import start_index, start_uniform, transition_uniform
 
 
 @pytree_dataclass
@@ -65,6 +68,35 @@ class LoopEnv(Protocol):
     def rtilde(self, transition: Transition, goal_known: jax.Array) -> jax.Array: ...
 
 
+class KernelTables:
+    """An environment's part of the fused kernel's chance (`jaxeac.running.kernel`): its tables and
+    how a chance reads them, step for step as the environment's own `move`/`rtilde`/`start` compute
+    (G3–G5, E3, E5, X1, X2), so the kernel never asks which environment it runs.
+
+    `arrays` (name → NumPy table) are the kernel's inputs, in their order; a chance reads them
+    through `ref` (name → the kernel's ref of that table). A move (s, a) is one word of the
+    ``moves`` table, 2·s' + bumped (`jaxeac.envs.grid.decode_move`); the start of a trial is
+    ``starts[start_index(...)]`` (G3, R1). Subclasses define `move` and `rtilde`.
+    """
+
+    def __init__(self, arrays: dict, n_actions: int, n_chances: int, n_starts: int):
+        self.arrays = arrays
+        self.n_actions, self.n_chances, self.n_starts = n_actions, n_chances, n_starts
+
+    def move(self, ref, s, action, words, trial, chance):
+        """(s', reward, terminated, success, bumped) of action `action` at s in chance `chance` of
+        trial `trial` (`env.move`; a stochastic environment's outcome from the seed's words, X1)."""
+        raise NotImplementedError
+
+    def rtilde(self, ref, s_next, bumped, goal_known, reward):
+        """E5/X2's r̃ at s' (`env.rtilde`)."""
+        raise NotImplementedError
+
+    def start(self, ref, words, trial):
+        """G3: the start state of trial `trial` (`env.start`)."""
+        return ref["starts"][start_index(words, trial, self.n_chances, self.n_starts)]
+
+
 class UniformEnv:
     """Base of environments whose every random choice is one uniform u ∈ [0, 1).
 
@@ -89,6 +121,10 @@ class UniformEnv:
         transition stream, a deterministic one draws nothing."""
         u = None if self.deterministic else transition_uniform(words, trial, chance, self.n_chances)
         return self.transition(state, action, u)
+
+    def kernel_tables(self) -> KernelTables | None:
+        """The fused kernel's tables of this environment (`KernelTables`); None: it runs as XLA ops."""
+        return None
 
     # --- the gymnax 1.0 API ----------------------------------------------------------------
     @property

@@ -12,18 +12,19 @@ SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.envs.grid import GridMap, GridWorld, shaped_reward
-from jaxeac.envs.protocol import Transition, UniformEnv
+from jaxeac.envs.grid import GridMap, GridWorld, decode_move, shaped_reward
+from jaxeac.envs.protocol import KernelTables, Transition, UniformEnv
 from jaxeac.envs.tasks import TabularTask, grid_task, with_slip
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import uniform_index
+from jaxeac.rng import transition_uniform, uniform_index
 
 RtildeRule = Literal["shaped", "reward"]
 RTILDE_RULES = ("shaped", "reward")
@@ -106,6 +107,53 @@ class TabularEnv(UniformEnv):
             return transition.reward
         distance = jnp.asarray(self.goal_distance)[transition.state.position]
         return shaped_reward(distance, transition.bumped, goal_known)
+
+    def kernel_tables(self) -> TabularKernelTables:
+        """The fused kernel's tables (`TabularKernelTables`), built once."""
+        if getattr(self, "_kernel_tables", None) is None:
+            self._kernel_tables = TabularKernelTables(self)
+        return self._kernel_tables
+
+
+class TabularKernelTables(KernelTables):
+    """`TabularEnv` in the fused kernel (`jaxeac.envs.protocol.KernelTables`): per (s, a) and
+    outcome the packed ``moves`` (2·s' + bumped) and ``reward``; per state the end flags ``ends``
+    (terminal | success << 1) and ``distance`` (E5's ‖s − g‖₂; zeros where r̃ is the reward); the
+    starts; and in a stochastic task the ``cumulative`` probabilities (all but the last) of the K
+    outcomes of (s, a): outcome k is their number at most the transition uniform, as
+    `TabularEnv.transition` draws it (X1)."""
+
+    def __init__(self, env: TabularEnv):
+        self.shaped = env.goal_distance is not None
+        self.outcomes = env._next.shape[1]  # K: 1 for a deterministic task
+        moves = 2 * env._next.astype(np.int64) + env._bumped  # [S·A, K]
+        arrays = {
+            "moves": moves.reshape(-1).astype(np.int32),
+            "reward": np.asarray(env._reward, np.float32).reshape(-1),
+            "ends": env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1),
+            "distance": np.asarray(env.goal_distance if self.shaped else np.zeros(env.n_states), np.float32),
+            "starts": np.asarray(env._starts, np.int32),
+        }
+        if self.outcomes > 1:  # [S·A, K − 1]
+            arrays["cumulative"] = np.asarray(env._cumulative, np.float32).reshape(-1)
+        super().__init__(arrays, env.n_actions, env.n_chances, env.n_starts)
+
+    def move(self, ref, s, action, words, trial, chance):
+        row = s * self.n_actions + action
+        at = row
+        if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
+            u = transition_uniform(words, trial, chance, self.n_chances)
+            below = [(u >= ref["cumulative"][row * (self.outcomes - 1) + j]).astype(jnp.int32)
+                     for j in range(self.outcomes - 1)]
+            at = row * self.outcomes + functools.reduce(lambda a, b: a + b, below)
+        s_next, bumped = decode_move(ref["moves"][at])
+        ends = ref["ends"][s_next]
+        return s_next, ref["reward"][at], (ends & 1) == 1, (ends & 2) == 2, bumped
+
+    def rtilde(self, ref, s_next, bumped, goal_known, reward):
+        if not self.shaped:
+            return reward
+        return shaped_reward(ref["distance"][s_next], bumped, goal_known)
 
 
 def grid_world(grid_map: GridMap, n_chances: int, slip: float = 0.0, name: str | None = None):

@@ -15,8 +15,10 @@ from typing import Any, Literal
 import jax
 import jax.numpy as jnp
 
+from jaxeac.algorithm import memory as mem
 from jaxeac.algorithm.config import AgentConfig, Hyper, Rate
 from jaxeac.errors import UsageError
+from jaxeac.running.carry import state_bytes_per_seed, visit_words_fit
 
 Loop = Literal["auto", "flat", "trials"]
 LOOPS = ("auto", "flat", "trials")
@@ -101,13 +103,32 @@ class RunConfig:
         return out
 
 
+def kernel_unsupported(env: Any, cfg: RunConfig) -> str | None:
+    """Why the fused kernel (`jaxeac.running.kernel`) cannot run this env and (table-resolved)
+    config (None: it can). The env says whether it can (`kernel_tables()`, `jaxeac.envs.protocol`):
+    the grid world and the tabular tasks can."""
+    agent = cfg.agent
+    kernel_tables = getattr(env, "kernel_tables", None)
+    if kernel_tables is None or kernel_tables() is None:
+        return ("the fused kernel runs the grid world and the tabular tasks only "
+                "(environments whose kernel_tables() gives their tables)")
+    if agent.learner != "actor_critic":
+        return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
+    if agent.tables != "rows":
+        return "the fused kernel needs the rows table layout (tables='rows')"
+    if agent.uses_memory and not (agent.memory == "dense"
+                                   and mem.packed_fits(env.n_actions, cfg.trials)):
+        return "the fused kernel needs the packed dense memory (A <= 5 actions and a bounded trial count)"
+    if callable(cfg.alpha) or callable(cfg.beta):
+        return "the fused kernel needs constant step sizes (not schedules)"
+    return None
+
+
 def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Literal["xla", "pallas"]:
     """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.running.kernel`)
     or ``xla``. `auto`: the kernel on GPUs where it supports the env and config, XLA ops
     otherwise. ``pallas`` asks for the kernel anywhere; off GPUs it runs in Pallas's (slow)
     interpreter."""
-    from jaxeac.running.kernel import kernel_unsupported
-
     if cfg.kernel == "xla":
         return "xla"
     backend = backend or jax.default_backend()
@@ -134,8 +155,6 @@ def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
         return "memory jumps skip steps that learn under learn_on_memory_steps"
     if cfg.loop != "flat":
         return "memory jumps run in the flat loop (the trials loop takes every step)"
-    from jaxeac.running.loops import visit_words_fit
-
     if not visit_words_fit(cfg.trials, env.n_chances):
         return "memory jumps store (trial, chance) in one int32, too small for this many trials and chances"
     return None
@@ -175,8 +194,6 @@ def auto_chunk_size(env: Any, cfg: RunConfig, n_entries: int, devices) -> int:
     """Seeds per chunk when none is given: `CPU_CHUNK` on CPUs; on accelerators
     `GPU_CHUNK_PER_DEVICE` per device, fewer where the run's state would not fit in half the
     device's free memory. Results do not depend on it (R1)."""
-    from jaxeac.running.loops import state_bytes_per_seed
-
     devices = list(devices)
     if devices[0].platform == "cpu":
         return max(1, min(n_entries, CPU_CHUNK))

@@ -20,21 +20,20 @@ that it matches the XLA loop bit for bit on the CPU (Pallas's interpreter runs t
 kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
 
-Supported: the grid world and every tabular task (`TabularEnv`: the move, reward, end
-flags and, in a stochastic task, the outcome's draw read from its tables, `_Tables`), rows
+Supported: every environment that gives its `KernelTables` (`env.kernel_tables()`, the
+protocol of `jaxeac.envs.protocol`): the grid world and every tabular task (the move, reward, end
+flags and, in a stochastic task, the outcome's draw read from its tables), rows
 tables, the packed dense memory or none (AC), both E6 rules, the E2 variant, constant step
-sizes. Anything else runs the XLA loop (`kernel_unsupported` says why).
+sizes. Anything else runs the XLA loop (`jaxeac.running.config.kernel_unsupported` says why).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxeac.algorithm import memory as mem
 from jaxeac.algorithm.agent import (
@@ -47,96 +46,11 @@ from jaxeac.algorithm.agent import (
     td_error,
 )
 from jaxeac.algorithm.tables import RowTables, learning_increments
-from jaxeac.envs.grid import GridWorld, decode_move, move_reward, shaped_reward
-from jaxeac.envs.tabular import TabularEnv
-from jaxeac.rng import action_uniform, start_index, transition_uniform
-from jaxeac.running.loops import visit_fields, visit_word
+from jaxeac.envs.protocol import KernelTables
+from jaxeac.rng import action_uniform
+from jaxeac.running.carry import visit_fields, visit_word
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
-
-
-def kernel_unsupported(env: Any, cfg: Any) -> str | None:
-    """Why the fused kernel cannot run this env and (table-resolved) config (None: it can)."""
-    agent = cfg.agent
-    if not isinstance(env, GridWorld | TabularEnv):
-        return "the fused kernel runs the grid world and the tabular tasks only"
-    if agent.learner != "actor_critic":
-        return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
-    if agent.tables != "rows":
-        return "the fused kernel needs the rows table layout (tables='rows')"
-    if agent.uses_memory and not (agent.memory == "dense"
-                                   and mem.packed_fits(env.n_actions, cfg.trials)):
-        return "the fused kernel needs the packed dense memory (A <= 5 actions and a bounded trial count)"
-    if callable(cfg.alpha) or callable(cfg.beta):
-        return "the fused kernel needs constant step sizes (not schedules)"
-    return None
-
-
-class _Tables:
-    """The environment's part of a chance: its tables (kernel inputs, `arrays`) and the move,
-    r̃ and start read from them, as `GridWorld` / `TabularEnv` compute them (G3–G5, E3, E5, X1, X2).
-    `arrays` (name → table) are passed to the kernel in their order; `bind` names its refs.
-
-    Both encode a move (s, a) as one word, 2·s' + bumped (`decode_move`). The grid world's
-    reward and end follow from s' (`move_reward`: its goal is the one terminal state); a
-    tabular task's come from its reward table and per-state end flags (terminal | success << 1),
-    and a stochastic task's outcome k of (s, a) is drawn as `TabularEnv.transition` draws it: the
-    number of its cumulative probabilities (all but the last) at most the transition uniform (X1).
-    """
-
-    def __init__(self, env):
-        self.grid = isinstance(env, GridWorld)
-        self.n_actions, self.n_chances, self.n_starts = env.n_actions, env.n_chances, env.n_starts
-        if self.grid:
-            self.goal, self.shaped, self.outcomes = env.map.goal_index, True, 1
-            self.arrays = {"moves": np.asarray(env._moves, np.int32),
-                           "distance": np.asarray(env.goal_distance, np.float32),
-                           "starts": np.asarray(env._start_cells, np.int32)}
-            return
-        self.shaped = env.goal_distance is not None
-        self.outcomes = env._next.shape[1]  # K: 1 for a deterministic task
-        moves = 2 * env._next.astype(np.int64) + env._bumped  # [S·A, K]
-        self.arrays = {
-            "moves": moves.reshape(-1).astype(np.int32),
-            "reward": np.asarray(env._reward, np.float32).reshape(-1),
-            "ends": env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1),
-            "distance": np.asarray(env.goal_distance if self.shaped else np.zeros(env.n_states), np.float32),
-            "starts": np.asarray(env._starts, np.int32),
-        }
-        if self.outcomes > 1:  # [S·A, K − 1]
-            self.arrays["cumulative"] = np.asarray(env._cumulative, np.float32).reshape(-1)
-
-    def bind(self, refs) -> None:
-        """The kernel's refs of `arrays`, in their order."""
-        self.ref = dict(zip(self.arrays, refs, strict=True))
-
-    def move(self, s, action, words, trial, chance):
-        """(s', reward, terminated, success, bumped) of action `action` at s in chance `chance` of
-        trial `trial` (`env.move`)."""
-        row = s * self.n_actions + action
-        if self.grid:
-            s_next, bumped = decode_move(self.ref["moves"][row])
-            terminated = s_next == self.goal
-            return s_next, move_reward(bumped, terminated), terminated, terminated, bumped
-        at = row
-        if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
-            u = transition_uniform(words, trial, chance, self.n_chances)
-            below = [(u >= self.ref["cumulative"][row * (self.outcomes - 1) + j]).astype(jnp.int32)
-                     for j in range(self.outcomes - 1)]
-            at = row * self.outcomes + functools.reduce(lambda a, b: a + b, below)
-        s_next, bumped = decode_move(self.ref["moves"][at])
-        ends = self.ref["ends"][s_next]
-        return s_next, self.ref["reward"][at], (ends & 1) == 1, (ends & 2) == 2, bumped
-
-    def rtilde(self, s_next, bumped, goal_known, reward):
-        """E5/X2's r̃ at s' (`env.rtilde`): shaped by the distance to the goal, or the reward."""
-        if not self.shaped:
-            return reward
-        return shaped_reward(self.ref["distance"][s_next], bumped, goal_known)
-
-    def start(self, words, trial):
-        """G3: the start cell of trial `trial` (`env.start`)."""
-        return self.ref["starts"][start_index(words, trial, self.n_chances, self.n_starts)]
 
 
 def _sample(logits: list, allowed: list, u):
@@ -163,7 +77,7 @@ def _sample(logits: list, allowed: list, u):
     return jnp.minimum(action, len(logits) - 1)
 
 
-def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
+def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs):
     """C chances of `LANES_PER_PROGRAM` lanes (see the module docstring)."""
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
@@ -172,7 +86,7 @@ def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
     n_in = 6 + len(tables.arrays)
     (w0_ref, w1_ref, alpha_ref, beta_ref, gamma_ref, temp_ref) = refs[:6]
-    tables.bind(refs[6:n_in])
+    env_refs = dict(zip(tables.arrays, refs[6:n_in], strict=True))  # the env's tables, by name
     state = dict(zip(names, refs[n_in + len(names):], strict=True))  # the outputs, aliased to the inputs
     lane = pl.program_id(0) * LANES_PER_PROGRAM + jnp.arange(LANES_PER_PROGRAM)
 
@@ -220,7 +134,8 @@ def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
         action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
         learn = learns(agent, from_memory, active)
 
-        s_next, reward, terminated, reached, bumped = tables.move(s, action, words, trial, c)  # G4/G5, E3, X1
+        # G4/G5, E3, X1
+        s_next, reward, terminated, reached, bumped = tables.move(env_refs, s, action, words, trial, c)
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
 
         # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
@@ -233,7 +148,7 @@ def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
 
         # E5 and the records of `record_step`
         goal_known = goal_known | (active & reached).astype(jnp.int32)
-        shaped = tables.rtilde(s_next, bumped, goal_known == 1, reward)
+        shaped = tables.rtilde(env_refs, s_next, bumped, goal_known == 1, reward)
         flag = None
         if agent.failure_memory:  # E6
             before = rtilde[lane, failure_slot(agent.failure_rule, c, n_chances)]
@@ -242,9 +157,10 @@ def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
                 path_word = plgpu.load(state["memory"].at[lane, shadow], mask=on_path, other=0)
                 path_action = packed.unpack(path_word).pending  # `path_action`
                 # deterministic (jumps need it): the move draws nothing
-                path_next, path_reward, _, _, path_bumped = tables.move(shadow, jnp.maximum(path_action, 0),
-                                                                        words, trial, c)
-                before = jnp.where(on_path, tables.rtilde(path_next, path_bumped, True, path_reward), before)
+                path_next, path_reward, _, _, path_bumped = tables.move(
+                    env_refs, shadow, jnp.maximum(path_action, 0), words, trial, c)
+                path_rtilde = tables.rtilde(env_refs, path_next, path_bumped, True, path_reward)
+                before = jnp.where(on_path, path_rtilde, before)
                 shadow = jnp.where(jump, s, jnp.where(on_path, path_next, shadow))
             flag = active & failure_met(agent.failure_rule, c, prev_length, shaped, before)
             put(rtilde.at[lane, jnp.minimum(c, n_chances - 1)], shaped, active)
@@ -271,7 +187,7 @@ def _chance_kernel(env, cfg, tables: _Tables, names: tuple[str, ...], *refs):
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
         nxt = jnp.minimum(trial_now, n_trials - 1)
-        start = tables.start(words, nxt)
+        start = tables.start(env_refs, words, nxt)
         position = jnp.where(ends, start, jnp.where(active, s_next, position))
         env_chance = jnp.where(ends, 0, jnp.where(active, env_chance + 1, env_chance))
         return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow
@@ -312,7 +228,10 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
             state["shadow"] = run.jumps.shadow.position
     names = tuple(state)
     f32 = agent.tables.rows.dtype
-    tables = _Tables(env)
+    tables = env.kernel_tables()
+    if tables is None:
+        raise ValueError(f"the fused kernel cannot run {env!r} (its kernel_tables() is None); "
+                         "use kernel='xla'")
     consts = (
         words[:, 0], words[:, 1],
         *(jnp.broadcast_to(jnp.asarray(x, f32), (n_lanes,))

@@ -41,7 +41,17 @@ from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.envs.protocol import LoopEnv as Env
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import action_uniform, bootstrap_uniform, seed_words
+from jaxeac.running.carry import (  # noqa: F401  (flat_init, state_bytes_per_seed: re-exported)
+    _FlatCarry,
+    _Jumps,
+    _shadowed,
+    flat_init,
+    state_bytes_per_seed,
+    visit_fields,
+    visit_word,
+)
 from jaxeac.running.config import RunConfig
+from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
 from jaxeac.running.outputs import BatchOutput, SeedResult, pack_output
 
 
@@ -164,57 +174,6 @@ def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResul
 # --- the `flat` loop: one chance per iteration, trials back to back ----------------------------
 
 
-@pytree_dataclass
-class _Jumps:
-    """What memory jumps carry per lane (`flat_slot`); absent where the run does not jump."""
-
-    visits: jax.Array  # int32 [S]: (trial + 1, chance) of the last step E1(a) took from each state; 0: none
-    anchor: jax.Array  # int32 []: chance at which the previous trial jumped (C: it took every step)
-    shadow: Any  # env state on the previous trial's memory path at the current chance (E6); None without E6
-
-
-@pytree_dataclass
-class _FlatCarry:
-    agent: AgentState
-    env_state: Any
-    jumps: _Jumps | None = None
-
-
-def flat_init(env: Env, cfg: RunConfig, words) -> _FlatCarry:
-    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
-    start = env.start(words, 0)
-    jumps = None
-    if cfg.jump == "on":
-        shadow = start if _shadowed(cfg) else None
-        jumps = _Jumps(jnp.zeros((env.n_states,), jnp.int32), jnp.int32(env.n_chances), shadow)
-    return _FlatCarry(agent, start, jumps)
-
-
-def visit_word(trial, chance, n_chances: int):
-    """A `_Jumps.visits` word: trial + 1 above the bits of the chance (0: no visit)."""
-    return ((trial + 1) << _chance_bits(n_chances)) | chance
-
-
-def visit_fields(word, n_chances: int):
-    """(trial, chance) of a `visit_word`; trial −1: no visit."""
-    bits = _chance_bits(n_chances)
-    return (word >> bits) - 1, word & ((1 << bits) - 1)
-
-
-def _chance_bits(n_chances: int) -> int:
-    return max(1, (n_chances - 1).bit_length())
-
-
-def visit_words_fit(n_trials: int, n_chances: int) -> bool:
-    """Whether every `visit_word` of a run of this many trials and chances fits in an int32."""
-    return (n_trials + 1) << _chance_bits(n_chances) < 1 << 31
-
-
-def _shadowed(cfg: RunConfig) -> bool:
-    """Whether E6 compares with trial t−1's r̃ (the paper's rule), which a jump leaves unwritten."""
-    return cfg.agent.failure_memory and cfg.agent.failure_rule == "previous_trial"
-
-
 def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) -> _FlatCarry:
     """One chance of one seed; a trial that ends here is closed and the next one started.
 
@@ -309,8 +268,6 @@ def flat_batch(env: Env, cfg: RunConfig, words, hyper: Hyper) -> BatchOutput:
     n_lanes = min(m, cfg.lanes)
     slot = jax.vmap(lambda c, w, h: flat_slot(env, cfg, c, w, h))
     if cfg.kernel == "pallas":
-        from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
-
         n_lanes = -(-n_lanes // LANES_PER_PROGRAM) * LANES_PER_PROGRAM  # whole programs; extra lanes idle
         interpret = jax.default_backend() != "gpu"
 
@@ -416,8 +373,6 @@ def tail_lanes(n_lanes: int, kernel: str) -> list[int]:
     """Lane counts of the flat loop's tail phases after the first (none for narrow lane counts)."""
     narrow = n_lanes // TAIL_SHRINK
     if kernel == "pallas":
-        from jaxeac.running.kernel import LANES_PER_PROGRAM
-
         narrow -= narrow % LANES_PER_PROGRAM
     return [narrow] if narrow >= TAIL_MIN_LANES else []
 
@@ -425,12 +380,3 @@ def tail_lanes(n_lanes: int, kernel: str) -> list[int]:
 def trials_batch(env: Env, cfg: RunConfig, keys, hyper: Hyper) -> BatchOutput:
     r = jax.vmap(make_run(env, cfg))(keys, hyper)
     return pack_output(env, jnp.where(r.success, r.steps, -r.steps), r.policy, r.finite)
-
-
-def state_bytes_per_seed(env: Env, cfg: RunConfig) -> int:
-    """Bytes of one lane's state in the flat loop (tables, memory, log, r̃, counters)."""
-    import numpy as np
-
-    cfg = cfg.resolve(env)
-    shapes = jax.eval_shape(lambda w: flat_init(env, cfg, w), jax.ShapeDtypeStruct((2,), np.uint32))
-    return int(sum(np.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(shapes)))
