@@ -139,6 +139,10 @@ def _run_to_folder(env, cfgs: dict, *, seeds: int, key, chunk_size, out) -> dict
         raise TypeError("out= writes the folder of a command-line run, which names its environment: "
                         "pass env as a registered name (jaxeac.registered())")
     first = next(iter(cfgs.values()))
+    scheduled = [f"{n}.{r}" for n, c in cfgs.items() for r in ("alpha", "beta") if callable(getattr(c, r))]
+    if scheduled:
+        raise ValueError(f"out= writes a folder the command line can read, which states constant rates; "
+                         f"{', '.join(scheduled)} is a schedule: run without out= to keep the results in memory")
     if any(name != _name(cfg) for name, cfg in cfgs.items()):
         raise ValueError("out= needs each config under its algorithm's name (the folder's 'algo' column)")
     settings = GridSettings(env=env, algos=tuple(cfgs), seeds=seeds, key=_int_key(key), chunk_size=chunk_size,

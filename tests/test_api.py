@@ -76,8 +76,11 @@ def test_the_library_writes_the_command_lines_folder(tmp_path):
     env = "grid-paper7-v0"
     with pytest.raises(TypeError, match="registered name"):  # the folder names its world, as the CLI's does
         jaxeac.run(jaxeac.make(env), ["ac", "eac"], seeds=SEEDS, key=KEY, out=lib)
-    with pytest.raises(ValueError, match="differs from what its flags state in alpha"):
+    with pytest.raises(ValueError, match="eac.alpha is a schedule"):
         jaxeac.run(env, jaxeac.RunConfig(trials=TRIALS, agent=jaxeac.algorithm("eac"), alpha=lambda t: 0.1),
+                   seeds=SEEDS, key=KEY, out=lib)
+    with pytest.raises(ValueError, match="differs from what its flags state in loop"):
+        jaxeac.run(env, jaxeac.RunConfig(trials=TRIALS, agent=jaxeac.algorithm("eac"), loop="trials"),
                    seeds=SEEDS, key=KEY, out=lib)
     jaxeac.run(env, {"ac": _cfg("ac"), "eac": _cfg("eac")}, seeds=SEEDS, key=KEY, out=lib)
     assert (lib / "results.parquet").read_bytes() == (cli / "results.parquet").read_bytes()
