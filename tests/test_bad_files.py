@@ -383,7 +383,7 @@ def test_a_damaged_folder_waits_for_the_device_start(grid_run, tmp_path, monkeyp
         def join(self):
             Starter.joined = True
 
-    monkeypatch.setattr(stats_run, "_start_device", lambda: Starter())
+    monkeypatch.setattr(stats_run, "start_device", lambda: Starter())
     run = tmp_path / "run"
     shutil.copytree(grid_run, run)
     (run / "results.parquet").write_bytes(b"")
