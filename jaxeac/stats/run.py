@@ -23,9 +23,10 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
+from jaxeac.stats.figures import FIGURES, write_figures
 from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
 from jaxeac.stats.paired import paired_analysis
-from jaxeac.stats.report import FIGURES, render_markdown, write_figures
+from jaxeac.stats.report import render_markdown
 from jaxeac.stats.rundir import (
     MEASURES,
     RunData,
