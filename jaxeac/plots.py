@@ -14,13 +14,16 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 from scipy import special  # noqa: E402
 
+from jaxeac import style  # noqa: E402
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
 
-COLORS = {"ac": "tab:blue", "eac": "tab:red"}
-LABELS = {"ac": "AC", "eac": "EAC"}
+COLORS = style.PALETTE  # one colour per algorithm, every figure (jaxeac/style.py)
+LABELS = style.LABELS
 
 
 def cumulative_counts(success, chunk: int = 1 << 12) -> np.ndarray:
@@ -68,28 +71,34 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
     """Fig. 3: mean cumulative successes over trials per algorithm, with a pointwise 95 % CI band
     and the seeds' 5–95 % spread, all from per-trial counts of the cumulative values."""
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    spread = False
     for algo, s in success.items():
         counts = cumulative_counts(s)
         n, t = s.shape
         values = np.arange(t + 1)
         mean = counts @ values / n
         trials = np.arange(1, t + 1)
-        color = COLORS.get(algo)
-        ax.plot(trials, mean, color=color, label=f"{LABELS.get(algo, algo)} (mean of {n} seeds)")
+        color = style.color(algo)
+        ax.plot(trials, mean, color=color, lw=1.8, label=f"{style.label(algo)}: mean of {n:,} seeds")
         if n > 1:
             sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
             half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
             ax.fill_between(trials, mean - half, mean + half, color=color, alpha=0.25, lw=0)
             lo, hi = count_percentile(counts, 5), count_percentile(counts, 95)
-            ax.plot(trials, lo, color=color, lw=0.6, ls=":")
-            ax.plot(trials, hi, color=color, lw=0.6, ls=":")
+            ax.plot(trials, lo, color=color, lw=0.7, ls=":")
+            ax.plot(trials, hi, color=color, lw=0.7, ls=":")
+            spread = True
         if paper and algo in paper and t == GRID_TRIALS:
-            ax.plot([t], [paper[algo]], marker="*", ms=12, color=color, ls="none",
-                    label=f"paper's single {LABELS.get(algo, algo)} run: {paper[algo]}")
+            ax.plot([t], [paper[algo]], marker="*", ms=12, color=color, mec="black", ls="none",
+                    label=f"paper's single {style.label(algo)} run: {paper[algo]}")
+    handles, _ = ax.get_legend_handles_labels()
+    if spread:  # one key for the marks every algorithm shares, drawn in grey
+        handles += [Patch(color=style.NEUTRAL, alpha=0.25, lw=0, label="shaded: 95% CI of the mean"),
+                    Line2D([], [], color=style.NEUTRAL, lw=0.7, ls=":", label="dotted: 5% and 95% of seeds")]
     ax.set_xlabel("trial")
-    ax.set_ylabel("successful trials so far")
-    ax.set_title("Cumulative successes (band: 95% CI of the mean; dotted: 5-95% of seeds)", fontsize=9)
-    ax.legend(fontsize=8, loc="upper left")
+    ax.set_ylabel("successful trials so far (cumulative)")
+    ax.set_title("Cumulative successes per trial", fontsize=9)
+    ax.legend(handles=handles, fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
@@ -114,12 +123,14 @@ def greedy_path(grid: GridMap, policy: np.ndarray, start: int, max_steps: int) -
 POLICY_ARROW_SIDE = 64
 
 
-def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: int, title: str):
-    """Fig. 2: one arrow per free cell (the final greedy action) and one greedy path."""
+def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: int, title: str,
+                color: str = style.NEUTRAL) -> list:
+    """Fig. 2: one arrow per free cell (the final greedy action) and one greedy path, drawn in
+    `color`; returns the legend handles of its marks (obstacle, goal, start, path, arrows)."""
     h, w = grid.height, grid.width
-    ax.imshow(grid.obstacles, cmap="Greys", vmin=0, vmax=1.5, origin="upper")
+    ax.imshow(grid.obstacles, cmap="Greys", vmin=0, vmax=1.2, origin="upper")
     gx, gy = grid.goal
-    ax.add_patch(plt.Rectangle((gx - 0.5, gy - 0.5), 1, 1, color="tab:red", alpha=0.8))
+    ax.add_patch(plt.Rectangle((gx - 0.5, gy - 0.5), 1, 1, fc=style.GOAL, ec="black", lw=1))
     ys, xs = np.divmod(np.arange(h * w), w)
     free = ~grid.obstacles.reshape(-1)
     free[grid.goal_index] = False
@@ -128,29 +139,48 @@ def policy_axes(ax, grid: GridMap, policy: np.ndarray, start: int, max_steps: in
         d = np.array(ACTION_DELTAS)[policy.astype(int)]
         # y grows downwards (row index), as in the map, so dy is drawn as is.
         ax.quiver(xs[free], ys[free], d[free, 0], d[free, 1], angles="xy", scale_units="xy",
-                  scale=2.4, width=0.006, color="0.35", pivot="middle")
+                  scale=2.4, width=0.006, color="0.55", pivot="middle")
     path = greedy_path(grid, policy, start, max_steps)
     py, px = np.divmod(np.array(path), w)
-    ax.plot(px, py, color="tab:green", lw=2.2, marker="o", ms=3)
-    ax.plot(px[0], py[0], marker="s", ms=8, color="tab:green")
+    ax.plot(px, py, color=color, lw=2.2, marker="o", ms=3)
+    ax.plot(px[0], py[0], marker="s", ms=9, mfc="white", mec="black", mew=1.5, ls="none")
     reached = path[-1] == grid.goal_index
+    moves = len(path) - 1
     ax.set_title(f"{title}\ngreedy path {'reaches' if reached else 'misses'} the goal "
-                 f"({len(path) - 1} moves)" + ("" if arrows else f"; {h} x {w} cells: no arrows"), fontsize=9)
+                 f"({moves} move{'' if moves == 1 else 's'})"
+                 + ("" if arrows else f"; {h} x {w} cells: no arrows"), fontsize=9)
     if arrows:  # a tick per cell
         ax.set_xticks(range(w))
         ax.set_yticks(range(h))
     ax.tick_params(labelsize=6)
+    ax.set_xlabel("column", fontsize=8)
+    ax.set_ylabel("row", fontsize=8)
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
+    handles = [Patch(fc="0.17", label="obstacle"),
+               Patch(fc=style.GOAL, ec="black", lw=1, label="goal"),
+               Line2D([], [], marker="s", ms=8, mfc="white", mec="black", mew=1.5, ls="none", label="start"),
+               Line2D([], [], color=color, lw=2.2, marker="o", ms=3, label="greedy path from the start")]
+    if arrows:
+        handles.append(Line2D([], [], color="0.55", marker=r"$\rightarrow$", ms=9, ls="none",
+                              label="greedy action in each cell"))
+    return handles
 
 
 def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *, seed: int, max_steps: int):
     """Fig. 2: AC beside EAC, the final policy of one seed and the greedy path from one start."""
     start = int(grid.start_cells[0])
-    fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 4.4), squeeze=False)
+    fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 5.0), squeeze=False)
+    handles = []
     for ax, (algo, policy) in zip(axes[0], policies.items(), strict=True):
-        policy_axes(ax, grid, policy, start, max_steps, f"{LABELS.get(algo, algo)}, seed {seed}")
-    fig.tight_layout()
+        marks = policy_axes(ax, grid, policy, start, max_steps, f"{style.label(algo)}, seed {seed}",
+                            color=style.color(algo))
+        handles += [h for h in marks if h.get_label() not in {g.get_label() for g in handles}
+                    and h.get_label() != "greedy path from the start"]
+    handles += [Line2D([], [], color=style.color(a), lw=2.2, marker="o", ms=3,
+                       label=f"{style.label(a)}'s greedy path from the start") for a in policies]
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
@@ -173,27 +203,45 @@ def grid_figures(run, folder: Path, *, seed: int = 0, paper: dict[str, int] | No
 
 
 def angle_figure(angles: dict[str, np.ndarray], path: Path, *, seed: int = 0):
-    """Fig. 5: chance-1 and chance-2 shoulder angles per trial: mean, 5–95 % band over seeds, one seed."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    """Fig. 5: chance-1 and chance-2 shoulder angles per trial: mean, 5–95 % band over seeds, one seed.
+
+    The seed's angles of the first algorithm are drawn as large open markers and those of the
+    next ones as smaller filled markers on top, so a trial where they agree shows both."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), sharey=True)
+    markers = ("o", "D", "s", "^", "v", "P", "X", "*")
     for c, ax in enumerate(axes):
-        for algo, theta in angles.items():
+        for k, (algo, theta) in enumerate(angles.items()):
             a = theta[:, :, c]
             t = np.arange(1, a.shape[1] + 1)
-            color = COLORS.get(algo)
-            ax.plot(t, np.nanmean(a, axis=0), color=color, lw=2, label=f"{LABELS.get(algo, algo)} mean")
+            color, name = style.color(algo), style.label(algo)
             lo, hi = np.nanpercentile(a, [5, 95], axis=0)
-            ax.fill_between(t, lo, hi, color=color, alpha=0.15, lw=0)
-            ax.plot(t, a[seed], color=color, lw=1, ls="--", marker="o", ms=3,
-                    label=f"{LABELS.get(algo, algo)} seed {seed}")
-        ax.axhline(0, color="0.5", lw=0.8)
-        ax.set_title(f"chance {c + 1} (band: 5–95% of seeds)", fontsize=9)
+            ax.fill_between(t, lo, hi, color=color, alpha=0.15, lw=0, label=f"{name}: 5–95% of seeds")
+            ax.plot(t, np.nanmean(a, axis=0), color=color, lw=2.2, label=f"{name}: mean over seeds")
+            big = k == 0
+            ax.plot(t, a[seed], color=color, lw=1.6 if big else 1.0, ls="--" if big else ":",
+                    marker=markers[k % len(markers)], ms=9 if big else 4,
+                    mfc="none" if big else color, mew=1.5 if big else 1, zorder=3 + k,
+                    label=f"{name}: seed {seed}")
+        ax.axhline(0, color=style.NEUTRAL, lw=0.8)
+        ax.set_title(f"chance {c + 1}", fontsize=9)
         ax.set_xlabel("trial")
+        ax.set_ylabel("shoulder angle θ (rad)")
+        ax.yaxis.set_tick_params(labelleft=True)
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("shoulder angle θ (rad); < 0 targets the right pins")
-    axes[1].legend(fontsize=8)
-    fig.tight_layout()
+    fig.suptitle("Shoulder angle of each throw (θ < 0 aims at the right pins)", fontsize=10)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(angles), fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.17 if len(angles) > 1 else 0.1, 1, 1))
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def _cell_texts(ax, im, grid: np.ndarray, text, fontsize: float):
+    """Write text(j, i, v) in each finite cell of an imshow, black or white by the cell's colour."""
+    for (j, i), v in np.ndenumerate(grid):
+        if np.isfinite(v):
+            ax.text(i, j, text(j, i, v), ha="center", va="center", fontsize=fontsize,
+                    color=style.text_color(im.cmap(im.norm(v))))
 
 
 def sweep_heatmap(rows: list[dict], key_x: str, key_y: str, path: Path):
@@ -206,10 +254,8 @@ def sweep_heatmap(rows: list[dict], key_x: str, key_y: str, path: Path):
     ys = sorted({k[1] for k in diffs})
     grid = np.array([[np.mean(diffs.get((x, y), [np.nan])) for x in xs] for y in ys])
     fig, ax = plt.subplots(figsize=(1.2 * len(xs) + 3, 0.8 * len(ys) + 2.2))
-    im = ax.imshow(grid, cmap="RdBu_r", origin="lower", aspect="auto",
-                   vmin=-np.nanmax(np.abs(grid)), vmax=np.nanmax(np.abs(grid)))
-    for (j, i), v in np.ndenumerate(grid):
-        ax.text(i, j, f"{v:+.1f}", ha="center", va="center", fontsize=8)
+    im = ax.imshow(grid, origin="lower", aspect="auto", **style.scale(grid, difference=True))
+    _cell_texts(ax, im, grid, lambda j, i, v: f"{v:+.1f}", 8)
     ax.set_xticks(range(len(xs)), [str(x) for x in xs])
     ax.set_yticks(range(len(ys)), [str(y) for y in ys])
     ax.set_xlabel(key_x)
@@ -217,8 +263,38 @@ def sweep_heatmap(rows: list[dict], key_x: str, key_y: str, path: Path):
     others = {k for row in rows for k in row} & {"alpha", "beta", "gamma", "temperature", "trials",
                                                    "chances", "preset", "map_file"} - {key_x, key_y}
     note = f" (mean over {', '.join(sorted(others))})" if others else ""
-    ax.set_title(f"EAC − AC mean successes{note}", fontsize=9)
-    fig.colorbar(im, ax=ax, shrink=0.8)
+    ax.set_title(f"EAC − AC mean successes per seed{note}", fontsize=9)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="EAC − AC mean successes")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def sweep_lines(rows: list[dict], key: str, path: Path):
+    """Mean successes per algorithm against one swept key, with each mean's 95 % CI as error bars
+    (averaged over any other swept keys). rows: results.csv's rows (mean_successes, ci95_lo/hi)."""
+    algos = list(dict.fromkeys(row["algo"] for row in rows))
+    xs = sorted({row[key] for row in rows}, key=lambda v: (isinstance(v, str), v))
+    numeric = all(isinstance(x, int | float) for x in xs)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for algo in algos:
+        pts = [[r for r in rows if r["algo"] == algo and r[key] == x] for x in xs]
+        mean = np.array([np.mean([r["mean_successes"] for r in p]) if p else np.nan for p in pts])
+        lo = np.array([np.mean([r["ci95_lo"] for r in p]) if p else np.nan for p in pts])
+        hi = np.array([np.mean([r["ci95_hi"] for r in p]) if p else np.nan for p in pts])
+        pos = np.asarray(xs, float) if numeric else np.arange(len(xs))
+        ax.errorbar(pos, mean, yerr=[mean - lo, hi - mean], color=style.color(algo), marker="o", ms=5,
+                    capsize=3, lw=1.6, label=style.label(algo))
+    if not numeric:
+        ax.set_xticks(range(len(xs)), [str(x) for x in xs])
+    ax.set_xlabel(key)
+    ax.set_ylabel("mean successes per seed (bars: 95% CI)")
+    others = {k for row in rows for k in row} & {"alpha", "beta", "gamma", "temperature", "epsilon", "trials",
+                                                   "chances", "preset", "map_file", "slip"} - {key}
+    note = f"\n(mean over {', '.join(sorted(others))})" if others else ""
+    ax.set_title(f"Mean successes against {key}{note}", fontsize=9)
+    ax.legend(fontsize=8, title="algorithm", title_fontsize=8)
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
@@ -238,9 +314,9 @@ def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict |
         mean = np.asarray(c["mean"], float)
         t = mean.size
         trials = np.arange(1, t + 1)
-        color = COLORS.get(algo)
-        name = LABELS.get(algo, algo)
-        ax.plot(trials, mean, color=color, lw=2, label=f"{name}: mean of {c['n']} seeds")
+        color = style.color(algo)
+        name = style.label(algo)
+        ax.plot(trials, mean, color=color, lw=2, label=f"{name}: mean of {c['n']:,} seeds")
         lo, hi = (np.asarray(b, float) for b in c["band"])
         half = float(np.nanmax(hi - lo)) / 2
         ax.fill_between(trials, lo, hi, color=color, alpha=0.35, lw=0,
@@ -248,12 +324,12 @@ def cumulative_band_figure(curves: dict[str, dict], path: Path, *, paper: dict |
         slo, shi = (np.asarray(b, float) for b in c["spread"])
         ax.fill_between(trials, slo, shi, color=color, alpha=0.08, lw=0)
         ax.plot(trials, slo, color=color, lw=0.7, ls=":")
-        ax.plot(trials, shi, color=color, lw=0.7, ls=":", label=f"{name}: 5-95% of seeds")
+        ax.plot(trials, shi, color=color, lw=0.7, ls=":", label=f"{name}: 5% and 95% of seeds (dotted)")
         if paper and algo in paper:
             ax.plot([t], [paper[algo]], marker="*", ms=14, color=color, mec="black", ls="none",
                     label=f"paper's single {name} run: {paper[algo]}")
     ax.set_xlabel("trial")
-    ax.set_ylabel("successful trials so far")
+    ax.set_ylabel("successful trials so far (cumulative)")
     ax.set_title("Cumulative successes: mean with a band over all trials at once,\n"
                  "spread of seeds (dotted) and the paper's single runs (stars)", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
@@ -275,7 +351,7 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
     and AC's mean; cells with |AC − target| ≤ tolerance are boxed.
     """
     rows_v, cols_v, xs, ys = (list(dict.fromkeys(p.get(k) for p in points)) for k in (*facet, *axes))
-    vmax = max((abs(p["diff"]) for p in points), default=1.0) or 1.0
+    colors = style.scale([p["diff"] for p in points], difference=True)  # one scale for every panel
     fig, grid = plt.subplots(len(rows_v), len(cols_v), squeeze=False,
                              figsize=(1.0 * len(xs) * len(cols_v) + 2.4, 0.8 * len(ys) * len(rows_v) + 1.6))
     im = None
@@ -285,15 +361,16 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
             cells = {(p.get(axes[0]), p.get(axes[1])): p for p in points
                      if p.get(facet[0]) == rv and p.get(facet[1]) == cv}
             z = np.array([[cells[(x, y)]["diff"] if (x, y) in cells else np.nan for x in xs] for y in ys])
-            im = ax.imshow(z, cmap="RdBu_r", origin="lower", aspect="auto", vmin=-vmax, vmax=vmax)
-            for (j, i), v in np.ndenumerate(z):
+            im = ax.imshow(z, origin="lower", aspect="auto", **colors)
+            ac = np.array([[cells[(x, y)]["ac"] if (x, y) in cells else np.nan for x in xs] for y in ys])
+            _cell_texts(ax, im, z, lambda j, i, v, ac=ac: f"{v:+.0f}\nAC {ac[j, i]:.0f}", 6)
+            for (j, i), _ in np.ndenumerate(z):
                 p = cells.get((xs[i], ys[j]))
                 if p is None:
                     continue
-                ax.text(i, j, f"{v:+.0f}\nAC {p['ac']:.0f}", ha="center", va="center", fontsize=6,
-                        color="white" if abs(v) > 0.6 * vmax else "black")
                 if abs(p["ac"] - target) <= tolerance:
-                    ax.add_patch(plt.Rectangle((i - 0.5, j - 0.5), 1, 1, fill=False, ec="black", lw=2))
+                    ax.add_patch(plt.Rectangle((i - 0.5, j - 0.5), 1, 1, fill=False, ec=style.VERMILLION
+                                               if colors["cmap"] == style.SEQUENTIAL else "black", lw=2.2))
             ax.set_xticks(range(len(xs)), [str(x) for x in xs], fontsize=7)
             ax.set_yticks(range(len(ys)), [str(y) for y in ys], fontsize=7)
             ax.set_title(", ".join(f"{k}={v}" for k, v in zip(facet, (rv, cv), strict=True) if v is not None)
@@ -306,7 +383,7 @@ def calibration_landscape(points: list[dict], path: Path, *, facet: tuple[str, s
                  f"boxed: AC within ±{tolerance:g} of the paper's {target:g}", fontsize=8)
     fig.tight_layout(rect=(0, 0, 0.9, 0.93))
     if im is not None:
-        fig.colorbar(im, ax=grid.ravel().tolist(), shrink=0.6)
+        fig.colorbar(im, ax=grid.ravel().tolist(), shrink=0.6, label=f"EAC − AC mean {unit}")
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -327,12 +404,13 @@ def path_ratio_figure(curves: dict[str, dict], path: Path, *, window: tuple[int,
         for algo, c in curves.items():
             mean, lo, hi = (np.asarray(c[name][k], float) for k in ("mean", "lo", "hi"))
             trials = np.arange(1, mean.size + 1)
-            color = COLORS.get(algo)
+            color = style.color(algo)
             ax.plot(trials, mean, color=color, lw=1.5,
-                    label=f"{LABELS.get(algo, algo)}: mean of {c['n']} seeds")
-            ax.fill_between(trials, lo, hi, color=color, alpha=0.25, lw=0)
+                    label=f"{style.label(algo)}: mean of {c['n']:,} seeds")
+            ax.fill_between(trials, lo, hi, color=color, alpha=0.25, lw=0,
+                            label=f"{style.label(algo)}: pointwise 95% CI")
         if window is not None:
-            ax.axvspan(window[0] - 0.5, window[1] + 0.5, color="0.5", alpha=0.12, lw=0,
+            ax.axvspan(window[0] - 0.5, window[1] + 0.5, color=style.NEUTRAL, alpha=0.12, lw=0,
                        label=f"trials {window[0]}-{window[1]} (compared)")
         ax.set_xlabel("trial")
         ax.set_ylabel(ylabel, fontsize=9)
@@ -340,29 +418,39 @@ def path_ratio_figure(curves: dict[str, dict], path: Path, *, window: tuple[int,
     top = max((np.nanmax(np.asarray(c["ratio"]["mean"], float)) for c in curves.values()), default=2.0)
     axes[0].set_ylim(0.9, 1.1 * top + 0.1)  # ratios are ≥ 1; bands of trials few seeds succeeded in are cut
     axes[1].set_ylim(0, 1)
-    axes[0].axhline(1, color="0.5", lw=0.8)
+    axes[0].axhline(1, color=style.NEUTRAL, lw=0.8)
     axes[0].set_title("path length relative to the shortest (1 = shortest; band: pointwise 95% CI)",
                       fontsize=8)
     axes[1].set_title("shortest paths among successful trials (band: pointwise 95% CI)", fontsize=8)
-    axes[1].legend(fontsize=7)
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.14, 1, 1))
     fig.savefig(path, dpi=130)
     plt.close(fig)
 
 
 def forest_figure(rows: list[dict], path: Path, *, title: str, xlabel: str):
-    """Differences with 95 % CIs, one row per comparison: rows = [{"label", "diff", "ci": (lo, hi)}]."""
-    fig, ax = plt.subplots(figsize=(6.4, 0.42 * len(rows) + 1.4))
+    """Differences from AC with 95 % CIs, one row per comparison: rows = [{"label", "diff", "ci": (lo, hi)}],
+    each with an optional "algo" (default "eac"): the algorithm compared with AC, whose colour its
+    point takes."""
+    fig, ax = plt.subplots(figsize=(8.4, 0.42 * len(rows) + 1.8))
     y = np.arange(len(rows))[::-1]
     for yi, row in zip(y, rows, strict=True):
         lo, hi = row["ci"]
-        ax.plot([lo, hi], [yi, yi], color="0.2", lw=2)
-        ax.plot([row["diff"]], [yi], marker="o", color="tab:red", ms=6)
-    ax.axvline(0, color="0.5", lw=0.8)
+        ax.plot([lo, hi], [yi, yi], color=style.NEUTRAL, lw=2)
+        ax.plot([row["diff"]], [yi], marker="o", color=style.color(row.get("algo", "eac")), ms=6, ls="none")
+    ax.axvline(0, color="black", lw=0.8, ls="--")
     ax.set_yticks(y, [r["label"] for r in rows], fontsize=8)
     ax.set_xlabel(xlabel, fontsize=9)
+    ax.set_ylabel("comparison", fontsize=9)
     ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3, axis="x")
+    algos = dict.fromkeys(row.get("algo", "eac") for row in rows)
+    ax.legend(handles=[*(Line2D([], [], marker="o", color=style.color(a), ls="none",
+                                label=f"{style.label(a)} − AC") for a in algos),
+                       Line2D([], [], color=style.NEUTRAL, lw=2, label="95% CI"),
+                       Line2D([], [], color="black", lw=0.8, ls="--", label="no difference")],
+              fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)

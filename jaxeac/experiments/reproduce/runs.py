@@ -430,7 +430,8 @@ def step_ablations(folder: Path, sizes: Sizes, key: int, progress: bool, bowling
                                  resamples=sizes.resamples)})
     with staged_dir(folder) as stage:
         if variants:
-            rows = [{"label": v["algo"], "diff": v["diff"], "ci": v["diff_ci95"]} for v in variants]
+            rows = [{"label": v["algo"], "algo": v["algo"], "diff": v["diff"], "ci": v["diff_ci95"]}
+                    for v in variants]
             plots.forest_figure(rows, stage / "grid_variants.png",
                                 xlabel="mean successes minus AC's (95% BCa CI)",
                                 title=f"Grid, paper preset: each variant minus AC ({base.seeds} seeds each)")
