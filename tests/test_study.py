@@ -59,3 +59,26 @@ def test_study_command_refuses_another_kind_of_folder(tmp_path, capsys):
     (tmp_path / "summary.json").write_text("{}")
     assert main(["study", "--tasks", "FrozenLake-4x4-v1", "--out", str(tmp_path), "--quiet"]) == 2
     assert "holds a grid or bowling run" in capsys.readouterr().err
+
+
+def test_study_summary_across_tasks(study):
+    from jaxeac.experiments.study import summary_table
+
+    out, settings, result = study
+    lines = summary_table(result).splitlines()
+    assert "Holm-adjusted p ≤ 0.05 over 4 comparisons" in lines[0]
+    assert lines[1].split() == ["task", "ac", "eac", "sarsa"]
+    rows = {ln.split()[0]: ln.split()[1:] for ln in lines[3:]}
+    assert set(rows) == set(settings.tasks)
+    for row in result["comparisons"]:
+        cell = rows[row["task"]][["ac", "eac", "sarsa"].index(row["x"])]
+        assert cell.startswith(f"{result['tasks'][row['task']]['algorithms'][row['x']]['mean']:.1f}")
+        assert cell.endswith("+") == (row["p_holm"] <= 0.05 and row["diff"] > 0)
+
+
+def test_study_command_shows_progress_within_a_task_and_a_summary(tmp_path, capsys):
+    assert main(["study", "--tasks", "FrozenLake-4x4-v1", "--algos", "ac", "eac", "--seeds", "16", "--trials",
+                 "10", "--resamples", "400", "--out", str(tmp_path / "s")]) == 0
+    captured = capsys.readouterr()
+    assert "study: task 1/1 FrozenLake-4x4-v1 (2 algorithms)" in captured.err and "32/32" in captured.err
+    assert "mean successes per seed (10 trials)" in captured.out and "FrozenLake-4x4-v1" in captured.out

@@ -124,3 +124,23 @@ def test_compare_per_point(tmp_path):
         mine = {r["algo"]: r for r in rows if r["point"] == point}
         assert stats["primary"]["mean_treatment"] == pytest.approx(mine["eac"]["mean_successes"])
         assert stats["primary"]["mean_baseline"] == pytest.approx(mine["ac"]["mean_successes"])
+
+
+def test_one_key_sweep_prints_its_table_and_draws_lines(tmp_path, capsys):
+    """The table in the terminal, a line plot for one swept key, and EAC − AC said once per point
+    (on EAC's row; not on AC's or the baselines')."""
+    out = tmp_path / "s"
+    assert main(["sweep", "--seeds", "6", "--trials", "8", "--chances", "20", "--algos", "ac", "eac",
+                 "q_learning", "--set", "alpha=0.05,0.2", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    lines = printed.splitlines()
+    assert lines[0].split() == ["alpha", "algo", "n", "mean", "successes", "[95%", "CI]", "EAC", "−", "AC",
+                                "[95%", "CI]"]
+    assert len([ln for ln in lines if " q_learning " in ln]) == 2
+    assert f"figure {out}/lines.png" in printed and (out / "lines.png").exists()
+    assert not (out / "heatmap.png").exists()
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {r["algo"]: r["eac_minus_ac"] != "" for r in rows} == {"ac": False, "eac": True, "q_learning": False}
+    eac_lines = [ln for ln in lines if " eac " in ln]
+    assert all(ln.count("[") == 2 for ln in eac_lines)  # its mean's CI and the difference's
+    assert all(ln.count("[") == 1 for ln in lines if " q_learning " in ln or " ac " in ln)

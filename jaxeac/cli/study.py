@@ -34,7 +34,7 @@ def add_parser(sub) -> None:
 def cmd_study(args: argparse.Namespace) -> int:
     from jaxeac.cli.process import _claim_out
     from jaxeac.experiments.common import check_grid_resources
-    from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS, StudySettings, run_study
+    from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS, StudySettings, run_study, summary_table
 
     settings = StudySettings(
         tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
@@ -46,6 +46,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         check_grid_resources(grid, grid.make_env())
     _claim_out(args, args.out, kind="study")
     result = run_study(settings, args.out, progress=not args.quiet)
+    print(summary_table(result))
     print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "
           f"{result['comparisons_in_family']} comparisons with ac; report in {args.out}/report.md")
     return 0

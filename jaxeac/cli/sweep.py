@@ -29,7 +29,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from jaxeac.cli.process import _claim_out
-    from jaxeac.experiments.sweep import Sweep, run_sweep
+    from jaxeac.experiments.sweep import Sweep, figure_name, format_table, run_sweep
 
     base = grid_settings(args)
     base.resolved()  # validate the flags before the swept values
@@ -39,6 +39,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     total = len(sweep.points()) * base.seeds * len(base.algos)
     with tqdm(total=total, unit="run", disable=args.quiet, desc="sweep", file=sys.stderr) as bar:
         rows = run_sweep(sweep, args.out, progress=bar.update, compare=args.point_reports)
-    print(f"{len(sweep.points())} points x {len(base.algos)} algorithms x {base.seeds} seeds; "
-          f"{len(rows)} rows in {args.out}/results.csv")
+    print(format_table(sweep, rows))
+    print(f"{len(sweep.points())} points x {len(base.algos)} algorithms x {base.seeds:,} seeds; "
+          f"{len(rows)} rows in {args.out}/results.csv; figure {args.out}/{figure_name(sweep)}")
     return 0

@@ -113,15 +113,22 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
     settings.validate()
     out = Path(out)
+    from tqdm import tqdm
+
     tasks = {}
-    for task in settings.tasks:
+    n = len(settings.tasks)
+    for k, task in enumerate(settings.tasks, 1):
         grid = settings.task_settings(task)
         folder = out / "tasks" / folder_name(task)
-        if not finished_run(folder, plain_json(dataclasses.asdict(grid))):
+        if finished_run(folder, plain_json(dataclasses.asdict(grid))):
             if progress:
-                print(f"study: {task} ({len(grid.algos)} algorithms x {grid.seeds:,} seeds)", file=sys.stderr,
+                print(f"study: task {k}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
                       flush=True)
-            run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds), figures=False)
+        else:
+            with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
+                      desc=f"study: task {k}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
+                run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds), figures=False,
+                                   progress=bar.update)
         tasks[task] = (grid, _successes(folder, grid))
     rows, figures, per_task = [], {}, {}
     for i, (task, (grid, success)) in enumerate(tasks.items()):
@@ -194,6 +201,26 @@ def report_markdown(result: dict) -> str:
                 f"| {row['diff']:+.2f} [{lo:+.2f}, {hi:+.2f}] | {row['hedges_g']:+.2f} | "
                 f"{row['p_improvement']:.3f} | {_p(row['p_holm'])} |")
         lines.append("")
+    return "\n".join(lines)
+
+
+def summary_table(result: dict, *, level: float = 0.05) -> str:
+    """The study at a glance, for a terminal: per task (rows) each algorithm's mean successes,
+    marked + (better than AC) or − (worse) where its Holm-adjusted p is at most `level`."""
+    algos = list(next(iter(result["tasks"].values()))["algorithms"])
+    marks = {(r["task"], r["x"]): ("+" if r["diff"] > 0 else "−") if r["p_holm"] <= level else " "
+             for r in result["comparisons"]}
+    head = ["task", *algos]
+    body = [[task, *(f"{info['algorithms'][a]['mean']:.1f}{marks.get((task, a), ' ')}" for a in algos)]
+            for task, info in result["tasks"].items()]
+    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
+    lines = [f"mean successes per seed ({result['rates']['trials']} trials); + / −: better / worse than ac, "
+             f"Holm-adjusted p ≤ {level:g} over {result['comparisons_in_family']} comparisons"]
+    for i, r in enumerate([head, *body]):
+        cells = (c.rjust(w) for c, w in zip(r[1:], widths[1:], strict=True))
+        lines.append("  ".join([r[0].ljust(widths[0]), *cells]))
+        if i == 0:
+            lines.append("  ".join("-" * w for w in widths))
     return "\n".join(lines)
 
 

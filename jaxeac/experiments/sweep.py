@@ -218,7 +218,7 @@ def _results(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) -> list
             mean, sd, lo, hi = mean_ci95(x)
             row = {"point": i, **point, "algo": algo, "n": x.size, "mean_successes": mean, "sd": sd,
                    "ci95_lo": lo, "ci95_hi": hi}
-            if diff is not None:
+            if diff is not None and algo == "eac":  # the difference is EAC's row's, said once per point
                 row |= {"eac_minus_ac": diff[0], "diff_ci95_lo": diff[1], "diff_ci95_hi": diff[2]}
             rows.append(row)
     return rows
@@ -232,11 +232,47 @@ def _write_results(sweep: Sweep, out: Path, rows: list[dict]) -> None:
     columns = list(dict.fromkeys(k for row in rows for k in row))
     lines = [",".join(columns)] + [",".join(_fmt(row.get(c, "")) for c in columns) for row in rows]
     atomic_write_text(out / "results.csv", "\n".join(lines) + "\n")
-    multi = [k for k, v in sweep.grid if len(v) > 1]
-    if len(multi) >= 2 and "ac" in sweep.base.algos and "eac" in sweep.base.algos:
-        from jaxeac.plots import sweep_heatmap
+    from jaxeac import plots
 
-        sweep_heatmap(rows, multi[0], multi[1], out / "heatmap.png")
+    name = figure_name(sweep)
+    if name == "heatmap.png":
+        multi = [k for k, v in sweep.grid if len(v) > 1]
+        plots.sweep_heatmap(rows, multi[0], multi[1], out / name)
+    else:
+        plots.sweep_lines(rows, _line_key(sweep), out / name)
+
+
+def _line_key(sweep: Sweep) -> str:
+    """The key a line plot runs along: the first with several values (else the first)."""
+    return next((k for k, v in sweep.grid if len(v) > 1), sweep.keys[0])
+
+
+def figure_name(sweep: Sweep) -> str:
+    """The sweep's figure: ``heatmap.png`` (EAC − AC over the first two keys with several values,
+    when both run), else ``lines.png`` (each algorithm's mean against one key)."""
+    multi = [k for k, v in sweep.grid if len(v) > 1]
+    if len(multi) >= 2 and {"ac", "eac"} <= set(sweep.base.algos):
+        return "heatmap.png"
+    return "lines.png"
+
+
+def format_table(sweep: Sweep, rows: list[dict], *, limit: int = 40) -> str:
+    """results.csv for a terminal: one line per point and algorithm, the mean successes with its
+    95 % CI and, on EAC's line, EAC − AC with its Welch 95 % CI; at most `limit` lines."""
+    keys = sweep.keys
+    head = [*keys, "algo", "n", "mean successes [95% CI]", "EAC − AC [95% CI]"]
+    body = []
+    for row in rows[:limit]:
+        mean = f"{row['mean_successes']:.2f} [{row['ci95_lo']:.2f}, {row['ci95_hi']:.2f}]"
+        diff = (f"{row['eac_minus_ac']:+.2f} [{row['diff_ci95_lo']:+.2f}, {row['diff_ci95_hi']:+.2f}]"
+                if "eac_minus_ac" in row else "")
+        body.append([*(_fmt(row[k]) for k in keys), row["algo"], str(row["n"]), mean, diff])
+    widths = [max(len(r[i]) for r in [head, *body]) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in [head, *body]]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    if len(rows) > limit:
+        lines.append(f"... {len(rows) - limit} more rows in results.csv")
+    return "\n".join(lines)
 
 
 def _compare_points(sweep: Sweep, out: Path, points: list[dict], n_chunks: int) -> None:
