@@ -44,7 +44,7 @@ def check_int(name: str, value, *, low: int = 1, high: int = INT32_MAX, fix: str
     if value < low:
         raise UsageError(f"{name} must be {kind} (got {value!r}){fix}")
     if value > high:
-        raise UsageError(f"{name} must be at most {high:,} (got {value!r}){fix}")
+        raise UsageError(f"{name} {value!r} is too large: {name} must be at most {high:,}{fix}")
     return int(value)
 
 

@@ -161,7 +161,7 @@ def test_bad_counts():
     cfg = RunConfig(trials=5, agent=algorithm("ac"))
     with pytest.raises(UsageError, match="seeds must be a positive integer"):
         run_seeds(ENV, cfg, root_key=0, n_seeds=0)
-    with pytest.raises(UsageError, match="chunk size must be a positive integer"):
+    with pytest.raises(UsageError, match="chunk_size must be a positive integer"):
         run_seeds(ENV, cfg, root_key=0, n_seeds=2, chunk_size=0)
 
 

@@ -25,10 +25,10 @@ from jaxeac.errors import UsageError
 
 def _grid(map_name: str) -> Callable[..., Any]:
     def build(chances: int | None = None, slip: float = 0.0):
-        from jaxeac.envs.grid import get_map
+        from jaxeac.envs.grid import check_chances, check_slip, get_map
         from jaxeac.envs.tabular import grid_world
 
-        chances = 40 if chances is None else chances
+        chances, slip = check_chances(40 if chances is None else chances), check_slip(slip)
         return grid_world(get_map(map_name), chances, slip, name=f"grid-{map_name}-v0")
 
     build.__doc__ = f"The grid world on map {map_name!r} (G1–G5), `chances` per trial (G5), `slip` (X1)."
@@ -43,8 +43,11 @@ def _tasks():
 
 def _tabular(task: Callable[[], Any]) -> Callable[..., Any]:
     def build(chances: int | None = None, slip: float = 0.0, rtilde: str = "shaped"):
+        from jaxeac.envs.grid import check_chances, check_slip
         from jaxeac.envs.tabular import TabularEnv
 
+        chances = chances if chances is None else check_chances(chances)
+        slip = check_slip(slip)
         built = task()
         if slip:
             built = _tasks().with_slip(built, slip)
@@ -81,6 +84,8 @@ def registered() -> list[str]:
 
 def make(name: str, **options) -> Any:
     """The environment registered as `name`, built with `options` (e.g. ``chances=40``)."""
+    if not isinstance(name, str):
+        raise TypeError(f"name must be a string, one of registered() (got {name!r}); e.g. 'grid-paper-v0'")
     registry = _registry()
     if name not in registry:
         raise UsageError(f"unknown environment {name!r}; choose one of {', '.join(sorted(registry))}")

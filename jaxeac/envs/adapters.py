@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxeac.envs.protocol import Transition
-from jaxeac.errors import UsageError
+from jaxeac.errors import UsageError, check_int
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import chance_key
 
@@ -78,9 +78,7 @@ class GymnaxEnv:
         self.n_actions = int(env.num_actions)
         limit = getattr(params, "max_steps_in_episode", None)
         n_chances = limit if n_chances is None else n_chances
-        if isinstance(n_chances, bool) or not isinstance(n_chances, int) or n_chances < 1:
-            raise UsageError(f"chances must be a positive integer (got {n_chances!r}); pass n_chances")
-        self.n_chances = int(n_chances)
+        self.n_chances = check_int("chances", n_chances, fix="pass n_chances, the chances per trial (G5)")
         self._index = state_index or (lambda obs: jnp.asarray(obs, jnp.int32).reshape(()))
         self._success = success or (lambda obs, reward, terminated, info: terminated & (reward > 0))
 

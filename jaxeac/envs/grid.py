@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.envs.protocol import KernelTables, Transition, UniformEnv
-from jaxeac.errors import UsageError
+from jaxeac.errors import UsageError, check_int, check_number
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import uniform_index
 
@@ -178,6 +178,17 @@ def get_map(name: str) -> GridMap:
     return parse_map(MAPS[name], source=f"map preset {name!r}")
 
 
+def check_chances(chances) -> int:
+    """G5's C: a positive integer (int32 on the device). 2.5 or 0 is a `UsageError` (a ValueError),
+    a string a TypeError, each naming ``chances``."""
+    return check_int("chances", chances, fix="pass the chances per trial (G5), e.g. chances=40")
+
+
+def check_slip(slip) -> float:
+    """X1's slip: a probability in [0, 1] (`UsageError`; a non-number: TypeError), naming ``slip``."""
+    return check_number("slip", slip, high=1.0, fix="pass e.g. 0.1 for a random action one time in ten")
+
+
 @pytree_dataclass
 class GridState:
     """Agent position (flat cell index) and the chance counter within the trial."""
@@ -194,10 +205,11 @@ class GridWorld(UniformEnv):
     deterministic = True  # G4: a (cell, action) always leads to the same cell
 
     def __init__(self, grid_map: GridMap, n_chances: int):
-        if n_chances < 1:
-            raise UsageError(f"chances must be a positive integer (got {n_chances})")
+        if not isinstance(grid_map, GridMap):
+            raise TypeError(f"grid_map must be a GridMap, from get_map, parse_map or load_map "
+                            f"(got {grid_map!r})")
         self.map = grid_map
-        self.n_chances = int(n_chances)
+        self.n_chances = check_chances(n_chances)
         self.n_states = grid_map.n_cells
         next_state, reward, bumped = transition_tables(grid_map)
         self._next_state = next_state

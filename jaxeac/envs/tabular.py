@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.envs.grid import GridMap, GridWorld, decode_move, shaped_reward
+from jaxeac.envs.grid import GridMap, GridWorld, check_chances, check_slip, decode_move, shaped_reward
 from jaxeac.envs.protocol import KernelTables, Transition, UniformEnv
 from jaxeac.envs.tasks import TabularTask, grid_task, with_slip
 from jaxeac.errors import UsageError
@@ -47,9 +47,9 @@ class TabularEnv(UniformEnv):
     """
 
     def __init__(self, task: TabularTask, n_chances: int | None = None, rtilde: RtildeRule = "shaped"):
-        n_chances = task.max_steps if n_chances is None else n_chances
-        if isinstance(n_chances, bool) or not isinstance(n_chances, int | np.integer) or n_chances < 1:
-            raise UsageError(f"chances must be a positive integer (got {n_chances!r})")
+        if not isinstance(task, TabularTask):
+            raise TypeError(f"task must be a TabularTask of jaxeac.envs.tasks (got {task!r})")
+        n_chances = check_chances(task.max_steps if n_chances is None else n_chances)
         if rtilde not in RTILDE_RULES:
             raise UsageError(f"unknown r̃ rule {rtilde!r}; choose one of {', '.join(RTILDE_RULES)}")
         self.task = task
@@ -159,6 +159,7 @@ class TabularKernelTables(KernelTables):
 def grid_world(grid_map: GridMap, n_chances: int, slip: float = 0.0, name: str | None = None):
     """The paper's grid world on `grid_map` (G1–G5): the `GridWorld` itself, or, with `slip` > 0
     (X1), its table whose moves execute a uniformly random action with probability `slip`."""
+    n_chances, slip = check_chances(n_chances), check_slip(slip)
     if not slip:
         return GridWorld(grid_map, n_chances)
     return TabularEnv(with_slip(grid_task(grid_map, n_chances, name=name), slip), n_chances)

@@ -20,12 +20,12 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
 from jaxeac.algorithm.config import Hyper
-from jaxeac.errors import UsageError
-from jaxeac.rng import seed_key, seed_words
-from jaxeac.runtime import trim_host_memory
+from jaxeac.errors import UsageError, check_int
+from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key, seed_words
 from jaxeac.running.config import RunConfig, auto_chunk_size
-from jaxeac.running.loops import Env, flat_batch, trials_batch
+from jaxeac.running.loops import Env, check_run_args, flat_batch, trials_batch
 from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
+from jaxeac.runtime import trim_host_memory
 
 SEEDS_AXIS = "seeds"
 
@@ -60,8 +60,10 @@ def start_states(env: Env, root_key: int, seeds, trials: int) -> np.ndarray:
     """int32 [N, T]: the state each trial of seeds `seeds` of a run with root key `root_key` starts in
     (G3), drawn as the run loops draw it (`env.start` from the seed's words, R1). Runs do not record
     their start states; this recovers them, the same for every algorithm."""
-    words = jax.vmap(lambda s: seed_words(seed_key(jax.random.key(root_key), s)))(
-        np.asarray(seeds, np.int32))
+    root = jax.random.key(root_key_int(root_key))
+    seeds = _check_seeds(seeds)
+    check_int("trials", trials, fix="pass the run's trials per seed")
+    words = jax.vmap(lambda s: seed_words(seed_key(root, s)))(seeds.astype(np.int32))
     per_trial = jax.vmap(lambda w, t: env.observation(env.start(w, t)), in_axes=(None, 0))
     starts = jax.jit(jax.vmap(per_trial, in_axes=(0, None)))(words, np.arange(trials, dtype=np.int32))
     return np.asarray(starts, np.int32)
@@ -76,8 +78,7 @@ def chunks(n_seeds: int, chunk_size: int) -> Iterator[np.ndarray]:
 def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     """The chunk size actually run: N split evenly into ceil(N / chunk_size) chunks (no chunk is
     mostly padding), rounded up to a multiple of the device count."""
-    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int | np.integer) or chunk_size < 1:
-        raise UsageError(f"chunk size must be a positive integer (got {chunk_size!r})")
+    check_int("chunk_size", chunk_size, fix="pass seeds per chunk, or None for the automatic size")
     n_chunks = -(-n // chunk_size)
     even = -(-n // n_chunks)
     return -(-even // n_devices) * n_devices
@@ -85,6 +86,37 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
 
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
+
+
+def _check_seeds(seeds) -> np.ndarray:
+    """int64 [N]: seed indices, each in 0..2^32−1 (R1: `fold_in` keeps 32 bits)."""
+    try:
+        out = np.asarray(seeds)
+    except (TypeError, ValueError):
+        out = np.asarray(None)
+    if out.ndim != 1 or not (out.size == 0 or np.issubdtype(out.dtype, np.integer)):
+        raise TypeError(f"seeds must be a 1-D sequence of integer seed indices (got {seeds!r}); "
+                        "pass e.g. np.arange(100)")
+    out = out.astype(np.int64)
+    if out.size and (out.min() < 0 or out.max() >= KEY_LIMIT):
+        bad = int(out.min() if out.min() < 0 else out.max())
+        raise UsageError(f"seeds must lie in 0..{KEY_LIMIT - 1} (got {bad}); seed i's key is "
+                         "fold_in(root, i), which keeps 32 bits")
+    return out
+
+
+def _check_chunk(chunk_size) -> None:
+    if chunk_size is not None:
+        check_int("chunk_size", chunk_size, fix="pass seeds per chunk, or None for the automatic size")
+
+
+def _check_configs(env, cfgs) -> list:
+    """The env and each config (`check_run_args`); `cfgs` a non-empty list or tuple."""
+    if not isinstance(cfgs, list | tuple) or not cfgs:
+        raise TypeError(f"cfgs must be a non-empty list of RunConfig, one per algorithm (got {cfgs!r})")
+    for cfg in cfgs:
+        check_run_args(env, cfg)
+    return list(cfgs)
 
 
 def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
@@ -132,7 +164,7 @@ class _Entries:
                  chunk_size: int | None, devices, collector: Collector | None):
         n = int(seeds.size)
         if n < 1:
-            raise UsageError(f"seeds must be a positive integer (got {n})")
+            raise UsageError("seeds is empty; pass at least one seed index")
         self.devices, self.chunk_size = _plan(env, cfg, n, chunk_size, devices)
         self.n, self.seeds, self.root = n, seeds, jax.random.key(root_key)
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
@@ -241,6 +273,11 @@ def run_entries(
     go, in seed order, to `collector` (default `HostArrays`: every record in host arrays).
     Returns (the collector's result, seconds the program's compile took, run seconds).
     """
+    check_run_args(env, cfg, hyper)
+    if hyper is None:
+        raise TypeError("hyper must be a Hyper with one value per entry (or one for all), e.g. cfg.hyper()")
+    root_key, seeds = root_key_int(root_key), _check_seeds(seeds)
+    _check_chunk(chunk_size)
     job = _Entries(env, cfg, root_key=root_key, seeds=seeds, hyper=hyper, chunk_size=chunk_size,
                    devices=devices, collector=collector)
     _run_chunks([job], progress)
@@ -265,8 +302,21 @@ def run_algorithms(
     next algorithm's first chunk computes while the last one's results come back. Results as
     `run_seeds` gives them, one per config (`collectors[i]` takes config i's chunks, None: host
     arrays; `hypers[i]` its rates, None: the config's own)."""
-    if isinstance(n_seeds, bool) or not isinstance(n_seeds, int | np.integer) or n_seeds < 1:
-        raise UsageError(f"seeds must be a positive integer (got {n_seeds})")
+    cfgs = _check_configs(env, cfgs)
+    root_key = root_key_int(root_key)
+    n_seeds = check_int("n_seeds", n_seeds, high=KEY_LIMIT, fix="pass how many seeds to run, e.g. 100")
+    first_seed = check_int("first_seed", first_seed, low=0, high=KEY_LIMIT - 1,
+                           fix="pass the first seed index, e.g. 0")
+    if first_seed + n_seeds > KEY_LIMIT:
+        raise UsageError(f"first_seed + n_seeds must be at most 2^32 = {KEY_LIMIT} (got {first_seed} + "
+                         f"{n_seeds}): seed i's key is fold_in(root, i), which keeps 32 bits; pass fewer "
+                         "seeds or a lower first_seed")
+    _check_chunk(chunk_size)
+    for name, per_cfg in (("collectors", collectors), ("hypers", hypers)):
+        if per_cfg is not None and len(per_cfg) != len(cfgs):
+            raise UsageError(f"{name} must have one entry per config ({len(cfgs)}), got {len(per_cfg)}")
+    for cfg, hyper in zip(cfgs, hypers or [None] * len(cfgs), strict=True):
+        check_run_args(env, cfg, hyper)
     seeds = np.arange(first_seed, first_seed + n_seeds, dtype=np.int64)
     collectors = list(collectors) if collectors is not None else [None] * len(cfgs)
     hypers = list(hypers) if hypers is not None else [None] * len(cfgs)

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 
 from jaxeac.algorithm import memory as mem
 from jaxeac.algorithm.config import AgentConfig, Hyper, Rate
-from jaxeac.errors import UsageError
+from jaxeac.errors import UsageError, check_int, check_number, is_plain_number
 from jaxeac.running.carry import state_bytes_per_seed, visit_words_fit
 
 Loop = Literal["auto", "flat", "trials"]
@@ -51,6 +51,21 @@ class RunConfig:
     jump: Jump = "auto"  # flat loop: end a trial at once where it follows its success memory; `resolved_jump`
 
     def __post_init__(self):
+        """Every field checked at construction: TypeError for a wrong type, ValueError (`UsageError`)
+        for a bad value, naming the field, the value and the fix."""
+        check_int("trials", self.trials, fix="pass the number of trials per seed, e.g. trials=200")
+        if not isinstance(self.agent, AgentConfig):
+            raise TypeError(f"agent must be an AgentConfig, e.g. algorithm('eac') (got {self.agent!r})")
+        for name in ("alpha", "beta"):  # a constant or an optax schedule over the trial index
+            _check_rate(name, getattr(self, name), schedule=True)
+        _check_rate("gamma", self.gamma, high=1.0)
+        _check_rate("temperature", self.temperature, positive=True)
+        _check_rate("epsilon", self.epsilon, high=1.0)
+        if self.lanes is not None:
+            check_int("lanes", self.lanes, fix="pass seeds in flight per device, or None for the default")
+        for name, choices in (("loop", LOOPS), ("kernel", KERNELS), ("jump", JUMPS)):
+            if not isinstance(getattr(self, name), str):
+                raise TypeError(f"{name} must be a string, one of {choices} (got {getattr(self, name)!r})")
         if self.jump not in JUMPS:
             raise UsageError(f"unknown jump setting {self.jump!r}; choose one of {JUMPS}")
         if self.kernel not in KERNELS:
@@ -101,6 +116,24 @@ class RunConfig:
         if self.agent.learner != "actor_critic":
             out["epsilon"] = self.epsilon
         return out
+
+
+def _check_rate(name: str, value, *, schedule: bool = False, high: float | None = None,
+                positive: bool = False) -> None:
+    """A rate of `RunConfig`: a plain Python/NumPy number is checked (finite, in range, float32's
+    normal range); a JAX value (traced under jit/vmap, as in a `Hyper` sweep) is left to the caller;
+    for `schedule` rates (alpha, beta), any callable (an optax schedule over the trial index)."""
+    if schedule and callable(value):
+        return
+    if isinstance(value, jax.Array):  # traced or on a device: not checked here
+        return
+    if not is_plain_number(value):
+        kinds = "a number or an optax schedule (a callable of the trial index)" if schedule else "a number"
+        raise TypeError(f"{name} must be {kinds} (got {value!r} of type {type(value).__name__})")
+    fix = {"alpha": "the critic's step size, e.g. 0.1", "beta": "the actor's step size, e.g. 0.3",
+           "gamma": "the discount, e.g. 0.9", "temperature": "the softmax temperature, e.g. 1.0",
+           "epsilon": "the baselines' exploration rate, e.g. 0.1"}[name]
+    check_number(name, value, high=high, positive=positive, fix=f"pass {fix}")
 
 
 def kernel_unsupported(env: Any, cfg: RunConfig) -> str | None:

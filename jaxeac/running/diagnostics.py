@@ -27,7 +27,7 @@ from jaxeac.algorithm.agent import AgentState, StepRoute
 from jaxeac.algorithm.buffer import BufferMemory
 from jaxeac.algorithm.config import AgentConfig, Hyper
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import seed_key
+from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key
 from jaxeac.running.config import RunConfig
 from jaxeac.running.loops import Env, state_bytes_per_seed, trace_run
 from jaxeac.running.outputs import KEEP_LOGS
@@ -140,9 +140,15 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
     seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
     `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
     hold `CHUNK_BYTES` and split over the local devices."""
-    seeds = np.asarray(seeds, np.int64)
+    root = jax.random.key(root_key_int(root_key))
+    seeds = np.asarray(seeds)
+    if seeds.ndim != 1 or not (seeds.size == 0 or np.issubdtype(seeds.dtype, np.integer)):
+        raise TypeError(f"seeds must be a 1-D sequence of integer seed indices (got {seeds!r})")
+    seeds = seeds.astype(np.int64)
     if seeds.size == 0:
-        raise ValueError("no seeds to diagnose")
+        raise ValueError("seeds is empty: no seeds to diagnose; pass at least one seed index")
+    if seeds.min() < 0 or seeds.max() >= KEY_LIMIT:
+        raise ValueError(f"seeds must lie in 0..{KEY_LIMIT - 1} (got {int(seeds.min())}..{int(seeds.max())})")
     cfg = trials_config(env, cfg)
     hyper = cfg.hyper() if hyper is None else hyper
     n_devices = min(len(jax.local_devices()), seeds.size)
@@ -151,7 +157,6 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
     chunk = -(-chunk // n_devices) * n_devices
     program = _program(env, cfg, best is not None, n_devices)
     best_arg = jnp.asarray(best, bool) if best is not None else jnp.zeros((), bool)
-    root = jax.random.key(root_key)
     parts = []
     for start in range(0, seeds.size, chunk):
         part = seeds[start:start + chunk]

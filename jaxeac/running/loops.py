@@ -40,7 +40,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.envs.protocol import LoopEnv as Env
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import action_uniform, bootstrap_uniform, seed_words
+from jaxeac.rng import action_uniform, as_key, bootstrap_uniform, seed_words
 from jaxeac.running.carry import (  # noqa: F401  (flat_init, state_bytes_per_seed: re-exported)
     _FlatCarry,
     _Jumps,
@@ -151,16 +151,35 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, 
 def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
               diagnose: bool = False) -> tuple[AgentState, TrialRecord]:
     """One seed's run with the `trials` loop, keeping the final agent and every trial's record
-    (with `diagnose`, static: each chance's `StepRoute` too, E8)."""
+    (with `diagnose`, static: each chance's `StepRoute` too, E8). A pure function of the seed's
+    `key` (`jaxeac.rng.seed_key`; a JAX key, traced or not, or an integer k for
+    ``jax.random.key(k)``, `jaxeac.rng.as_key`) and `hyper`; jit and vmap it freely."""
+    check_run_args(env, cfg, hyper)
     cfg = cfg.resolve(env)
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
-    words = seed_words(key)
+    words = seed_words(as_key(key, "key"))
     return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words, diagnose), agent, None,
                         length=cfg.trials)
 
 
+def check_run_args(env: Env, cfg: RunConfig, hyper: Hyper | None = None) -> None:
+    """The per-seed functions' arguments: TypeError naming the one that is not what they take
+    (values are checked where they are made: `RunConfig`, `jaxeac.make`)."""
+    missing = [a for a in ("n_states", "n_actions", "n_chances", "start", "move", "observation", "rtilde")
+               if not hasattr(env, a)]
+    if missing:
+        raise TypeError(f"env must be a jaxeac environment (e.g. jaxeac.make('grid-paper-v0')); {env!r} "
+                        f"lacks {', '.join(missing)}")
+    if not isinstance(cfg, RunConfig):
+        raise TypeError(f"cfg must be a RunConfig, e.g. RunConfig(trials=200, agent=algorithm('eac')) "
+                        f"(got {cfg!r})")
+    if hyper is not None and not isinstance(hyper, Hyper):
+        raise TypeError(f"hyper must be a Hyper, e.g. cfg.hyper() (got {hyper!r})")
+
+
 def make_run(env: Env, cfg: RunConfig) -> Callable[[jax.Array, Hyper], SeedResult]:
     """Build ``run(seed_key, hyper) -> SeedResult`` for one seed (the `trials` loop)."""
+    check_run_args(env, cfg)
     cfg = cfg.resolve(env)
 
     def run(key: jax.Array, hyper: Hyper) -> SeedResult:
