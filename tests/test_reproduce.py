@@ -414,11 +414,17 @@ def test_bowling_calibration_record_and_report(run):
     assert [v["algo"] for v in rec["ablations"]] == ["eac_success_only"]
     assert (out / "bowling_calibration" / "heatmap.png").stat().st_size > 0
     text = section(report.read_text(), "## Bowling calibration")
-    k = rec["calibrated"]["contrast"]
-    assert f"EAC − AC {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}]" in text
+    c = rec["calibrated"]  # one CI for the calibrated comparison: the table's, in the text too
+    ci = f"{c['diff']:+.2f} [{c['diff_ci95'][0]:+.2f}, {c['diff_ci95'][1]:+.2f}]"
+    assert f"EAC − AC {ci} (Welch 95 % CI, as in the table)" in text
+    table_row = next(ln for ln in text.splitlines() if ln.startswith("| ") and f"| {c['diff']:+.2f} [" in ln)
+    assert ci in table_row
+    k = c["contrast"]
+    if k["diff_ci95"] != c["diff_ci95"]:
+        assert f"[{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}]" not in text.split("Ablations at")[0]
     assert "eac_success_only" in text and "heatmap.png" in text
     plain = section(report.read_text(), "## In plain words")
-    assert f"EAC − AC is {k['diff']:+.2f} [{k['diff_ci95'][0]:+.2f}, {k['diff_ci95'][1]:+.2f}] pins" in plain
+    assert f"EAC − AC is {ci} pins" in plain
 
 
 # ---------------------------------------------------------------- BOWL-5 and the table1 scene
@@ -469,3 +475,29 @@ def test_every_full_bowling_calibration_point_can_run():
     assert len(points) == 16 + 7
     for p in points:
         point_settings(p, seeds=2, key=0, chunk=2, algos=("ac", "eac", *FULL.bowling_ablation_algos))
+
+
+def test_table_one_puts_totals_under_their_columns_and_its_means_have_cis(run):
+    """Table I of our seed: per-chance totals under each chance's column, the seed's totals in
+    words; the means table titled "(95% CI)" gives a CI in every cell; the paper's table in the
+    same column order (AC, then EAC)."""
+    out, report = run
+    text = report.read_text()
+    ours = section(text, "#### Table I — pins per chance, seed 0").split("#### Means over")[0]
+    rows = [ln for ln in ours.splitlines() if ln.startswith("| ") and not ln.startswith("| trial")]
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in rows]
+    trials = [r for r in cells if r[0].isdigit()]
+    (total,) = [r for r in cells if r[0] == "total per chance"]
+    assert len(total) == 5
+    for col in range(1, 5):
+        assert int(total[col]) == sum(int(r[col]) for r in trials if r[col] != "–")
+    seed_totals = re.search(r"Seed 0's totals \(both chances, \d+ trials\): AC \*\*(\d+)\*\*, EAC \*\*(\d+)\*\*",
+                            ours)
+    assert seed_totals and int(seed_totals[1]) == int(total[1]) + int(total[2])
+    assert int(seed_totals[2]) == int(total[3]) + int(total[4])
+    means = section(text, "#### Means over")
+    assert "(95% CI)" in means.splitlines()[0]
+    mean_rows = [ln for ln in means.splitlines() if re.match(r"\| \d+ \|", ln)]
+    assert mean_rows and all(ln.count("[") == 4 for ln in mean_rows)
+    assert "| trial | paper AC (chance 1 + chance 2) | paper EAC (chance 1 + chance 2) |" in text
+    assert f"| total | {paper.BOWLING_PINS['ac']} | {paper.BOWLING_PINS['eac']} |" in text

@@ -576,14 +576,22 @@ def table_one(run: BowlingRun, seed: int = 0) -> str:
             k, act = run.results[a].knocked[seed, t], run.results[a].action[seed, t]
             cells += [str(k[0]), str(k[1]) if act[1] >= 0 else "–"]
         lines.append(f"| {t + 1} | " + " | ".join(cells) + " |")
-    totals = " | ".join(f"**{int(run.results[a].total_return[seed])}** |" for a in algos)
-    lines += [f"| total | {totals}", ""]
+    per_chance = [str(int(run.results[a].knocked[seed, :, c].clip(min=0).sum())) for a in algos
+                  for c in range(CHANCES)]
+    lines += ["| total per chance | " + " | ".join(per_chance) + " |", "",
+              f"Seed {seed}'s totals (both chances, {run.settings.trials} trials): "
+              + ", ".join(f"{a.upper()} **{int(run.results[a].total_return[seed])}**" for a in algos)
+              + f" pins of {10 * run.settings.trials}.", ""]
     n = run.settings.seeds
     lines += [f"### Means over {n} seeds (95% CI)", "", "| trial | "
               + " | ".join(f"{a.upper()} chance 1 | {a.upper()} chance 2" for a in algos) + " |",
               "|---|" + "---|---|" * len(algos)]
     for t in range(run.settings.trials):
-        cells = [f"{run.results[a].knocked[:, t, c].mean():.2f}" for a in algos for c in range(CHANCES)]
+        cells = []
+        for a in algos:
+            for c in range(CHANCES):
+                mean, _, lo, hi = mean_ci95(run.results[a].knocked[:, t, c])
+                cells.append(f"{mean:.2f} [{lo:.2f}, {hi:.2f}]" if n > 1 else f"{mean:.2f}")
         lines.append(f"| {t + 1} | " + " | ".join(cells) + " |")
     lines.append("")
     for a in algos:

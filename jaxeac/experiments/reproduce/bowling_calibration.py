@@ -242,8 +242,9 @@ def bowling_calibration_section(bc: dict) -> list[str]:
          + f" (noise × s scales both B3 noise levels). The calibrated point is the one whose AC mean lies "
          f"closest to {ac}; points within ±{bc['tolerance']:g} pins of it count as near.", "",
          f"- **Calibrated point:** {_where(c)}: AC {number(c['ac'])}, EAC {number(c['eac'])}; "
-         f"EAC − AC {number(k['diff'], 2, sign=True)} {interval(k['diff_ci95'], 2, sign=True)} (BCa), "
-         f"g {number(k['hedges_g'], 3)}, A12 {number(k['a12'], 3)}, p (Holm over this family) "
+         f"EAC − AC {number(c['diff'], 2, sign=True)} {interval(c['diff_ci95'], 2, sign=True)} (Welch 95 % CI, "
+         f"as in the table), g {number(k['hedges_g'], 3)}, A12 {number(k['a12'], 3)}, p (Welch, Holm over this "
+         "family) "
          f"{p_value(k['p_holm'])}. The paper's EAC total {eac} lies at percentile "
          f"{c['eac_paper_position']['percentile']:.1f} of our EAC seeds there "
          f"({'inside' if c['eac_paper_position']['within_5_95'] else 'outside'} their 5–95 % range), "
@@ -254,7 +255,7 @@ def bowling_calibration_section(bc: dict) -> list[str]:
          f"reliably better (Welch CI above 0) at {len(bc['points_eac_better'])} of {len(bc['points'])} points "
          f"and reliably worse at {len(bc['points_eac_worse'])}.", "",
          "![bowling calibration heatmap](bowling_calibration/heatmap.png)", "",
-         "| point | AC | EAC | EAC − AC [95 % CI] | successes per seed (AC / EAC) | E6 condition met (EAC) |",
+         "| point | AC | EAC | EAC − AC [Welch 95 % CI] | successes per seed (AC / EAC) | E6 condition met (EAC) |",
          "|---|---|---|---|---|---|"]
     for r in bc["points"]:
         e = r["eac_explain"]
@@ -285,10 +286,9 @@ def bowling_calibration_answer(bc: dict) -> str:
     from jaxeac.fmt import interval, number
 
     c, near = bc["calibrated"], bc["near"]
-    k = c["contrast"]
     text = (f"Calibrated as the grid was (AC closest to the paper's {paper.BOWLING_PINS['ac']} pins: "
             f"{_where(c).removesuffix(' (the rest at their defaults)')}, AC {number(c['ac'])}), EAC − AC is "
-            f"{number(k['diff'], 2, sign=True)} {interval(k['diff_ci95'], 2, sign=True)} pins")
+            f"{number(c['diff'], 2, sign=True)} {interval(c['diff_ci95'], 2, sign=True)} pins")
     if near["count"] > 1:
         text += (f", and over the {near['count']} settings with AC within ±{bc['tolerance']:g} it ranges over "
                  f"{interval(near['diff_range'], 2, sign=True)}")

@@ -132,10 +132,10 @@ def render_report(rec: dict, out: Path) -> str:
                            "(Table I)", f"pins over {paper.BOWLING_TRIALS} trials (primary)",
                            bp, "", b["returns"], b["paper_position"], b["paper_diff"], cl["BOWL-1"]),
           "Table I — the paper's single runs (pins per chance, as extracted from its text) beside ours:", "",
-          "| trial | paper EAC | paper AC |", "|---|---|---|"]
-    for t, (e, a) in enumerate(zip(paper.TABLE_ONE["eac"], paper.TABLE_ONE["ac"], strict=True)):
-        L.append(f"| {t + 1} | {e[0]} + {e[1]} | {a[0]} + {a[1]} |")
-    L += [f"| total | {pb['eac']} | {pb['ac']} |", ""]
+          "| trial | paper AC (chance 1 + chance 2) | paper EAC (chance 1 + chance 2) |", "|---|---|---|"]
+    for t, (a, e) in enumerate(zip(paper.TABLE_ONE["ac"], paper.TABLE_ONE["eac"], strict=True)):
+        L.append(f"| {t + 1} | {a[0]} + {a[1]} | {e[0]} + {e[1]} |")
+    L += [f"| total | {pb['ac']} | {pb['eac']} |", ""]
     table = (out / b["table1"]).read_text().replace("### ", "#### ") if (out / b["table1"]).is_file() else ""
     L += [table, ""]
     ang = b["angles"]
