@@ -29,7 +29,11 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from jaxeac import __version__
+
     parser = Parser(prog="jaxeac", description="Vectorised AC vs EAC (Debnath & Nassour 2014).")
+    parser.add_argument("--version", action="version", version=f"jaxeac {__version__}",
+                        help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in (run, merge, compare, bowling, throw, sweep, study, reproduce):
         module.add_parser(sub)

@@ -19,20 +19,23 @@ from jaxeac.cli.groups import (
 def add_parser(sub) -> None:
     b = sub.add_parser("bowling", help="run AC and EAC learning to bowl in MuJoCo over many seeds")
     b.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
-    b.add_argument("--trials", type=positive_int, default=10, metavar="T", help="trials (default 10, B5)")
+    b.add_argument("--trials", type=positive_int, default=10, metavar="T",
+                   help="trials (default 10, SPEC B5)")
     b.add_argument("--angles", type=int, default=21, metavar="K",
-                   help="number of shoulder angles, K >= 2 (B2)")
+                   help="number of shoulder angles, K >= 2 (SPEC B2)")
     add_physics_flags(b, noise_angle=0.003, noise_speed=0.1)
     b.add_argument("--state", default="mask", metavar="mask|tree",
-                   help="mask: the standing pins (B5, default); tree: chance 2 keyed on the chance-1 angle, "
-                        "the paper's Fig. 5 tree (B5a)")
+                   help="mask: the standing pins (SPEC B5, default); tree: chance 2 keyed on the chance-1 "
+                        "angle, the paper's Fig. 5 tree (SPEC B5a)")
     b.add_argument("--success-pins", type=positive_int, default=10, metavar="N",
-                   help="pins a trial must knock to succeed (B5b; default 10, all down)")
-    b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO")
+                   help="pins a trial must knock to succeed (SPEC B5b; default 10, all down)")
+    b.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO",
+                   help="algorithms: ac, eac, eac_success_only, eac_failure_only, eac_learn_on_memory, "
+                        "eac_within_trial")
     b.add_argument("--alpha", type=finite_float, default=0.1, metavar="A", help="critic step size α")
     b.add_argument("--beta", type=finite_float, default=0.3, metavar="B", help="actor step size β")
     b.add_argument("--gamma", type=finite_float, default=1.0, metavar="G", help="discount γ (B5: 1)")
-    b.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    b.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (SPEC R1)")
     b.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
                    help="seeds per batch; bounds memory (default: up to 1000, fewer where they would not "
                         "fit; results do not depend on it)")

@@ -10,9 +10,33 @@ import math
 
 from jaxeac.errors import UsageError
 
+#: Every command's help ends with this: where the SPEC ids in its lines are defined.
+SPEC_NOTE = ("SPEC ids in this help (G1, E7, B5, R1, ...) name the rules of docs/SPEC.md that the flag "
+             "follows.")
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Help lines that show each flag's default: "(default: X)" is added unless the line already
+    says its default or there is none to say (None, a switch that is off)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (text is argparse.SUPPRESS or "default" in text.lower() or default is None or default is False
+                or default is argparse.SUPPRESS or isinstance(action, argparse._HelpAction)):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, list | tuple) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})".strip()
+
 
 class Parser(argparse.ArgumentParser):
-    """argparse, but errors are one line (`error: ...`) and exit code 2."""
+    """argparse, but errors are one line (`error: ...`) and exit code 2; help shows every default
+    and says where SPEC ids are defined."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        kwargs.setdefault("epilog", SPEC_NOTE)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse API
         raise UsageError(f"{self.prog}: {message}")

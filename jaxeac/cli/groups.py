@@ -19,18 +19,35 @@ from jaxeac.errors import UsageError
 
 def add_grid_flags(p: argparse.ArgumentParser) -> None:
     """The grid-world flags shared by `run` (alias `grid`) and `sweep`; unset flags come from the preset."""
-    p.add_argument("--preset", default="paper", help="settings preset (default: paper, SPEC G6)")
-    p.add_argument("--map", dest="map_file", type=map_file_name, metavar="FILE",
-                   help="ASCII map file (SPEC G1)")
-    p.add_argument("--trials", type=positive_int, metavar="T", help="trials per run")
-    p.add_argument("--chances", type=positive_int, metavar="C", help="steps per trial (G5)")
-    p.add_argument("--alpha", type=finite_float, metavar="A", help="critic step size α")
-    p.add_argument("--beta", type=finite_float, metavar="B", help="actor step size β")
-    p.add_argument("--gamma", type=finite_float, metavar="G", help="discount γ in [0, 1]")
-    p.add_argument("--temperature", type=finite_float, metavar="TAU", help="softmax temperature τ > 0")
-    p.add_argument("--env", metavar="NAME",
-                   help="a registered environment instead of the preset's map: the classic tabular tasks "
-                        "(FrozenLake-4x4-v1, CliffWalking-v1, …; an unknown name lists them all)")
+    from jaxeac.experiments.presets import GRID_PRESETS
+
+    paper = GRID_PRESETS["paper"]
+
+    world = p.add_argument_group(
+        "the world (alternatives)",
+        "Which world runs: the preset's own grid map (the default: --preset paper), a map file "
+        "(--map FILE) or a registered environment (--env NAME); --map and --env exclude each other. "
+        "Whichever world runs, the preset gives every rate and size not set below.")
+    world.add_argument("--preset", default="paper", metavar="PRESET",
+                       help=f"settings preset: {', '.join(GRID_PRESETS)} (default: paper, SPEC G6)")
+    world.add_argument("--map", dest="map_file", type=map_file_name, metavar="FILE",
+                       help="an ASCII map file instead of the preset's map (SPEC G1)")
+    world.add_argument("--env", metavar="NAME",
+                       help="a registered environment instead of the preset's map: the classic tabular tasks "
+                            "(FrozenLake-4x4-v1, CliffWalking-v1, …; an unknown name lists them all)")
+    p.add_argument("--trials", type=positive_int, metavar="T",
+                   help=f"trials per run (default: the preset's; paper: {paper.trials})")
+    p.add_argument("--chances", type=positive_int, metavar="C",
+                   help=f"steps per trial, SPEC G5 (default: the preset's, paper: {paper.chances}; with "
+                        "--env the environment's own episode limit)")
+    p.add_argument("--alpha", type=finite_float, metavar="A",
+                   help=f"critic step size α (default: the preset's; paper: {paper.alpha:g})")
+    p.add_argument("--beta", type=finite_float, metavar="B",
+                   help=f"actor step size β (default: the preset's; paper: {paper.beta:g})")
+    p.add_argument("--gamma", type=finite_float, metavar="G",
+                   help=f"discount γ in [0, 1] (default: the preset's; paper: {paper.gamma:g})")
+    p.add_argument("--temperature", type=finite_float, metavar="TAU",
+                   help=f"softmax temperature τ > 0 (default: the preset's; paper: {paper.temperature:g})")
     p.add_argument("--slip", type=finite_float, default=0.0, metavar="P",
                    help="with probability P a move executes a uniformly random action (default 0)")
     p.add_argument("--algos", nargs="+", default=["ac", "eac"], metavar="ALGO",
@@ -39,14 +56,15 @@ def add_grid_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epsilon", type=finite_float, default=0.1, metavar="E",
                    help="exploration rate of q_learning and sarsa, in [0, 1] (default 0.1)")
     p.add_argument("--seeds", type=positive_int, default=1000, metavar="N", help="seeds per algorithm")
-    p.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    p.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (SPEC R1)")
     p.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
                    help="seeds per compiled batch; bounds memory (default: chosen for the backend and "
                         "free device memory; results do not depend on it)")
     p.add_argument("--lanes", type=positive_int, default=None, metavar="L",
                    help="seeds in flight per device (default: chosen for the backend and algorithm; "
                         "results do not depend on it)")
-    p.add_argument("--memory", default="dense", metavar="LAYOUT", help="memory layout: dense | buffer (E7)")
+    p.add_argument("--memory", default="dense", metavar="LAYOUT",
+                   help="memory layout: dense | buffer (SPEC E7)")
     p.add_argument("--capacity", type=positive_int, default=1024, metavar="K",
                    help="slots per memory for --memory buffer")
 
@@ -130,17 +148,17 @@ def sequential_design(args: argparse.Namespace, settings):
 def add_physics_flags(p: argparse.ArgumentParser, *, noise_angle: float, noise_speed: float) -> None:
     """The bowling physics shared by `bowling` and `throw`: backend, deck, angle range, noise (B1-B3, B7)."""
     p.add_argument("--backend", default="auto", metavar="auto|c|mjx|warp",
-                   help="physics backend (B7; default auto: c on CPUs, warp on NVIDIA GPUs with warp-lang, "
-                        "else mjx; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
+                   help="physics backend (SPEC B7; default auto: c on CPUs, warp on NVIDIA GPUs with "
+                        "warp-lang, else mjx; warp: MJX on NVIDIA GPUs via MuJoCo Warp)")
     p.add_argument("--scene", default="default", metavar="default|table1",
-                   help="ball and pin deck (B1; table1: a smaller ball and wider deck whose first throws "
-                        "are like the paper's Table I, B1a)")
+                   help="ball and pin deck (SPEC B1; table1: a smaller ball and wider deck whose first "
+                        "throws are like the paper's Table I, SPEC B1a)")
     p.add_argument("--theta-max", type=finite_float, default=0.1, metavar="X",
                    help="largest |θ| in rad (default 0.1)")
     p.add_argument("--noise-angle", type=finite_float, default=noise_angle, metavar="S",
-                   help=f"s.d. of the angle noise in rad (B3; default {noise_angle:g})")
+                   help=f"s.d. of the angle noise in rad (SPEC B3; default {noise_angle:g})")
     p.add_argument("--noise-speed", type=finite_float, default=noise_speed, metavar="S",
-                   help=f"s.d. of the release-speed noise in m/s (B3; default {noise_speed:g})")
+                   help=f"s.d. of the release-speed noise in m/s (SPEC B3; default {noise_speed:g})")
     add_solver_flags(p)
 
 

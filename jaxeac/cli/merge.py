@@ -13,7 +13,9 @@ from jaxeac.cli.process import _claim_existing
 def add_parser(sub) -> None:
     m = sub.add_parser("merge", help="merge the part folders of a multi-process `jaxeac run` into its run "
                                      "folder")
-    m.add_argument("dir", type=folder_name, metavar="DIR")
+    m.add_argument("dir", type=folder_name, metavar="DIR",
+                   help="the run folder given to `jaxeac run --out DIR --num-processes P`; its part-I-of-P/ "
+                        "folders are joined into it")
     add_report_flags(m)
     add_output_flags(m)
 

@@ -22,7 +22,9 @@ on stderr and exit code 2, before any compute.
 
 
 def _formatted(parser: argparse.ArgumentParser) -> str:
-    parser.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=WIDTH)
+    from jaxeac.cli.flags import HelpFormatter
+
+    parser.formatter_class = lambda prog: HelpFormatter(prog, width=WIDTH)
     return parser.format_help().rstrip() + "\n"
 
 

@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
     r.add_argument("--quick", action="store_true", help="fewer seeds: a few minutes on a laptop CPU")
     r.add_argument("--out", type=folder_name, default="runs/reproduce", metavar="DIR",
                    help="reproduction folder (default runs/reproduce)")
-    r.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    r.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (SPEC R1)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
 
 

@@ -21,7 +21,7 @@ def add_parser(sub) -> None:
     st.add_argument("--epsilon", type=finite_float, default=0.1, metavar="E",
                     help="ε of q_learning and sarsa")
     st.add_argument("--resamples", type=positive_int, default=10_000, metavar="R", help="bootstrap resamples")
-    st.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (R1)")
+    st.add_argument("--key", type=prng_key, default=0, metavar="K", help="root PRNG key, 0..2^32-1 (SPEC R1)")
     st.add_argument("--chunk-size", type=positive_int, default=None, metavar="M",
                     help="seeds per compiled batch (default: automatic; results do not depend on it)")
     st.add_argument("--lanes", type=positive_int, default=None, metavar="L",
