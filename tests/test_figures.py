@@ -211,7 +211,7 @@ def test_run_folder_and_comparison_figures(drawn, tmp_path):
     """A real run folder: Fig. 2, Fig. 3 and the three compare_*.png of `jaxeac compare`."""
     out = tmp_path / "run"
     jaxeac.run("grid-paper-v0", ["ac", "eac"], seeds=24, out=out)
-    jaxeac.compare(out, resamples=200)
+    jaxeac.compare(out, resamples=400)
     names = {fig.get_suptitle() or plot_axes(fig)[0].get_title(): fig for fig in drawn}
     assert len(drawn) >= 5
     for fig in drawn:

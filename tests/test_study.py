@@ -16,7 +16,7 @@ from jaxeac.stats import holm
 def study(tmp_path_factory):
     out = tmp_path_factory.mktemp("study")
     settings = StudySettings(tasks=("FrozenLake-4x4-v1", "grid-paper7-v0:slip=0.2"), algos=("ac", "eac", "sarsa"),
-                             seeds=40, trials=30, resamples=300)
+                             seeds=40, trials=30, resamples=400)
     return out, settings, run_study(settings, out, progress=False)
 
 
