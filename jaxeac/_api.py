@@ -196,40 +196,47 @@ def trace(env, config, key=0, seed=0):
 
 def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: float = 0.95,
             names: tuple[str, str] = ("ac", "eac")):
-    """Compare two methods, treatment − baseline.
+    """Compare two methods, treatment − baseline, with the statistics engine
+    (`jaxeac.stats.engine.compare`); returns its `Comparison` (``.rows``, ``.to_dict()``,
+    ``.markdown()``).
 
     - ``compare(folder)``: a run folder (``jaxeac run``/`run(..., out=)`): writes stats.json,
       report.md and figures into it, as ``jaxeac compare FOLDER`` does; `names` are the two
-      algorithms; returns the stats.json content.
-    - ``compare(a, b)``: per-seed values (1-D arrays, ``{measure: array}``, or `SeedsResult`s,
-      compared on successes): difference of means with a BCa interval, Welch and permutation
-      tests, Hedges' g, A12, power; returns ``{measure: results}``.
+      algorithms; the folder's full statistics are ``.stats`` (the content of stats.json).
+    - ``compare(a, b)``: per-seed values (1-D arrays, or `SeedsResult`s, compared on successes):
+      difference of means with a BCa interval, Welch's test, Hedges' g, the probability of
+      improvement, the IQMs; paired (same seeds) where both have the same number of seeds, as
+      two results of one `run` do (seed i of each shares its key).
 
-    `level`: the confidence level of every interval (0.95: 95 %).
+    `level`: the confidence level of every interval (0.95: 95 %). Per-seed data of several tasks
+    or algorithms: `jaxeac.stats.engine.compare` directly.
     """
     _check_count("resamples", resamples)
     if isinstance(level, bool) or not isinstance(level, numbers.Real) or not 0.5 <= level < 1:
         raise ValueError(f"level is the confidence level, in [0.5, 1) (got {level!r}); e.g. 0.95 for 95 % intervals")
     runtime.configure()
+    from jaxeac.stats.engine import compare as engine_compare
+
+    b, t = names
     if treatment is None:
         if not isinstance(baseline, str | os.PathLike):
             raise TypeError("compare(folder) takes a run folder's path; to compare arrays give two: compare(a, b)")
-        from jaxeac.stats import compare_run_dir
+        return engine_compare(baseline, baseline=b, treatment=t, resamples=resamples, level=float(level), key=key)
+    xb, xt = _values(baseline, "baseline"), _values(treatment, "treatment")
+    from jaxeac.stats.inputs import PerSeed
 
-        b, t = names
-        return compare_run_dir(baseline, baseline=b, treatment=t, resamples=resamples, alpha=1 - level,
-                               key=key, progress=False)
-    from jaxeac.stats import compare_measures
-
-    return compare_measures(_values(baseline, "baseline"), _values(treatment, "treatment"), key,
-                            resamples=resamples, alpha=1 - level)
+    seeds = ({"": {b: np.arange(xb.size).astype(str), t: np.arange(xt.size).astype(str)}}
+             if xb.size == xt.size else None)
+    data = PerSeed({"": {b: xb, t: xt}}, seeds, "per-seed value: as given", "arrays")
+    return engine_compare(data, baseline=b, treatment=t, resamples=resamples, level=float(level), key=key)
 
 
 def _values(x, name: str):
     if hasattr(x, "successes") and hasattr(x, "success"):
-        return {"successes": np.asarray(x.successes, float), "first_success": np.asarray(x.first_success, float)}
+        return np.asarray(x.successes, float)
     if isinstance(x, Mapping):
-        return {k: np.asarray(v, float) for k, v in x.items()}
+        raise TypeError(f"{name}: compare(a, b) takes per-seed values of one measure; for several tasks or "
+                        "algorithms call jaxeac.stats.engine.compare({task: {algo: values}})")
     arr = np.asarray(x)
     if arr.ndim != 1 or arr.size < 2 or not np.issubdtype(arr.dtype, np.number):
         raise ValueError(f"{name} must be per-seed numbers, a 1-D array of at least 2 (got shape {arr.shape}, "

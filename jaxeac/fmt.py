@@ -59,6 +59,24 @@ def p_value(x, digits: int = 3, *, floor: str = "1e-16", sci_below: float | None
     return f"{x:.{digits}{'g' if general else 'f'}}"
 
 
+def p_sig(x, digits: int = 3, *, missing: str = "—") -> str:
+    """A p-value in `digits` significant figures: "0.0139", "0.500", below 0.01 "1.39e-03"; exact
+    zeros (a degenerate test) print as "0"; None and NaN as `missing`."""
+    if x is None or not math.isfinite(float(x)):
+        return missing
+    x = float(x)
+    if x == 0:
+        return "0"
+    if x < 0.01:
+        return f"{x:.{digits - 1}e}"
+    return f"{x:#.{digits}g}"
+
+
+def percent(level: float) -> str:
+    """A confidence level as printed: 0.95 -> '95%', 0.999 -> '99.9%'."""
+    return f"{100 * level:.6g}%"
+
+
 def size_word(g: float, words: tuple[str, str, str, str] = ("negligible", "small", "medium", "large")) -> str:
     """Cohen's name for the size of a standardised effect: |g| < 0.2, < 0.5, < 0.8, else."""
     g = abs(g)

@@ -47,13 +47,13 @@ def test_run_gives_the_runners_results_and_trace_gives_one_of_its_seeds():
 def test_compare_two_results_or_arrays():
     env = jaxeac.make("grid-paper7-v0", chances=12)
     runs = jaxeac.run(env, ["ac", "eac"], seeds=SEEDS, key=KEY)
-    stats = jaxeac.compare(runs["ac"], runs["eac"], resamples=500)
-    s = stats["successes"]
-    assert s["n_baseline"] == s["n_treatment"] == SEEDS
+    res = jaxeac.compare(runs["ac"], runs["eac"], resamples=500)
+    (s,) = res.rows
+    assert s["n_y"] == s["n_x"] == SEEDS and res.level == 0.95
     assert s["diff"] == pytest.approx(runs["eac"].successes.mean() - runs["ac"].successes.mean())
-    wide = jaxeac.compare(runs["ac"].successes, runs["eac"].successes, resamples=500, level=0.99)
-    wide = next(iter(wide.values()))  # a bare array is one unnamed measure
-    assert wide["diff_ci95"][0] < s["diff_ci95"][0] and wide["diff_ci95"][1] > s["diff_ci95"][1]
+    assert s["analysis"] == "paired"  # two results of one run: seed i of each shares its key
+    wide = jaxeac.compare(runs["ac"].successes, runs["eac"].successes, resamples=2000, level=0.99).rows[0]
+    assert wide["diff_ci"][0] < s["diff_ci"][0] and wide["diff_ci"][1] > s["diff_ci"][1]
 
 
 def _numbers(record):

@@ -129,11 +129,25 @@ def test_paired_on_unequal_seeds_is_one_clear_error(tmp_path, capsys, rng):
     assert (tmp_path / "stats.json").read_text() == before  # nothing rewritten
 
 
-def test_pairing_flags_with_a_table_are_refused(tmp_path, capsys):
+def test_pairing_of_a_table(tmp_path, capsys):
+    """A table pairs where two algorithms ran the same seed ids (the paired result answers, the
+    unpaired one is secondary); --paired refuses other seeds, --unpaired leaves pairing out."""
     table = tmp_path / "t.csv"
-    table.write_text("algo,seed,value\na,0,1\na,1,2\nb,0,3\nb,1,4\n")
-    for flag in ("--paired", "--unpaired"):
-        assert main(["compare", "--table", str(table), flag]) == 2
-        err = capsys.readouterr().err.strip()
-        assert err.startswith(f"error: {flag} applies to run folders") and len(err.splitlines()) == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]
+    table.write_text("algo,seed,value\na,0,1\na,1,2\na,2,4\nb,0,3\nb,1,5\nb,2,6\n")
+    assert main(["compare", "--table", str(table), "--paired", "--resamples", "400"]) == 0
+    out = capsys.readouterr().out
+    assert "b - a, paired (same seeds): +2.3333" in out and "unpaired (secondary)" in out
+    res = json.loads((tmp_path / "t_compare" / "stats_table.json").read_text())
+    (row,) = res["rows"]
+    assert row["analysis"] == "paired" and row["p"] == row["paired"]["p_paired_t"]
+    assert row["paired"]["p_paired_t"] == pytest.approx(sps.ttest_rel([3, 5, 6], [1, 2, 4]).pvalue)
+    assert main(["compare", "--table", str(table), "--unpaired", "--resamples", "400", "--out",
+                 str(tmp_path / "u")]) == 0
+    assert json.loads((tmp_path / "u" / "stats_table.json").read_text())["rows"][0]["paired"] is None
+    other = tmp_path / "o.csv"
+    other.write_text("algo,seed,value\na,0,1\na,1,2\nb,7,3\nb,8,4\n")
+    capsys.readouterr()
+    assert main(["compare", "--table", str(other), "--paired", "--resamples", "400"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --paired needs the same seed ids") and len(err.splitlines()) == 1
+    assert not (tmp_path / "o_compare").exists()

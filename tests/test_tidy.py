@@ -1,4 +1,4 @@
-"""`jaxeac compare --table`: tidy tables, SB3 monitor folders and rliable arrays (jaxeac.stats.tidy)."""
+"""`jaxeac compare --table`: tidy tables, SB3 monitor folders and rliable arrays (jaxeac.stats.engine)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ from scipy import stats
 
 from jaxeac.cli import main
 from jaxeac.stats import a12, holm, iqm
-from jaxeac.stats.tidy import compare_samples, prob_improvement, read_rliable, read_sb3, read_tidy
+from jaxeac.stats.inputs import read_npz, read_sb3, read_tidy
+from jaxeac.stats.tasks import prob_improvement
+from jaxeac.stats.tidy import compare_samples
 
 FAST = ["--resamples", "400"]
 
@@ -50,33 +52,36 @@ def test_all_pairs_table_by_hand(tmp_path):
     out = tmp_path / "runs_compare"
     assert sorted(p.name for p in out.iterdir()) == ["report_table.md", "stats_table.json"]
     res = json.loads((out / "stats_table.json").read_text())
-    assert res["family"] == "all pairs" and res["comparisons_in_family"] == 3
-    assert [(r["x"], r["y"]) for r in res["comparisons"]] == [("b", "a"), ("c", "a"), ("c", "b")]
+    assert res["family"] == "all pairs" and res["family_size"] == 3 and res["level"] == 0.95
+    rows = res["rows"]
+    assert [(r["x"], r["y"]) for r in rows] == [("b", "a"), ("c", "a"), ("c", "b")]
+    assert all(r["analysis"] == "unpaired" and r["paired"] is None for r in rows)  # different seed ids
     vals = {"a": [1.0, 2, 4, 3], "b": [2.0, 5, 3, 6, 7], "c": [0.0, 1, 1]}
-    welch = [stats.ttest_ind(vals[r["x"]], vals[r["y"]], equal_var=False).pvalue for r in res["comparisons"]]
-    ba = res["comparisons"][0]
+    welch = [stats.ttest_ind(vals[r["x"]], vals[r["y"]], equal_var=False).pvalue for r in rows]
+    ba = rows[0]
     assert (ba["n_x"], ba["n_y"], ba["mean_x"], ba["mean_y"]) == (5, 4, 4.6, 2.5)
     assert ba["diff"] == pytest.approx(2.1)
     # b vs a: a's 1 loses to all 5, 2: 4 wins + tie, 4: 3 wins, 3: 3 wins + tie -> 16/20 for b
     assert ba["p_improvement"] == pytest.approx(1 - (0 + 0.5 + 2 + 1.5) / 20)
-    assert ba["iqm_y"] == pytest.approx(2.5)  # a sorted 1 2 3 4: middle 2, 3
-    for r, p, adj in zip(res["comparisons"], welch, holm(welch), strict=True):
+    iqm_a = next(a for a in res["algorithms"] if a["algo"] == "a")
+    assert iqm_a["iqm"] == pytest.approx(2.5)  # a sorted 1 2 3 4: middle 2, 3
+    for r, p, adj in zip(rows, welch, holm(welch), strict=True):
         assert r["p_welch"] == pytest.approx(p) and r["p_holm"] == pytest.approx(adj)
-        for name in ("diff", "p_improvement", "iqm_x"):
-            lo, hi = r[f"{name}_ci95"]
+        for name in ("diff", "p_improvement"):
+            lo, hi = r[f"{name}_ci"]
             assert lo <= r[name] <= hi
     report = (out / "report_table.md").read_text()
-    assert "| b | a | 5 | 4 |" in report and "Holm" in report
+    assert "| b | a | unpaired |" in report and "Holm" in report
 
 
 def test_baseline_family(tmp_path, capsys):
     table = write_csv(tmp_path / "runs.csv", tiny_rows())
     out = tmp_path / "mine"
     assert main(["compare", "--table", str(table), "--baseline", "b", "--out", str(out), *FAST]) == 0
-    res = json.loads((out / "stats_table.json").read_text())
-    assert [(r["x"], r["y"]) for r in res["comparisons"]] == [("a", "b"), ("c", "b")]
+    res = json.loads((out / "stats_vs_b.json").read_text())
+    assert [(r["x"], r["y"]) for r in res["rows"]] == [("a", "b"), ("c", "b")]
     assert res["family"] == "all vs baseline b"
-    assert "per-seed value: its row's value" in capsys.readouterr().out
+    assert "per-seed value: its row's 'value'" in capsys.readouterr().out
 
 
 def test_trials_aggregate(tmp_path, capsys):
@@ -84,14 +89,14 @@ def test_trials_aggregate(tmp_path, capsys):
     rows = [(a, s, t, v) for a, seeds in per_seed.items()
             for s, vs in enumerate(seeds) for t, v in enumerate(vs)]
     table = write_csv(tmp_path / "t.csv", rows, "algo,seed,trial,value")
-    samples, what = read_tidy(table, "sum")
-    assert samples["a"].tolist() == [6, 6, 6] and samples["b"].tolist() == [6, 3] and "sum" in what
-    assert read_tidy(table, "mean")[0]["a"].tolist() == [2, 2, 2]
-    assert read_tidy(table, "last")[0]["a"].tolist() == [3, 6, 2]
+    per = read_tidy(table, aggregate="sum")
+    assert per.values[""]["a"].tolist() == [6, 6, 6] and per.values[""]["b"].tolist() == [6, 3] and "sum" in per.what
+    assert read_tidy(table, aggregate="mean").values[""]["a"].tolist() == [2, 2, 2]
+    assert read_tidy(table, aggregate="last").values[""]["a"].tolist() == [3, 6, 2]
     assert main(["compare", "--table", str(table), "--aggregate", "mean", *FAST]) == 0
-    assert "the mean of value over its trials" in capsys.readouterr().out
+    assert "the mean of the value column over its trials" in capsys.readouterr().out
     res = json.loads((tmp_path / "t_compare" / "stats_table.json").read_text())
-    assert res["aggregate"] == "mean"
+    assert res["source"]["aggregate"] == "mean"
 
 
 def test_csv_and_parquet_agree(tmp_path):
@@ -105,7 +110,8 @@ def test_csv_and_parquet_agree(tmp_path):
         out = tmp_path / f"out_{name}"
         assert main(["compare", "--table", str(tmp_path / name), "--out", str(out), *FAST]) == 0
         res = json.loads((out / "stats_table.json").read_text())
-        outs.append({k: v for k, v in res.items() if k != "source"})
+        res["source"].pop("source")
+        outs.append(res)
     assert outs[0] == outs[1]
 
 
@@ -121,25 +127,26 @@ def test_sb3_importer(tmp_path):
     monitor(tmp_path / "sb3" / "ppo" / "1" / "monitor.csv", [0] * 18 + [30, 30])
     monitor(tmp_path / "sb3" / "a2c_0.monitor.csv", [1, 2, 3])  # 3 episodes: the last one
     monitor(tmp_path / "sb3" / "a2c_1.monitor.csv", [4, 5])
-    samples, what = read_sb3(tmp_path / "sb3")
-    assert samples["ppo"].tolist() == [15.0, 30.0] and samples["a2c"].tolist() == [3.0, 5.0]
-    assert "last 10%" in what
+    per = read_sb3(tmp_path / "sb3")
+    assert per.values[""]["ppo"].tolist() == [15.0, 30.0] and per.values[""]["a2c"].tolist() == [3.0, 5.0]
+    assert "last 10%" in per.what
     assert main(["compare", "--table", str(tmp_path / "sb3"), *FAST]) == 0
     res = json.loads((tmp_path / "sb3_compare" / "stats_table.json").read_text())
-    assert res["format"] == "sb3" and res["comparisons"][0]["n_x"] == 2
+    assert res["source"]["format"] == "sb3" and res["rows"][0]["n_x"] == 2
 
 
 def test_rliable_importer(tmp_path):
     scores = {"dqn": np.array([[1.0, 3.0], [2.0, 2.0], [0.0, 1.0]]),
               "c51": np.array([[4.0, 4.0], [5.0, 3.0]])}
     np.savez(tmp_path / "atari.npz", **scores)
-    samples, what = read_rliable(tmp_path / "atari.npz")
-    assert samples["dqn"].tolist() == [2.0, 2.0, 0.5] and samples["c51"].tolist() == [4.0, 4.0]
-    assert "mean score over tasks" in what
+    per = read_npz(tmp_path / "atari.npz")
+    assert per.tasks == ["task0", "task1"] and per.values["task1"]["dqn"].tolist() == [3.0, 2.0, 1.0]
     assert main(["compare", "--table", str(tmp_path / "atari.npz"), "--baseline", "dqn", *FAST]) == 0
-    res = json.loads((tmp_path / "atari_compare" / "stats_table.json").read_text())
-    (row,) = res["comparisons"]
-    assert (row["x"], row["y"], row["p_improvement"]) == ("c51", "dqn", 1.0)
+    res = json.loads((tmp_path / "atari_compare" / "stats_vs_dqn.json").read_text())
+    assert [(r["task"], r["x"], r["y"]) for r in res["rows"]] == [("task0", "c51", "dqn"), ("task1", "c51", "dqn")]
+    # task1: c51 [4, 3] against dqn [3, 2, 1]: 4 beats all three; 3 ties 3 and beats 2 and 1
+    assert [r["p_improvement"] for r in res["rows"]] == [1.0, pytest.approx(5.5 / 6)]
+    assert res["aggregate"] is None  # no normalisation stated: no aggregate across tasks
 
 
 def test_many_algorithms_smaller_size():
@@ -159,8 +166,8 @@ def test_many_algorithms_smaller_size():
 BAD = {
     "missing column": ("algo,seed,score\na,0,1\nb,0,2\n", "'value'"),
     "non-numeric": ("algo,seed,value\na,0,1\na,1,2\nb,0,oops\nb,1,3\n", "row 3"),
-    "NaN": ("algo,seed,value\na,0,1\na,1,NaN\nb,0,2\nb,1,3\n", "row 2"),
-    "empty value": ("algo,seed,value\na,0,1\na,1,2\nb,0,\nb,1,3\n", "row 3"),
+    "NaN": ("algo,seed,value\na,0,1\na,1,NaN\nb,0,2\nb,1,3\n", "1 failed seed(s) excluded"),
+    "empty value": ("algo,seed,value\na,0,1\na,1,2\nb,0,\nb,1,3\n", "algo 'b' has 1 seed(s)"),
     "one algorithm": ("algo,seed,value\na,0,1\na,1,2\n", "'algo'"),
     "one seed": ("algo,seed,value\na,0,1\na,1,2\nb,0,3\n", "'b'"),
     "repeated seed": ("algo,seed,value\na,0,1\na,0,2\nb,0,3\nb,1,3\n", "row 2"),
@@ -189,5 +196,5 @@ def test_bad_baseline_and_npz(tmp_path, capsys):
     assert "tasks" in capsys.readouterr().err
     np.savez(tmp_path / "n.npz", a=np.array([[1.0], [np.nan]]), b=np.ones((3, 1)))
     assert main(["compare", "--table", str(tmp_path / "n.npz"), *FAST]) == 2
-    assert "'a', run 1" in capsys.readouterr().err
+    assert "algo 'a' has 1 seed(s) (1 failed seed(s) excluded)" in capsys.readouterr().err
     assert not any(p.name.endswith("_compare") for p in tmp_path.iterdir())

@@ -30,6 +30,15 @@ def add_parser(sub) -> None:
                         "over trials")
     c.add_argument("--out", type=folder_name, metavar="DIR",
                    help="with a table: output folder (default: <table stem>_compare beside the table)")
+    c.add_argument("--value", metavar="COLUMN",
+                   help="with a tidy table: the column of per-seed values (default value; e.g. successes)")
+    c.add_argument("--tasks", metavar="T1,T2",
+                   help="with a table holding a task column: compare these tasks only")
+    c.add_argument("--normalize", choices=("minmax", "baseline", "none"),
+                   help="with several tasks: put scores on one scale for the aggregates across tasks: minmax "
+                        "(with --reference-scores), baseline (divide by --baseline's mean per task) or none")
+    c.add_argument("--reference-scores", metavar="CSV",
+                   help="with --normalize minmax: a CSV with columns task,low,high")
     add_compare_flags(c)
     add_renamed(c, "--alpha", "--level L, the confidence level (--level 0.95 for --alpha 0.05)")
     c.set_defaults(baseline=None, treatment=None)  # run folders: ac and eac; tables: all pairs
@@ -63,17 +72,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.dir is not None and args.table is None and _is_table(args.dir):
         args.table, args.dir = args.dir, None
     if args.table is not None:
-        if args.paired or args.unpaired:
-            flag = "--paired" if args.paired else "--unpaired"
-            raise UsageError(f"{flag} applies to run folders; a table comparison is unpaired (its "
-                             "algorithms' seeds need not match); drop the flag")
         return compare_table_command(args, alpha)
     if args.dir is None:
         raise UsageError("compare needs a run folder or a table: jaxeac compare PATH, or --table PATH")
     if args.out is not None:
         raise UsageError("--out goes with a table; a run folder's report is written into the folder")
-    if args.aggregate is not None:
-        raise UsageError("--aggregate goes with a table; a run folder's measures are fixed (SPEC §6)")
+    for flag, given in (("--aggregate", args.aggregate), ("--value", args.value), ("--tasks", args.tasks),
+                        ("--normalize", args.normalize), ("--reference-scores", args.reference_scores)):
+        if given is not None:
+            raise UsageError(f"{flag} goes with a table; a run folder's measures are fixed (SPEC §6)")
     check_compare_size(args.dir, args.resamples)
     _claim_existing(args, args.dir)
     _check_run_folder(args.dir)
@@ -95,44 +102,71 @@ def run_compare(run_dir, *, baseline="ac", treatment="eac", resamples=10_000, le
 
 
 def print_comparison(result: dict, run_dir, *, baseline="ac", treatment="eac", level=0.95) -> None:
-    """The paired line (where the analysis is paired), the Welch line and where the report is."""
-    from jaxeac.fmt import compact, compact_interval, p_value
+    """The paired line (where the analysis is paired: it answers), the unpaired Welch line and
+    where the report is."""
+    from jaxeac.fmt import compact, compact_interval, p_sig
 
-    pct = percent(level)
-    if result.get("analysis") == "paired":
-        pr = result["paired"]["measures"][result["primary"]["measure"]]
-        print(f"paired (seed i of both shares its key): {treatment} - {baseline} on "
-              f"{result['primary']['measure']}: {compact(pr['mean_diff'], 4, sign=True)} "
-              f"({pct} paired BCa CI {compact_interval(pr['mean_diff_ci95'], 4)}), "
-              f"paired t p = {p_value(pr['p_paired_t'], 3, sci_below=None, general=True)}, "
-              f"d_z = {compact(pr['d_z'])}, r = {compact(pr['correlation'], 2)}")
+    pct = percent(result.get("level", level))
     p = result["primary"]
-    lo, hi = p["diff_ci95"]
-    print(f"{treatment} - {baseline} on {p['measure']}: {p['diff']:+.3f} "
-          f"({pct} BCa CI [{lo:+.3f}, {hi:+.3f}]), "
-          f"Welch p = {p_value(p['p_welch'], 3, sci_below=None, general=True)}, "
-          f"Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
-    print(f"report in {run_dir}/report.md")
+    lead = f"{treatment} - {baseline} on {p['measure']}: "
+    if result.get("analysis") == "paired":
+        pr = result["paired"]["measures"][p["measure"]]
+        print(f"{lead}paired (seed i of both shares its key): {compact(pr['mean_diff'], 4, sign=True)} "
+              f"({pct} paired BCa CI {compact_interval(pr['mean_diff_ci'], 4)}), "
+              f"paired t p = {p_sig(pr['p_paired_t'])}, d_z = {compact(pr['d_z'])}, "
+              f"r = {compact(pr['correlation'], 2)}")
+        lead = "  unpaired (secondary): "
+    lo, hi = p["diff_ci"]
+    print(f"{lead}{p['diff']:+.3f} ({pct} BCa CI [{lo:+.3f}, {hi:+.3f}]), "
+          f"Welch p = {p_sig(p['p_welch'])}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
+    print(f"report in {run_dir}/{result.get('files', {}).get('report', 'report.md')}")
+
+
+def table_stem(baseline, treatment) -> str:
+    """The name of a table comparison's files: every family has its own, so none replaces another's."""
+    if baseline is None:
+        return "table"
+    return f"{baseline}_vs_{treatment}" if treatment is not None else f"vs_{baseline}"
+
+
+def read_reference(path) -> dict:
+    """--reference-scores FILE: a CSV with columns task, low, high."""
+    from jaxeac.stats.inputs import _frame, _labels, _numeric
+
+    frame = _frame(Path(path))
+    frame.columns = [str(c).strip() for c in frame.columns]
+    for col in ("task", "low", "high"):
+        if col not in frame.columns:
+            raise UsageError(f"--reference-scores {path}: no column {col!r}; give a CSV with columns task,low,high")
+    tasks = _labels(frame, "task", str(path))
+    low, high = _numeric(frame, "low", str(path)), _numeric(frame, "high", str(path))
+    return {t: (lo, hi) for t, lo, hi in zip(tasks, low, high, strict=True)}
 
 
 def compare_table_command(args: argparse.Namespace, alpha: float) -> int:
-    """`jaxeac compare --table PATH`: every pair (or each against --baseline) of a table's algorithms."""
-    from jaxeac.fmt import p_value
-    from jaxeac.stats.tidy import compare_table
+    """`jaxeac compare --table PATH`: every pair (or each against --baseline) of a table's algorithms,
+    per task, and the aggregate across tasks (`jaxeac.stats.engine.compare`)."""
+    import json
+
+    from jaxeac.io import staged_dir
+    from jaxeac.stats.engine import compare
+    from jaxeac.stats.inputs import default_out
 
     if args.dir is not None:
         raise UsageError(f"pass either a run folder ({args.dir}) or --table, not both")
-    result, out = compare_table(args.table, args.out, aggregate=args.aggregate or "sum",
-                                baseline=args.baseline, treatment=args.treatment, resamples=args.resamples,
-                                alpha=alpha, key=args.stats_key)
-    print(f"{result['per_seed_value']}; family: {result['family']}, Holm over "
-          f"{result['comparisons_in_family']} comparison(s)")
-    pct = percent(args.level)
-    for r in result["comparisons"]:
-        lo, hi = r["diff_ci95"]
-        plo, phi = r["p_improvement_ci95"]
-        print(f"{r['x']} - {r['y']}: {r['diff']:+.4g} ({pct} CI [{lo:+.4g}, {hi:+.4g}]), "
-              f"Holm p = {p_value(r['p_holm'], 3, sci_below=None, general=True)}, "
-              f"P({r['x']} > {r['y']}) = {r['p_improvement']:.3f} [{plo:.3f}, {phi:.3f}]")
-    print(f"report in {out}/report_table.md")
+    reference = read_reference(args.reference_scores) if args.reference_scores else None
+    tasks = [t.strip() for t in args.tasks.split(",")] if args.tasks else None
+    result = compare(args.table, baseline=args.baseline, treatment=args.treatment, level=args.level,
+                     resamples=args.resamples, key=args.stats_key, value=args.value or "value",
+                     aggregate=args.aggregate or "sum", tasks=tasks, normalize=args.normalize,
+                     reference_scores=reference,
+                     paired="paired" if args.paired else "unpaired" if args.unpaired else "auto")
+    out = Path(args.out) if args.out is not None else default_out(args.table)
+    stem = table_stem(args.baseline, args.treatment)
+    with staged_dir(out) as stage:
+        (stage / f"stats_{stem}.json").write_text(json.dumps(result.to_dict(), indent=2, allow_nan=True) + "\n")
+        (stage / f"report_{stem}.md").write_text(result.markdown())
+    for line in result.lines():
+        print(line)
+    print(f"report in {out}/report_{stem}.md")
     return 0

@@ -8,7 +8,6 @@ seeds `bca_ci` takes the large-N path of `jaxeac.stats.measure_large`.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
@@ -20,14 +19,9 @@ from jaxeac.stats.bca import (  # noqa: F401 (offered here too: this module's na
     jackknife_means,
     jackknife_moments,
 )
-from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction
+from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction, iqm
 from jaxeac.stats.measure_large import measure_large
 from jaxeac.stats.resample import bootstrap_sums
-
-
-def iqm(x) -> float:
-    """Interquartile mean: mean of the middle 50 % (`scipy.stats.trim_mean(x, 0.25)`; Agarwal et al. 2021)."""
-    return float(stats.trim_mean(check_sample(x), 0.25))
 
 
 def bca_ci(

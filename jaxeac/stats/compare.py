@@ -359,13 +359,13 @@ def compare_measures(
         perm_chunk=perm_chunk,
         higher_is_better=higher_is_better,
     )
-    return res["measures"]
+    return cf.level_keys(res["measures"], round(1 - alpha, 12))
 
 
 def _rate(p, alpha):
     k = int((np.asarray(p) <= alpha).sum())
     n = int(np.asarray(p).size)
-    lo, hi = cf.wilson_ci(k, n) if n else (math.nan, math.nan)
+    lo, hi = cf.wilson_ci(k, n, alpha) if n else (math.nan, math.nan)
     return {"rate": k / n if n else math.nan, "ci95": [lo, hi], "rejections": k, "splits": n}
 
 

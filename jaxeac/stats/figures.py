@@ -82,8 +82,8 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 0.6 * len(res) + 1.2))
     y = np.arange(len(res))[::-1]
     est = np.array([r["prob_improvement"] for r in res])
-    lo = np.array([r["prob_improvement_ci95"][0] for r in res])
-    hi = np.array([r["prob_improvement_ci95"][1] for r in res])
+    lo = np.array([r["prob_improvement_ci"][0] for r in res])
+    hi = np.array([r["prob_improvement_ci"][1] for r in res])
     ax.errorbar(est, y, xerr=[est - lo, hi - est], fmt="o", color=colors[t], capsize=3,
                 label=f"P({shown[t]} better), with its CI")
     ax.axvline(0.5, color="k", lw=0.5, ls="--", label="0.5: neither better")
@@ -91,7 +91,7 @@ def write_figures(stats: dict, data: dict, out: Path) -> None:
     ax.set_ylabel("measure", fontsize=8)
     ax.set_yticks(y, [r["measure"] for r in res])
     ax.set_xlim(-0.03, 1.03)  # estimates of 0 or 1 stay visible
-    ax.set_xlabel(f"P({shown[t]} better than {shown[b]}) with 95 % CI")
+    ax.set_xlabel(f"P({shown[t]} better than {shown[b]}) with {100 * stats['level']:.6g} % CI")
     fig.subplots_adjust(left=0.3, right=0.96, top=0.95, bottom=0.25)
     fig.savefig(out / FIGURES["improvement"], dpi=80)
     plt.close(fig)

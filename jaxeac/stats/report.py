@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import math
 
-from jaxeac.fmt import compact, compact_interval, p_value, size_word
+from jaxeac.fmt import compact, compact_interval, p_sig, size_word
 from jaxeac.stats.figures import FIGURES  # noqa: F401 (the figures' file names, also here)
 
+
 #: This report's p-values: 4 decimals, "< 1e-4" below that.
-P_STYLE = {"digits": 4, "floor": "1e-4", "sci_below": None, "missing": "—"}
+def _pct(stats: dict) -> str:
+    """The level of the report's intervals, as printed ("95 %", "99 %")."""
+    level = stats.get("level", 1 - stats["settings"]["alpha"])
+    return f"{100 * level:.6g} %"
+
 
 
 def plain_words(stats: dict) -> str:
@@ -18,12 +23,12 @@ def plain_words(stats: dict) -> str:
     alpha = stats["settings"]["alpha"]
     p_holm = pr.get("p_holm", pr["p_welch"])
     better = pr["diff"] > 0 if pr["higher_is_better"] else pr["diff"] < 0
-    sig = p_holm <= alpha and not (pr["diff_ci95"][0] <= 0 <= pr["diff_ci95"][1])
+    sig = p_holm <= alpha and not (pr["diff_ci"][0] <= 0 <= pr["diff_ci"][1])
     lines = [
         f"On the primary measure ({pr['description']}), {t} averaged {compact(pr['mean_treatment'], 2)} "
         f"and {b} {compact(pr['mean_baseline'], 2)} over {pr['n_treatment']} and {pr['n_baseline']} seeds: "
-        f"a difference of {compact(pr['diff'], 2)} (95 % CI {compact_interval(pr['diff_ci95'], 2)}, "
-        f"Holm-adjusted p = {p_value(p_holm, **P_STYLE)})."
+        f"a difference of {compact(pr['diff'], 2)} ({_pct(stats)} CI {compact_interval(pr['diff_ci'], 2)}, "
+        f"Holm-adjusted p = {p_sig(p_holm)})."
     ]
     if sig:
         lines.append(f"{t} is {'better' if better else 'worse'} than {b} on this measure at α = {alpha}.")
@@ -31,7 +36,7 @@ def plain_words(stats: dict) -> str:
         lines.append(f"At α = {alpha} the data do not show a difference between {t} and {b} on this measure.")
     lines.append(
         f"A randomly chosen {t} seed scores higher than a randomly chosen {b} seed with probability "
-        f"{compact(pr['a12'], 2)} (95 % CI {compact_interval(pr['a12_ci95'], 2)}); "
+        f"{compact(pr['a12'], 2)} ({_pct(stats)} CI {compact_interval(pr['a12_ci'], 2)}); "
         f"the standardised effect is {size_word(pr['hedges_g'])} "
         f"(Hedges' g = {compact(pr['hedges_g'], 2)})."
     )
@@ -61,7 +66,7 @@ def plain_words(stats: dict) -> str:
         r = cal["welch"][stats["primary"]["measure"]]
         lines.append(
             f"As a check, {b} against itself (random halves) gave Welch's test a false-positive rate of "
-            f"{compact(r['rate'], 3)} (95 % CI {compact_interval(r['ci95'], 3)}) against the nominal "
+            f"{compact(r['rate'], 3)} ({_pct(stats)} CI {compact_interval(r['ci'], 3)}) against the nominal "
             f"{alpha}."
         )
     return " ".join(lines)
@@ -114,26 +119,26 @@ def paired_section(stats: dict) -> list[str]:
     rows = []
     for name, r in paired["measures"].items():
         rows.append(f"| {name} | {compact(r['mean_diff'], 4, sign=True)} "
-                    f"{compact_interval(r['mean_diff_ci95'], 4)} | {compact(r['se_diff'])} | "
-                    f"{p_value(r['p_paired_t'], **P_STYLE)} | {p_value(r['p_sign_flip'], **P_STYLE)} | "
-                    f"{compact(r['d_z'])} {compact_interval(r['d_z_ci95'])} | "
+                    f"{compact_interval(r['mean_diff_ci'], 4)} | {compact(r['se_diff'])} | "
+                    f"{p_sig(r['p_paired_t'])} | {p_sig(r['p_sign_flip'])} | "
+                    f"{compact(r['d_z'])} {compact_interval(r['d_z_ci'])} | "
                     f"{compact(r['correlation'], 2)} |")
     primary = stats["primary"]
     pr = paired["measures"][primary["measure"]]
-    unpaired_width = primary["diff_ci95"][1] - primary["diff_ci95"][0]
-    width = pr["mean_diff_ci95"][1] - pr["mean_diff_ci95"][0]
+    unpaired_width = primary["diff_ci"][1] - primary["diff_ci"][0]
+    width = pr["mean_diff_ci"][1] - pr["mean_diff_ci"][0]
     relative = (f"{width / unpaired_width:.2f}×" if unpaired_width and math.isfinite(width / unpaired_width)
                 else "n/a (a zero-width unpaired interval) of")
     return [
-        "## Paired analysis (this design's default)",
+        "## Paired analysis (this design's default: it answers the question)",
         "",
-        f"Design: {paired['design']}. Differences are {t} − {b} of the same seed; CIs are 95 % paired "
+        f"Design: {paired['design']}. Differences are {t} − {b} of the same seed; CIs are {_pct(stats)} paired "
         "BCa bootstrap (seeds resampled as pairs); p from the paired t test and the sign-flip "
         "permutation test; d_z = mean / sd of the differences; r: correlation of the two methods' "
         f"per-seed values. On the primary measure the paired interval is {relative} the "
         "width of the unpaired one below (`jaxeac compare --unpaired` leaves this section out).",
         "",
-        "| measure | mean difference [95 % CI] | SE | p paired t | p sign-flip | d_z [95 % CI] | r |",
+        f"| measure | mean difference [{_pct(stats)} CI] | SE | p paired t | p sign-flip | d_z [{_pct(stats)} CI] | r |",
         "|---|---|---|---|---|---|---|",
         *rows,
         "",
@@ -192,7 +197,8 @@ def render_markdown(stats: dict) -> str:
         "",
         f"Run directory: `{stats['run_dir']}`; {stats['trials']} trials per seed; "
         f"{stats['primary']['n_baseline']} {b} seeds and {stats['primary']['n_treatment']} {t} seeds. "
-        "The seed is the unit of analysis.",
+        f"The seed is the unit of analysis. Every interval is at the {_pct(stats)} level; p-values in "
+        "three significant figures.",
         "",
         "## In plain words",
         "",
@@ -200,15 +206,16 @@ def render_markdown(stats: dict) -> str:
         "",
         *sequential_section(stats.get("sequential")),
         *paired_section(stats),
-        "## Estimates" + (" as independent samples (unpaired)" if stats.get("analysis") == "paired" else ""),
+        "## Estimates" + (" as independent samples (unpaired; secondary: the paired results above answer the question)"
+                          if stats.get("analysis") == "paired" else ""),
         "",
-        f"Differences are {t} − {b}. CIs are 95 % BCa bootstrap ({st['resamples']} resamples per method) "
+        f"Differences are {t} − {b}. CIs are {_pct(stats)} BCa bootstrap ({st['resamples']} resamples per method) "
         "except A12 (Brunner–Munzel). p (Holm) adjusts the declared family "
         f"({', '.join(holm['family'])}) with each measure's declared test "
         f"({'; '.join(f'{k}: {v}' for k, v in holm['tests'].items())}).",
         "",
-        f"| measure | {b} mean | {t} mean | difference [95 % CI] | Hedges' g [95 % CI] | "
-        f"P({t} better) [95 % CI] | p Welch | p perm. | p Brunner–Munzel | p (Holm) | seeds for 80 % power |",
+        f"| measure | {b} mean | {t} mean | difference [{_pct(stats)} CI] | Hedges' g [{_pct(stats)} CI] | "
+        f"P({t} better) [{_pct(stats)} CI] | p Welch | p perm. | p Brunner–Munzel | p (Holm) | seeds for 80 % power |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in res:
@@ -216,11 +223,11 @@ def render_markdown(stats: dict) -> str:
         arrow = "↑" if r["higher_is_better"] else "↓"
         out.append(
             f"| {r['measure']}{role} {arrow} | {compact(r['mean_baseline'])} | "
-            f"{compact(r['mean_treatment'])} | {compact(r['diff'])} {compact_interval(r['diff_ci95'])} | "
-            f"{compact(r['hedges_g'])} {compact_interval(r['hedges_g_ci95'])} | "
-            f"{compact(r['prob_improvement'])} {compact_interval(r['prob_improvement_ci95'])} | "
-            f"{p_value(r['p_welch'], **P_STYLE)} | {p_value(r['p_permutation'], **P_STYLE)} | "
-            f"{p_value(r['brunner_munzel']['p'], **P_STYLE)} | {p_value(r.get('p_holm'), **P_STYLE)} | "
+            f"{compact(r['mean_treatment'])} | {compact(r['diff'])} {compact_interval(r['diff_ci'])} | "
+            f"{compact(r['hedges_g'])} {compact_interval(r['hedges_g_ci'])} | "
+            f"{compact(r['prob_improvement'])} {compact_interval(r['prob_improvement_ci'])} | "
+            f"{p_sig(r['p_welch'])} | {p_sig(r['p_permutation'])} | "
+            f"{p_sig(r['brunner_munzel']['p'])} | {p_sig(r.get('p_holm'))} | "
             f"{compact(r['seeds_for_80pct_power'])} |"
         )
     out += scale_paragraph(stats)
@@ -231,8 +238,8 @@ def render_markdown(stats: dict) -> str:
     out += [
         "",
         f"Interquartile mean of the primary measure: "
-        f"{b} {compact(pr['iqm_baseline'])} {compact_interval(pr['iqm_baseline_ci95'])}, "
-        f"{t} {compact(pr['iqm_treatment'])} {compact_interval(pr['iqm_treatment_ci95'])} (95 % BCa).",
+        f"{b} {compact(pr['iqm_baseline'])} {compact_interval(pr['iqm_baseline_ci'])}, "
+        f"{t} {compact(pr['iqm_treatment'])} {compact_interval(pr['iqm_treatment_ci'])} ({_pct(stats)} BCa).",
         "",
         f"Seeds per method for 80 % power (two-sided t-test, α = {st['alpha']}): observed effect "
         f"(|g| = {compact(pw['observed_d'])}) {compact(pw['seeds_for_80pct_power'])}; "
@@ -241,18 +248,18 @@ def render_markdown(stats: dict) -> str:
         "## Time to first success and success proportions",
         "",
         f"Log-rank test on the first successful trial (censored at {stats['trials']} when none): "
-        f"χ² = {compact(stats['logrank']['chi2'])}, p = {p_value(stats['logrank']['p'], **P_STYLE)}.",
+        f"χ² = {compact(stats['logrank']['chi2'])}, p = {p_sig(stats['logrank']['p'])}.",
         "",
-        f"| outcome per seed | {b} | {t} | risk difference [95 % CI, Newcombe] "
-        "| risk ratio [95 % CI, score] |",
+        f"| outcome per seed | {b} | {t} | risk difference [{_pct(stats)} CI, Newcombe] "
+        f"| risk ratio [{_pct(stats)} CI, score] |",
         "|---|---|---|---|---|",
     ]
     for name, pr_ in stats["proportions"].items():
         out.append(
             f"| {name} | {pr_['count_baseline']}/{pr_['n_baseline']} "
             f"| {pr_['count_treatment']}/{pr_['n_treatment']} | "
-            f"{compact(pr_['risk_difference'])} {compact_interval(pr_['risk_difference_ci95'])} | "
-            f"{compact(pr_['risk_ratio'])} {compact_interval(pr_['risk_ratio_ci95'])} |"
+            f"{compact(pr_['risk_difference'])} {compact_interval(pr_['risk_difference_ci'])} | "
+            f"{compact(pr_['risk_ratio'])} {compact_interval(pr_['risk_ratio_ci'])} |"
         )
     cur = stats.get("curves")
     if cur:
@@ -301,12 +308,12 @@ def render_markdown(stats: dict) -> str:
                 else ""
             ),
             "",
-            "| test | measure | false-positive rate [95 % CI] |",
+            f"| test | measure | false-positive rate [{_pct(stats)} CI] |",
             "|---|---|---|",
         ]
         for test, per in cal["false_positive_rate"].items():
             for name, r in per.items():
-                out.append(f"| {test} | {name} | {compact(r['rate'])} {compact_interval(r['ci95'])} |")
+                out.append(f"| {test} | {name} | {compact(r['rate'])} {compact_interval(r['ci'])} |")
     elif cal:
         out += ["## Calibration", "", f"Skipped: {cal.get('skipped')}"]
     out += [

@@ -57,13 +57,30 @@ def _smallest_sum(k, counts_b, values_b, bc, bcv_cum, h_cum):
     return before_s + jnp.sum(part * v, axis=1)
 
 
-@partial(jax.jit, static_argnames=("chunk", "iqm"))
-def _boot_chunk(key, c, z, chunk: int, iqm: bool):
-    n = z.shape[0]
+def _counts(key, c, n: int, chunk: int):
+    """The bootstrap draw, defined once: chunk c's resamples as counts per unit [chunk, n] (n uniform
+    indices per resample under fold_in(key, c), scatter-added)."""
     idx = uniform_index(jax.random.fold_in(key, c), (chunk, n), n)
     flat = (idx + (jnp.arange(chunk, dtype=jnp.int32) * n)[:, None]).reshape(-1)
     counts = jnp.zeros((chunk * n,), jnp.float32).at[flat].add(1.0, mode="promise_in_bounds")
-    counts = counts.reshape(chunk, n)
+    return counts.reshape(chunk, n)
+
+
+_counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk"))
+
+
+def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000) -> np.ndarray:
+    """Bootstrap resamples of n units as counts per unit, [resamples, n] float32: the draws
+    `bootstrap_sums` makes under the same key (so its sums are these counts times the rows)."""
+    chunk = _cap(chunk, resamples, n)
+    parts = [_counts_chunk(key, c, n, chunk) for c in range(-(-resamples // chunk))]
+    return np.concatenate([np.asarray(p) for p in parts])[:resamples]
+
+
+@partial(jax.jit, static_argnames=("chunk", "iqm"))
+def _boot_chunk(key, c, z, chunk: int, iqm: bool):
+    n = z.shape[0]
+    counts = _counts(key, c, n, chunk)
     sums = counts @ z
     if not iqm:
         return sums, jnp.zeros((chunk,), jnp.float32)

@@ -311,6 +311,7 @@ def compare_experiment(
     else:
         stats["analysis"] = "unpaired"
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
+    stats = {"schema": SCHEMA, "level": round(1 - alpha, 12), **cf.level_keys(stats, round(1 - alpha, 12))}
     plot = {"measures": {k: {"baseline": value_counts(vb[k]), "treatment": value_counts(vt[k])}
                          for k in names}}
     return stats, plot
@@ -425,20 +426,36 @@ def compare_run_dir(
     stats["run_dir"] = str(Path(run_dir))
     if data is not None and data.sequential is not None:  # the run's sequential decision comes first
         stats["sequential"] = data.sequential
-    stats["files"] = {"stats": "stats.json", "report": "report.md", "figures": dict(FIGURES)}
+    suffix = output_suffix(run_dir, baseline, treatment)
+    figures = {k: v.replace(".png", f"{suffix}.png") for k, v in FIGURES.items()}
+    stats["files"] = {"stats": f"stats{suffix}.json", "report": f"report{suffix}.md", "figures": figures}
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()
     with staged_dir(run_dir) as stage:
         write_figures(stats, plot, stage)
+        for k, name in FIGURES.items():  # a second comparison's figures beside the first's
+            if (stage / name).exists() and name != figures[k]:
+                (stage / name).rename(stage / figures[k])
         stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
-        (stage / "report.md").write_text(render_markdown(clean), encoding="utf-8")
-        (stage / "stats.json").write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
+        (stage / stats["files"]["report"]).write_text(render_markdown(clean), encoding="utf-8")
+        (stage / stats["files"]["stats"]).write_text(json.dumps(clean, indent=2) + "\n", encoding="utf-8")
     if bar is not None:
         bar.update()
         bar.close()
     return clean
+
+
+def output_suffix(run_dir, baseline: str, treatment: str) -> str:
+    """"" where the folder holds no comparison yet or one of the same two methods (it is redone),
+    else ``_<baseline>_vs_<treatment>``: a second comparison of a folder never replaces the first."""
+    try:
+        first = json.loads((Path(run_dir) / "stats.json").read_text(encoding="utf-8"))
+        pair = (first["baseline"], first["treatment"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    return "" if pair == (baseline, treatment) else f"_{baseline}_vs_{treatment}"
 
 
 def _progress_bar(progress: bool, baseline: str, treatment: str):
