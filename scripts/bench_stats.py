@@ -174,27 +174,30 @@ def bench_tidy(args) -> None:
     t_start = time.perf_counter()
     import jax
 
-    from jaxeac.stats.tidy import compare_table
+    from jaxeac.stats.engine import compare
 
     import_seconds = time.perf_counter() - t_start
     seeds = args.seeds[0]
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:
         table = Path(tmp) / "runs.csv"
-        lines = ["algo,seed,value"]
-        for a in range(args.tidy_algos):
-            values = rng.normal(100 + 2 * a, 15, seeds)
-            lines += [f"algo{a},{i},{v:.6f}" for i, v in enumerate(values)]
+        tasks = max(1, args.tidy_tasks)
+        lines = ["task,algo,seed,value"]
+        for t in range(tasks):
+            for a in range(args.tidy_algos):
+                values = rng.normal(100 + 2 * a, 15, seeds) * (1 + t)
+                lines += [f"t{t},algo{a},{i},{v:.6f}" for i, v in enumerate(values)]
         table.write_text("\n".join(lines) + "\n")
         runs = []
         for i in range(args.repeat):
             t0 = time.perf_counter()
-            result, _ = compare_table(table, Path(tmp) / f"out{i}", resamples=args.resamples, key=i)
+            result = compare(table, resamples=args.resamples, key=i, baseline="algo0" if tasks > 1 else None,
+                             normalize="baseline" if tasks > 1 else None)
             runs.append({"wall_seconds": time.perf_counter() - t0, "includes_compile": i == 0})
     record = {
         "command": "python scripts/bench_stats.py " + " ".join(sys.argv[1:]),
         "algorithms": args.tidy_algos, "seeds_per_algorithm": seeds, "resamples": args.resamples,
-        "comparisons": result["comparisons_in_family"],
+        "tasks": tasks, "comparisons": result.family_size, "aggregates": result.aggregate is not None,
         "import_seconds": import_seconds, "runs": runs,
         "first_run_plus_import_seconds": runs[0]["wall_seconds"] + import_seconds,
         "versions": {"python": sys.version.split()[0], "jax": jax.__version__, "numpy": np.__version__},
@@ -224,6 +227,8 @@ def main() -> None:
     )
     ap.add_argument("--rliable", action="store_true", help="also time rliable's IQM interval if installed")
     ap.add_argument("--out", type=Path, help="also write the JSON record here")
+    ap.add_argument("--tidy-tasks", type=int, default=0, metavar="K",
+                    help="with --tidy-algos: K tasks, each vs algo0, with the aggregates and profiles across them")
     ap.add_argument("--tidy-algos", type=int, default=0, metavar="A",
                     help="instead: time `jaxeac compare --table` on a synthetic tidy table of A algorithms "
                          "× --seeds seeds (all pairs, Holm, IQM and probability of improvement)")
