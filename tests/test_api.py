@@ -108,3 +108,17 @@ def test_the_library_writes_the_command_lines_folder(tmp_path):
 def test_bad_arguments_are_named_before_any_compute(call, error, message):
     with pytest.raises(error, match=message):
         call()
+
+
+def test_release_0_1_spellings_warn_and_name_the_public_one():
+    import jaxeac.running
+    from jaxeac.running.batch import run_seeds
+
+    with pytest.warns(DeprecationWarning, match=r"jaxeac.running.run_seeds is internal; use jaxeac.run"):
+        old = jaxeac.running.run_seeds
+    assert old is run_seeds
+    with pytest.warns(DeprecationWarning, match="use jaxeac.RunConfig"):
+        from jaxeac.running import RunConfig
+    assert RunConfig is jaxeac.RunConfig
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        jaxeac.running.nothing  # noqa: B018

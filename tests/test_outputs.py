@@ -213,7 +213,8 @@ def test_numerical_blow_ups_are_reported_per_seed(tmp_path, capsys):
     from jaxeac.algorithm import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.experiments.grid import GridRun, GridSettings, summary_table, write_grid_outputs
-    from jaxeac.running import RunConfig, run_seeds
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig
 
     env = GridWorld(get_map("paper"), 40)
     wild = run_seeds(env, RunConfig(trials=40, agent=algorithm("ac"), alpha=50.0, beta=50.0), root_key=0,
