@@ -74,6 +74,37 @@ def grid_schedule_and_sweep() -> dict[str, str]:
     return out
 
 
+TASK_ALGOS = ("ac", "eac", "eac_success_only", "eac_failure_only", "eac_learn_on_memory", "eac_within_trial",
+              "q_learning", "sarsa")
+
+
+def tabular_task(env: str, slip: float = 0.0, algos=TASK_ALGOS, chances: int | None = None) -> dict[str, str]:
+    """A tabular task (X1) under the study's algorithms (X4), seeds over several chunks."""
+    settings = GridSettings(env=env, slip=slip, seeds=24, trials=40, chunk_size=10, key=11, chances=chances,
+                            algos=algos).resolved()
+    return {a: seeds_digest(r) for a, r in run_grid(settings).results.items()}
+
+
+def tabular_frozen_lake() -> dict[str, str]:
+    return tabular_task("FrozenLake-4x4-v1")
+
+
+def tabular_frozen_lake_slippery() -> dict[str, str]:
+    return tabular_task("FrozenLake-4x4-slippery-v1")
+
+
+def tabular_cliff_walking() -> dict[str, str]:
+    return tabular_task("CliffWalking-v1")
+
+
+def tabular_four_rooms_stochastic() -> dict[str, str]:
+    return tabular_task("FourRooms-stochastic-v0", algos=("ac", "eac", "q_learning"), chances=60)
+
+
+def tabular_grid_slip() -> dict[str, str]:
+    return tabular_task("grid-paper-v0", slip=0.1, algos=("ac", "eac", "sarsa"))
+
+
 def bowling_c(sleep: bool = True) -> dict[str, str]:
     from jaxeac.envs.bowling import SolverSettings
     from jaxeac.experiments.bowling import BowlingSettings, run_bowling
@@ -94,6 +125,11 @@ CASES = {
     "grid_row_tables": grid_row_tables,
     "grid_schedule_and_sweep": grid_schedule_and_sweep,
     "bowling_c": bowling_c,
+    "tabular_frozen_lake": tabular_frozen_lake,
+    "tabular_frozen_lake_slippery": tabular_frozen_lake_slippery,
+    "tabular_cliff_walking": tabular_cliff_walking,
+    "tabular_four_rooms_stochastic": tabular_four_rooms_stochastic,
+    "tabular_grid_slip": tabular_grid_slip,
     "bowling_c_no_sleep": bowling_c_no_sleep,
 }
 
@@ -117,6 +153,46 @@ EXPECTED: dict[str, dict[str, str]] = {
     'grid_schedule_and_sweep': {
         'schedule': '6d92503a7d4b6b39',
         'sweep': '62c035bdf92a5d6c',
+    },
+    'tabular_frozen_lake': {
+        'ac': 'ca99d42c212397d1',
+        'eac': '2748a8b7d5d9b06a',
+        'eac_failure_only': '0a51a357cdbd1c62',
+        'eac_learn_on_memory': '2748a8b7d5d9b06a',
+        'eac_success_only': 'ba661a9712f8786c',
+        'eac_within_trial': '14458aff26b81cd5',
+        'q_learning': 'cfadb62e12779304',
+        'sarsa': 'cfadb62e12779304',
+    },
+    'tabular_frozen_lake_slippery': {
+        'ac': 'f7cbb2b187f13cb2',
+        'eac': 'ccf33cfe4ed43a9f',
+        'eac_failure_only': '541667fbc687abe3',
+        'eac_learn_on_memory': '64495f524b60864d',
+        'eac_success_only': '39b6bbafa14ff215',
+        'eac_within_trial': 'a0a22acc72ea90a9',
+        'q_learning': 'aa5ce8bd4172c7ea',
+        'sarsa': '448f78ecc52f143d',
+    },
+    'tabular_cliff_walking': {
+        'ac': '25831cd6ca0a2c2a',
+        'eac': 'e98d152191d41233',
+        'eac_failure_only': 'b8912565149c01de',
+        'eac_learn_on_memory': 'e36af8ada81c2bdd',
+        'eac_success_only': 'e36af8ada81c2bdd',
+        'eac_within_trial': 'b585df4a31e7c1d0',
+        'q_learning': 'a3c287cf6c39be6d',
+        'sarsa': '00665671f63faf65',
+    },
+    'tabular_four_rooms_stochastic': {
+        'ac': '828a20cf66724569',
+        'eac': 'cbdfdbaa2f96b505',
+        'q_learning': '1ca005df3d54ebc7',
+    },
+    'tabular_grid_slip': {
+        'ac': '45acfee73d937a2e',
+        'eac': '24673df41b135858',
+        'sarsa': 'c652f035d5549a42',
     },
     'bowling_c': {
         'ac': '80d291f6bb20d7e8',
