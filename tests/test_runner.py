@@ -424,7 +424,7 @@ def test_queue_blocks_update_lanes_in_place(algo):
     lanes, m = 16, 64
     cfg = RunConfig(trials=20, agent=algorithm(algo), lanes=lanes).resolve(env, m)
     hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (m,)), cfg.hyper())
-    program = make_batch_run(env, cfg).lower(jax.random.key(0), np.arange(m, dtype=np.int32), hyper)
+    program = make_batch_run(env, cfg).lower(jax.random.key(0), np.arange(m, dtype=np.int32), hyper, {})
     text = program.compile().as_text()
     per_lane = {f"[{lanes},{env.n_states},{env.n_actions}]", f"[{lanes},{env.n_states}]",
                 f"[{lanes},{cfg.trials}]"}

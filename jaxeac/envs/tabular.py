@@ -12,6 +12,8 @@ SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import functools
 from typing import Literal
 
@@ -24,7 +26,7 @@ from jaxeac.envs.protocol import KernelTables, Transition, UniformEnv
 from jaxeac.envs.tasks import TabularTask, grid_task, with_slip
 from jaxeac.errors import UsageError
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import transition_uniform, uniform_index
+from jaxeac.rng import start_uniform, transition_uniform, uniform_index
 
 RtildeRule = Literal["shaped", "reward"]
 RTILDE_RULES = ("shaped", "reward")
@@ -38,15 +40,53 @@ class TabularState:
     chance: jax.Array  # int32 []
 
 
+@dataclasses.dataclass(frozen=True)
+class TableLayout:
+    """The static shape of a tabular task's compiled program (X1): the sizes its tables are padded
+    to. Tasks with the same layout, actions, C and r̃ rule share one program; their tables are its
+    inputs (`TabularEnv.program_inputs`). A padded state is never entered (no move leads to it,
+    no trial starts there); a padded outcome has probability 0; a padded start is never drawn.
+
+    `outcomes` 1: every task is deterministic (a move draws nothing). `gated_jumps`: some tasks
+    are deterministic and some not; memory jumps (exact only on deterministic tasks) are then
+    compiled in and switched on per task by a flag among the tables (`TabularEnv.jump_gate`)."""
+
+    states: int
+    outcomes: int
+    starts: int
+    gated_jumps: bool = False
+
+    @classmethod
+    def covering(cls, envs) -> TableLayout:
+        """The smallest layout that holds every `TabularEnv` of `envs` (their own tables' sizes)."""
+        own = [env.own_layout for env in envs]
+        deterministic = [x.outcomes == 1 for x in own]
+        return cls(max(x.states for x in own), max(x.outcomes for x in own), max(x.starts for x in own),
+                   any(deterministic) and not all(deterministic))
+
+    def holds(self, other: TableLayout) -> bool:
+        return self.states >= other.states and self.outcomes >= other.outcomes and self.starts >= other.starts
+
+
 class TabularEnv(UniformEnv):
     """A `TabularTask` in the environment API of `jaxeac.envs.protocol` (X1).
 
     `n_chances`: chances per trial (default: the task's `max_steps`). `rtilde` (X2):
     ``shaped`` (E5's form; needs a grid task with a goal, else the reward is used) or
-    ``reward`` (the task's reward).
+    ``reward`` (the task's reward). `layout`: the sizes its tables are padded to (default: its
+    own), so that tasks of one layout share a compiled program (`TableLayout`, `padded`).
+
+    The tables (`program_inputs`, flat NumPy arrays) are read by `transition`, `rtilde` and the
+    fused kernel alike: per (s, a) and outcome the packed ``moves`` (2·s' + bumped) and
+    ``reward``; per state the end flags ``ends`` (terminal | success << 1) and ``distance``
+    (E5's ‖s − g‖₂; zeros where r̃ is the reward); the ``starts``; in a stochastic layout the
+    ``cumulative`` probabilities (all but the last) of the K outcomes of (s, a): outcome k is
+    their number at most the transition uniform (X1); ``info`` = [number of starts, 1 if the
+    task is deterministic]. A compiled program gets them as arguments (`bind`).
     """
 
-    def __init__(self, task: TabularTask, n_chances: int | None = None, rtilde: RtildeRule = "shaped"):
+    def __init__(self, task: TabularTask, n_chances: int | None = None, rtilde: RtildeRule = "shaped",
+                 layout: TableLayout | None = None):
         if not isinstance(task, TabularTask):
             raise TypeError(f"task must be a TabularTask of jaxeac.envs.tasks (got {task!r})")
         n_chances = check_chances(task.max_steps if n_chances is None else n_chances)
@@ -56,34 +96,56 @@ class TabularEnv(UniformEnv):
         self.name = task.name
         self.n_states, self.n_actions = task.n_states, task.n_actions
         self.n_chances = int(n_chances)
-        self.deterministic = task.deterministic
+        self.task_deterministic = task.deterministic
         self.goal_distance = task.goal_distance if rtilde == "shaped" else None
         self.rtilde_rule: RtildeRule = "shaped" if self.goal_distance is not None else "reward"
-        rows = task.n_states * task.n_actions
-        k = 1 if self.deterministic else task.n_outcomes  # deterministic: outcome 0 has probability 1
-
-        def table(x):  # [S·A, k]
-            return np.asarray(x).reshape(rows, -1)[:, :k]
-
-        self._next = table(task.next_states).astype(np.int32)
-        self._reward = table(task.rewards)
-        self._bumped = table(task.bumped).astype(bool)
-        # The outcome of a draw u: the number of cumulative probabilities (all but the last) ≤ u.
-        self._cumulative = np.cumsum(np.asarray(task.probs).reshape(rows, -1), axis=1)[:, :k - 1]
-        self._terminal = np.asarray(task.terminal, bool)
-        self._success = np.asarray(task.success, bool)
-        self._starts = np.asarray(task.start_states, np.int32)
+        k = 1 if task.deterministic else task.n_outcomes  # deterministic: outcome 0 has probability 1
+        self.own_layout = TableLayout(task.n_states, k, int(np.size(task.start_states)))
+        layout = self.own_layout if layout is None else layout
+        if not isinstance(layout, TableLayout) or not layout.holds(self.own_layout):
+            raise UsageError(f"task {task.name}: layout {layout!r} does not hold its tables "
+                             f"({self.own_layout})")
+        self.layout = layout
+        self.deterministic = layout.outcomes == 1  # the program's moves draw nothing
+        self.arrays = _tables(task, self.n_actions, k, layout, self.goal_distance)
+        self._t = self.arrays  # what the moves read: these, or a program's inputs (`bind`)
 
     def __repr__(self) -> str:
         return f"TabularEnv({self.name!r}, chances={self.n_chances}, rtilde={self.rtilde_rule!r})"
 
     @property
     def n_starts(self) -> int:
-        return int(self._starts.size)
+        return self.own_layout.starts
 
+    def padded(self, layout: TableLayout) -> TabularEnv:
+        """This task with its tables padded to `layout` (same per-seed results)."""
+        return TabularEnv(self.task, self.n_chances, self.rtilde_rule, layout)
+
+    # --- tables as program inputs (`jaxeac.running.loops.program_key`) ----------------------
+    def program_key(self) -> tuple:
+        """What its compiled program depends on: everything but the tables' values."""
+        return TabularEnv, self.n_actions, self.n_chances, self.rtilde_rule, self.layout
+
+    def program_inputs(self) -> dict[str, np.ndarray]:
+        return self.arrays
+
+    def bind(self, tables: dict) -> TabularEnv:
+        """The environment as its compiled program sees it: `tables` (traced) in place of its own,
+        and the layout's padded state count."""
+        view = copy.copy(self)
+        view._t, view.n_states, view._kernel_tables = dict(tables), self.layout.states, None
+        return view
+
+    def jump_gate(self):
+        """bool []: whether memory jumps are exact for this task (`TableLayout.gated_jumps`);
+        None where the layout decides it statically."""
+        return self._t["info"][1] == 1 if self.layout.gated_jumps else None
+
+    # --- the moves -------------------------------------------------------------------------
     def reset_from(self, u: jax.Array) -> TabularState:
         """G3/X1: start in one of the task's start states, drawn uniformly with the uniform `u`."""
-        return TabularState(jnp.asarray(self._starts)[uniform_index(u, self.n_starts)], jnp.int32(0))
+        start = jnp.asarray(self._t["starts"])[uniform_index(u, self._t["info"][0])]
+        return TabularState(start, jnp.int32(0))
 
     def observation(self, state: TabularState) -> jax.Array:
         return state.position
@@ -91,21 +153,23 @@ class TabularEnv(UniformEnv):
     def transition(self, state: TabularState, action: jax.Array, u=None) -> Transition:
         """One move: outcome k of (s, a) picked with `u` (stochastic tasks), then E3 and G5."""
         row = state.position * self.n_actions + action
-        k = jnp.int32(0)
-        if self._cumulative.shape[1]:
-            k = jnp.sum(u >= jnp.asarray(self._cumulative, float)[row], dtype=jnp.int32)
-        s_next = jnp.asarray(self._next)[row, k]
+        at = row * self.layout.outcomes
+        if self.layout.outcomes > 1:
+            cumulative = jnp.asarray(self._t["cumulative"], float).reshape(-1, self.layout.outcomes - 1)
+            at = at + jnp.sum(u >= cumulative[row], dtype=jnp.int32)
+        s_next, bumped = decode_move(jnp.asarray(self._t["moves"])[at])
         chance = state.chance + 1
-        terminated = jnp.asarray(self._terminal)[s_next]
+        ends = jnp.asarray(self._t["ends"])[s_next]
+        terminated = (ends & 1) == 1
         truncated = ~terminated & (chance >= self.n_chances)
-        return Transition(TabularState(s_next, chance), jnp.asarray(self._reward, float)[row, k], terminated,
-                          truncated, jnp.asarray(self._success)[s_next], jnp.asarray(self._bumped)[row, k])
+        return Transition(TabularState(s_next, chance), jnp.asarray(self._t["reward"], float)[at], terminated,
+                          truncated, (ends & 2) == 2, bumped)
 
     def rtilde(self, transition: Transition, goal_known: jax.Array) -> jax.Array:
         """X2: E5's shaped r̃ at the state reached, or the task's reward (`rtilde="reward"`)."""
-        if self.goal_distance is None:
+        if self.rtilde_rule == "reward":
             return transition.reward
-        distance = jnp.asarray(self.goal_distance)[transition.state.position]
+        distance = jnp.asarray(self._t["distance"], float)[transition.state.position]
         return shaped_reward(distance, transition.bumped, goal_known)
 
     def kernel_tables(self) -> TabularKernelTables:
@@ -115,37 +179,56 @@ class TabularEnv(UniformEnv):
         return self._kernel_tables
 
 
+def _tables(task: TabularTask, n_actions: int, k: int, layout: TableLayout, goal_distance) -> dict:
+    """`TabularEnv`'s tables of `task` (its first `k` outcomes) padded to `layout`: a padded state
+    stays put and is never entered, a padded outcome repeats outcome 0 behind a cumulative
+    probability of 2 (never drawn), padded starts repeat the first. Floats stay float64 here: a
+    program reads them in JAX's default float (float32 unless x64 is on), as it always did."""
+    rows, big = task.n_states * n_actions, layout.outcomes
+    moves = np.empty((layout.states * n_actions, big), np.int64)
+    moves[:] = 2 * np.repeat(np.arange(layout.states), n_actions)[:, None]
+    reward = np.zeros(moves.shape)
+    real = 2 * np.asarray(task.next_states, np.int64).reshape(rows, -1)[:, :k] + \
+        np.asarray(task.bumped, bool).reshape(rows, -1)[:, :k]
+    moves[:rows, :k], moves[:rows, k:] = real, real[:, :1]
+    reward[:rows, :k] = np.asarray(task.rewards).reshape(rows, -1)[:, :k]
+    reward[:rows, k:] = reward[:rows, :1]
+    ends = np.zeros(layout.states, np.int32)
+    ends[:task.n_states] = np.asarray(task.terminal, np.int32) | (np.asarray(task.success, np.int32) << 1)
+    distance = np.zeros(layout.states)
+    if goal_distance is not None:
+        distance[:task.n_states] = goal_distance
+    starts = np.asarray(task.start_states, np.int32)
+    arrays = {
+        "moves": moves.reshape(-1).astype(np.int32), "reward": reward.reshape(-1), "ends": ends,
+        "distance": distance, "starts": np.pad(starts, (0, layout.starts - starts.size), mode="edge"),
+        "info": np.array([starts.size, task.deterministic], np.int32),
+    }
+    if big > 1:  # [S·A, K − 1]: the outcome of a draw u is the number of these ≤ u
+        cumulative = np.full((layout.states * n_actions, big - 1), 2.0)
+        cumulative[:rows, :k - 1] = np.cumsum(np.asarray(task.probs).reshape(rows, -1), axis=1)[:, :k - 1]
+        arrays["cumulative"] = cumulative.reshape(-1)
+    return arrays
+
+
 class TabularKernelTables(KernelTables):
-    """`TabularEnv` in the fused kernel (`jaxeac.envs.protocol.KernelTables`): per (s, a) and
-    outcome the packed ``moves`` (2·s' + bumped) and ``reward``; per state the end flags ``ends``
-    (terminal | success << 1) and ``distance`` (E5's ‖s − g‖₂; zeros where r̃ is the reward); the
-    starts; and in a stochastic task the ``cumulative`` probabilities (all but the last) of the K
-    outcomes of (s, a): outcome k is their number at most the transition uniform, as
-    `TabularEnv.transition` draws it (X1)."""
+    """`TabularEnv` in the fused kernel (`jaxeac.envs.protocol.KernelTables`): the env's own tables
+    (see `TabularEnv`), read step for step as `TabularEnv.transition` reads them (X1)."""
 
     def __init__(self, env: TabularEnv):
-        self.shaped = env.goal_distance is not None
-        self.outcomes = env._next.shape[1]  # K: 1 for a deterministic task
-        moves = 2 * env._next.astype(np.int64) + env._bumped  # [S·A, K]
-        arrays = {
-            "moves": moves.reshape(-1).astype(np.int32),
-            "reward": np.asarray(env._reward, np.float32).reshape(-1),
-            "ends": env._terminal.astype(np.int32) | (env._success.astype(np.int32) << 1),
-            "distance": np.asarray(env.goal_distance if self.shaped else np.zeros(env.n_states), np.float32),
-            "starts": np.asarray(env._starts, np.int32),
-        }
-        if self.outcomes > 1:  # [S·A, K − 1]
-            arrays["cumulative"] = np.asarray(env._cumulative, np.float32).reshape(-1)
-        super().__init__(arrays, env.n_actions, env.n_chances, env.n_starts)
+        self.shaped = env.rtilde_rule == "shaped"
+        self.outcomes = env.layout.outcomes  # K: 1 for a deterministic layout
+        self.gated = env.layout.gated_jumps
+        super().__init__(dict(env._t), env.n_actions, env.n_chances, env.layout.starts)
 
     def move(self, ref, s, action, words, trial, chance):
         row = s * self.n_actions + action
-        at = row
+        at = row * self.outcomes
         if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
             u = transition_uniform(words, trial, chance, self.n_chances)
             below = [(u >= ref["cumulative"][row * (self.outcomes - 1) + j]).astype(jnp.int32)
                      for j in range(self.outcomes - 1)]
-            at = row * self.outcomes + functools.reduce(lambda a, b: a + b, below)
+            at = at + functools.reduce(lambda a, b: a + b, below)
         s_next, bumped = decode_move(ref["moves"][at])
         ends = ref["ends"][s_next]
         return s_next, ref["reward"][at], (ends & 1) == 1, (ends & 2) == 2, bumped
@@ -154,6 +237,15 @@ class TabularKernelTables(KernelTables):
         if not self.shaped:
             return reward
         return shaped_reward(ref["distance"][s_next], bumped, goal_known)
+
+    def start(self, ref, words, trial):
+        """G3: the start of trial `trial`, among the task's own starts (``info[0]`` of them)."""
+        count = ref["info"][jnp.zeros_like(trial)]
+        return ref["starts"][uniform_index(start_uniform(words, trial, self.n_chances), count)]
+
+    def jump_gate(self, ref, like):
+        """`TabularEnv.jump_gate` per lane (`like`: a lane vector), or None."""
+        return ref["info"][jnp.ones_like(like)] == 1 if self.gated else None
 
 
 def grid_world(grid_map: GridMap, n_chances: int, slip: float = 0.0, name: str | None = None):

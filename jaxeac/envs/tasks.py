@@ -3,9 +3,8 @@
 A `TabularTask` is a finite MDP written out as NumPy tables: for every (state, action) the
 K possible next states with their probabilities, rewards and E5 "bump" flags, which states
 end an episode and which of those count as a success (E3). `jaxeac.envs.tabular.TabularEnv`
-runs any of them under AC, EAC, Q-learning and SARSA. Nothing here imports JAX.
-Builders: `frozen_lake`, `cliff_walking`, `windy_gridworld`, `four_rooms`, `grid_task`; `with_slip`
-adds random-action noise to any task.
+runs any of them under AC, EAC, Q-learning and SARSA. Nothing here imports JAX. Builders: `frozen_lake`,
+`cliff_walking`, `windy_gridworld`, `four_rooms`, `grid_task`; `with_slip` adds random-action noise.
 SPEC ids (G1…, E1…, B1…, R1…, X1…) are defined in docs/SPEC.md.
 """
 
@@ -69,9 +68,8 @@ class TabularTask:
         """float64 [S]: ‖s − g‖₂ on the grid (E5's shaped r̃), or None without a grid goal."""
         if self.goal is None or self.shape is None:
             return None
-        height, width = self.shape
-        ys, xs = np.divmod(np.arange(self.n_states), width)
-        gy, gx = divmod(self.goal, width)
+        ys, xs = np.divmod(np.arange(self.n_states), self.shape[1])
+        gy, gx = divmod(self.goal, self.shape[1])
         return np.hypot(xs - gx, ys - gy)
 
 
@@ -371,8 +369,8 @@ def with_slip(task: TabularTask, p: float) -> TabularTask:
     """`task` where, with probability `p`, the executed action is drawn uniformly from all A actions
     instead of the chosen one: the chosen action's outcomes get weight 1 − p + p/A, every other
     action's p/A. Outcome lists are concatenated, not merged (K' = A·K): the chosen action's first,
-    then those of actions 0 … A−1 without it. ``p = 0`` returns `task` itself; the name gets
-    ``-slip<p>``. A p outside [0, 1] is a `UsageError`.
+    then those of actions 0 … A−1 without it. ``p = 0`` returns `task` itself; the name gets ``-slip<p>``.
+    A p outside [0, 1] is a `UsageError`.
     """
     try:
         value = float(p)

@@ -23,7 +23,15 @@ from jaxeac.algorithm.config import Hyper
 from jaxeac.errors import UsageError, check_int
 from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key, seed_words
 from jaxeac.running.config import RunConfig, auto_chunk_size
-from jaxeac.running.loops import Env, check_run_args, flat_batch, trials_batch
+from jaxeac.running.loops import (
+    Env,
+    bind_inputs,
+    check_run_args,
+    flat_batch,
+    program_inputs,
+    program_key,
+    trials_batch,
+)
 from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
 from jaxeac.runtime import trim_host_memory
 
@@ -36,23 +44,26 @@ def seed_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
 
 
 def make_batch_run(env: Env, cfg: RunConfig, mesh: Mesh | None = None) -> Callable:
-    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M]) -> BatchOutput [M, ...]``.
+    """jit over a chunk: ``(root_key, seeds [M], hyper with leaves [M], tables) -> BatchOutput [M, ...]``;
+    `tables`: the env's `program_inputs` (a tabular task's tables; one program serves every task of
+    its layout), ``{}`` for an env whose tables are part of the program.
 
     With a `mesh`, the chunk is split over its ``seeds`` axis with `shard_map`: each
     device runs its own seeds with no communication (seeds are independent, R1).
     """
     cfg = cfg.resolve(env)
 
-    def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper) -> BatchOutput:
+    def batch(root_key: jax.Array, seeds: jax.Array, hyper: Hyper, tables: dict) -> BatchOutput:
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root_key, seeds)
+        bound = bind_inputs(env, tables)
         if cfg.loop == "trials":
-            return trials_batch(env, cfg, keys, hyper)
-        return flat_batch(env, cfg, jax.vmap(seed_words)(keys), hyper)
+            return trials_batch(bound, cfg, keys, hyper)
+        return flat_batch(bound, cfg, jax.vmap(seed_words)(keys), hyper)
 
     if mesh is not None:
         split = PartitionSpec(SEEDS_AXIS)
-        batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), split, split), out_specs=split,
-                              check_vma=False)  # per-seed loops: no collectives to check
+        batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), split, split, PartitionSpec()),
+                              out_specs=split, check_vma=False)  # per-seed loops: no collectives to check
     return jax.jit(batch)
 
 
@@ -120,11 +131,11 @@ def _check_configs(env, cfgs) -> list:
 
 
 def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
-    """(compiled chunk program, seconds this call spent compiling it) for this env object, config,
-    devices and chunk shape, compiled once: a later caller, on any thread, waits for the first
-    and gets 0 seconds (cached)."""
+    """(compiled chunk program, seconds this call spent compiling it) for this env (`program_key`: its
+    object, or a tabular task's layout), config, devices and chunk shape, compiled once: a later
+    caller, on any thread, waits for the first and gets 0 seconds (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
-    key = (env, cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
+    key = (program_key(env), cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
     with _COMPILED_LOCK:
         future, mine = _COMPILED.get(key), False
         if future is None:
@@ -136,7 +147,7 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
     try:
         t0 = time.perf_counter()
         mesh = seed_mesh(devices) if len(devices) > 1 else None
-        program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper).compile()
+        program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper, program_inputs(env)).compile()
         seconds = time.perf_counter() - t0
         trim_host_memory()
         future.set_result((program, seconds))
@@ -167,6 +178,7 @@ class _Entries:
             raise UsageError("seeds is empty; pass at least one seed index")
         self.devices, self.chunk_size = _plan(env, cfg, n, chunk_size, devices)
         self.n, self.seeds, self.root = n, seeds, jax.random.key(root_key)
+        self.tables, self.n_states = program_inputs(env), env.n_states
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
         _, seeds0, hyper0 = self.chunk_inputs(0)
         self.compiled, self.compile_seconds = _compiled(env, cfg, tuple(self.devices), self.root, seeds0,
@@ -186,13 +198,15 @@ class _Entries:
         if start == 0:
             self.first_dispatch = time.perf_counter()
         size, chunk_seeds, chunk_hyper = self.chunk_inputs(start)
-        out = self.compiled(self.root, chunk_seeds, chunk_hyper)
+        out = self.compiled(self.root, chunk_seeds, chunk_hyper, self.tables)
         for leaf in jax.tree.leaves(out):
             leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
         return start, size, out
 
     def collect(self, start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor, progress) -> None:
         host = jax.tree.map(lambda x: np.asarray(x)[:size], jax.device_get(out))  # padding dropped
+        if host.policy.shape[1] != self.n_states:  # tables padded to a layout (`program_inputs`)
+            host = host.replace(policy=host.policy[:, :self.n_states])
         self.collector.add(start, host, pool)
         self.last_collect = time.perf_counter()
         if progress is not None:

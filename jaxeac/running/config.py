@@ -180,7 +180,8 @@ def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
 
     A jump needs what makes it exact: a deterministic environment, a success memory that
     chooses (E1 a) without learning (E2), and the flat loop (XLA ops or the fused kernel)."""
-    if not getattr(env, "deterministic", False):
+    gated = getattr(getattr(env, "layout", None), "gated_jumps", False)  # per task (`TableLayout`)
+    if not (getattr(env, "deterministic", False) or gated):
         return "memory jumps need a deterministic environment"
     if not cfg.agent.success_memory:
         return "memory jumps follow the success memory, which this algorithm does not keep"

@@ -29,7 +29,7 @@ from jaxeac.algorithm.config import AgentConfig, Hyper
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key
 from jaxeac.running.config import RunConfig
-from jaxeac.running.loops import Env, state_bytes_per_seed, trace_run
+from jaxeac.running.loops import Env, bind_inputs, program_inputs, program_key, state_bytes_per_seed, trace_run
 from jaxeac.running.outputs import KEEP_LOGS
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
@@ -114,13 +114,27 @@ def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
     return SeedDiagnostics(route_sums(records.route), *flag_counts(pairs, best), records.success)
 
 
-@functools.lru_cache(maxsize=16)
 def _program(env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
-    """jit over a chunk of seeds: ``(root, seeds [M], hyper, best) -> SeedDiagnostics [M]``,
-    split over `n_devices` local devices (seeds are independent, R1)."""
-    def batch(root, seeds, hyper, best):
+    """jit over a chunk of seeds: ``(root, seeds [M], hyper, best, tables) -> SeedDiagnostics [M]``,
+    split over `n_devices` local devices (seeds are independent, R1); one per `program_key` (a
+    tabular task's tables are its inputs: tasks of one layout share it)."""
+    return _keyed_program(program_key(env), env, cfg, has_best, n_devices)
+
+
+_PROGRAMS: dict = {}
+
+
+def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
+    whole = (key, cfg, has_best, n_devices)
+    if whole in _PROGRAMS:
+        return _PROGRAMS[whole]
+    if len(_PROGRAMS) >= 16:
+        _PROGRAMS.clear()
+
+    def batch(root, seeds, hyper, best, tables):
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root, seeds)
-        return jax.vmap(lambda k: seed_diagnostics(env, cfg, k, hyper, best if has_best else None))(keys)
+        bound = bind_inputs(env, tables)
+        return jax.vmap(lambda k: seed_diagnostics(bound, cfg, k, hyper, best if has_best else None))(keys)
 
     if n_devices > 1:
         from jax.sharding import PartitionSpec
@@ -129,9 +143,10 @@ def _program(env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
 
         mesh = seed_mesh(jax.local_devices()[:n_devices])
         batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(SEEDS_AXIS),
-                                                          PartitionSpec(), PartitionSpec()),
+                                                          PartitionSpec(), PartitionSpec(), PartitionSpec()),
                               out_specs=PartitionSpec(SEEDS_AXIS), check_vma=False)
-    return jax.jit(batch)
+    _PROGRAMS[whole] = program = jax.jit(batch)
+    return program
 
 
 def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
@@ -156,12 +171,16 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
     chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
     chunk = -(-chunk // n_devices) * n_devices
     program = _program(env, cfg, best is not None, n_devices)
-    best_arg = jnp.asarray(best, bool) if best is not None else jnp.zeros((), bool)
+    best_arg = jnp.zeros((), bool)
+    if best is not None:  # padded states (a tabular layout's, `bind_inputs`) have no best action
+        n_padded = bind_inputs(env, program_inputs(env)).n_states
+        best_arg = jnp.asarray(np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0))))
+    tables = program_inputs(env)
     parts = []
     for start in range(0, seeds.size, chunk):
         part = seeds[start:start + chunk]
         padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
-        out = jax.device_get(program(root, padded, hyper, best_arg))
+        out = jax.device_get(program(root, padded, hyper, best_arg, tables))
         parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 

@@ -124,6 +124,9 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
             walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
             to_goal = walked - visit_chance
             jump = live & known & (walked > 0)
+            gate = getattr(tables, "jump_gate", None)  # tables as inputs: exact on this task?
+            if gate is not None and (exact := gate(env_refs, trial)) is not None:
+                jump = jump & exact
             active = live & ~jump
         if agent.failure_memory:
             flags = [(failed_bits >> a) & 1 == 1 for a in range(n_actions)]

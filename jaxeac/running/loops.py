@@ -162,6 +162,31 @@ def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
                         length=cfg.trials)
 
 
+def program_key(env: Env):
+    """What a compiled program of `env` depends on: its `program_key()` where its tables are the
+    program's inputs (`jaxeac.envs.tabular.TabularEnv`: tasks of one layout share a program), else
+    the environment itself."""
+    key = getattr(env, "program_key", None)
+    return key() if key is not None else env
+
+
+def program_inputs(env: Env) -> dict:
+    """The tables a compiled program of `env` takes as arguments (empty: they are part of it)."""
+    inputs = getattr(env, "program_inputs", None)
+    return inputs() if inputs is not None else {}
+
+
+def bind_inputs(env: Env, inputs: dict) -> Env:
+    """`env` as its compiled program sees it: reading `inputs` (traced) as its tables."""
+    return env.bind(inputs) if inputs else env
+
+
+def jump_gate(env: Env):
+    """bool [] (traced) where memory jumps are switched on per task by its tables, else None."""
+    gate = getattr(env, "jump_gate", None)
+    return gate() if gate is not None else None
+
+
 def check_run_args(env: Env, cfg: RunConfig, hyper: Hyper | None = None) -> None:
     """The per-seed functions' arguments: TypeError naming the one that is not what they take
     (values are checked where they are made: `RunConfig`, `jaxeac.make`)."""
@@ -225,6 +250,8 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         known = (remembered >= 0) & (visit_trial >= 0) & (walked > 0)
         to_goal = walked - visit_chance  # h: chances from s to the goal
         jump = active & known
+        if (gate := jump_gate(env)) is not None:  # tables as inputs: exact on this task?
+            jump = jump & gate
         takes = active & ~jump
         before = shadow = None
         if jumps.shadow is not None:  # E6 reads trial t−1's r̃ at c: on its path past its jump

@@ -1,0 +1,85 @@
+"""Tabular tasks as data (X1): a task's tables are inputs of its compiled program, padded to a layout
+shared by a group of tasks, so one program per algorithm (and C) serves every task of the group, on
+the XLA loop and in the fused kernel, with each task's own per-seed results (R2)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jaxeac.algorithm.config import algorithm
+from jaxeac.envs import make
+from jaxeac.envs.tabular import TableLayout, TabularEnv
+from jaxeac.errors import UsageError
+from jaxeac.running import batch
+from jaxeac.running.batch import run_algorithms, run_seeds
+from jaxeac.running.config import RunConfig
+
+#: Same C (100), same actions: a deterministic task with jumps, a stochastic one (K = 3), a bigger one.
+GROUP = ("FrozenLake-4x4-v1", "FrozenLake-4x4-slippery-v1", "CliffWalking-v1")
+ALGOS = ("ac", "eac", "eac_within_trial", "q_learning")
+
+
+def _plain(name: str, chances: int | None = None) -> TabularEnv:
+    return TabularEnv(make(name).task, chances)
+
+
+def _padded(names, chances: int | None = None) -> list[TabularEnv]:
+    plain = [_plain(n, chances) for n in names]
+    layout = TableLayout.covering(plain)
+    return [env.padded(layout) for env in plain]
+
+
+def _same(a, b):
+    np.testing.assert_array_equal(a.success, b.success)
+    np.testing.assert_array_equal(a.steps, b.steps)
+    np.testing.assert_array_equal(a.policy, b.policy)
+
+
+def test_layout_covers_the_group_and_gates_jumps():
+    envs = _padded(GROUP)
+    layout = envs[0].layout
+    assert layout == TableLayout(states=48, outcomes=3, starts=1, gated_jumps=True)
+    assert [env.n_states for env in envs] == [16, 16, 48]  # the task's own, outside the program
+    assert len({env.program_key() for env in envs}) == 1
+    assert {RunConfig(trials=20, agent=algorithm("eac")).resolve(env).jump for env in envs} == {"on"}
+    with pytest.raises(UsageError, match="does not hold its tables"):
+        _plain("CliffWalking-v1").padded(TableLayout(16, 1, 1))
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_padded_tables_give_each_task_its_own_results(algo):
+    """Padded states are never entered, padded outcomes never drawn, and the jump gate keeps the
+    stochastic task's steps: each task's seeds as with its own tables (policies of its own states)."""
+    cfg = RunConfig(trials=30, agent=algorithm(algo))
+    for name, env in zip(GROUP, _padded(GROUP), strict=True):
+        _same(run_seeds(env, cfg, root_key=4, n_seeds=20, chunk_size=10),
+              run_seeds(_plain(name), cfg, root_key=4, n_seeds=20, chunk_size=10))
+
+
+def test_one_program_per_algorithm_serves_every_task(monkeypatch):
+    """Three tasks × four algorithms compile four programs: the first task's; the others reuse them."""
+    built = []
+    make_batch_run = batch.make_batch_run
+    monkeypatch.setattr(batch, "make_batch_run", lambda *a, **k: built.append(a[1]) or make_batch_run(*a, **k))
+    batch._COMPILED.clear()
+    cfgs = [RunConfig(trials=20, agent=algorithm(a)) for a in ALGOS]
+    compile_seconds = []
+    for env in _padded(GROUP):
+        runs = run_algorithms(env, cfgs, root_key=1, n_seeds=12, chunk_size=12)
+        compile_seconds.append([r.compile_seconds for r in runs])
+    assert len(built) == len(ALGOS)
+    assert all(s > 0 for s in compile_seconds[0]) and not any(compile_seconds[1] + compile_seconds[2])
+
+
+@pytest.mark.parametrize("algo", ["ac", "eac"])
+def test_kernel_runs_padded_tables_as_the_xla_loop(algo):
+    """The fused kernel (Pallas's interpreter here) reads the padded tables and the jump gate as
+    `TabularEnv` does: the same per-seed successes and steps, equal to the task's own run."""
+    for name, env in zip(GROUP[:2], _padded(GROUP, chances=30)[:2], strict=True):
+        runs = [run_seeds(e, RunConfig(trials=15, agent=algorithm(algo, tables="rows"), kernel=k, lanes=128),
+                          root_key=6, n_seeds=128, chunk_size=128)
+                for e, k in ((env, "pallas"), (env, "xla"), (_plain(name, 30), "xla"))]
+        for other in runs[1:]:
+            np.testing.assert_array_equal(runs[0].success, other.success)
+            np.testing.assert_array_equal(runs[0].steps, other.steps)
