@@ -473,6 +473,15 @@ def test_policy_figure_of_a_large_map_draws_no_arrow_per_cell(tmp_path, monkeypa
     (["study", "--tasks", "FrozenLake-4x4-v1:slip=2"], r"slip must lie in \[0, 1\]"),
     (["study", "--tasks", "FrozenLake-4x4-v1:wind=2"], "write NAME or NAME:slip=P"),
     (["study", "--algos", "eac", "sarsa"], "--algos must include ac"),
+    # refused before anything runs or is written (issue 40): no comparison could come of these
+    (["study", "--algos", "ac"], "--algos ac: a study compares algorithms with ac"),
+    (["study", "--seeds", "1"], "--seeds 1: a comparison needs at least 2 seeds"),
+    (["study", "--tasks", "FrozenLake-4x4-v1", "FrozenLake-4x4-v1:slip=0"], "--tasks names one task twice"),
+    (["study", "--tasks", "CliffWalking-v1:slip=0.1", "CliffWalking-v1:slip=0.10"], "names one task twice"),
+    (["study", "--tasks", "FrozenLake-4x4-v1", "FrozenLake-4x4-v1"], "--tasks names one task twice"),
+    (["study", "--tasks", "FrozenLake-4x4-v1:"], "--tasks: task 'FrozenLake-4x4-v1:': nothing after ':'"),
+    (["study", "--resamples", "100"], "--resamples 100 is too few"),
+    (["run", "--seeds", "1"], "--seeds 1: a run reports each algorithm's mean with a 95% CI"),
     (["study", "--tasks", "FourRooms-v0", "--seeds", "2000000000"], "this run (cannot fit in memory|could take far too long)"),
 ])
 def test_bad_environment_input_is_refused(capsys, tmp_path, monkeypatch, argv, match):

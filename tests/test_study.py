@@ -39,7 +39,8 @@ def test_study_compares_every_algorithm_with_ac_and_holm_spans_the_family(study)
         "grid-paper7-v0", 0.2, 40)
     report = (out / "report.md").read_text()
     assert "## FrozenLake-4x4-v1" in report and "| sarsa |" in report and "(4 comparisons)" in report
-    assert (out / "fig_grid-paper7-v0-slip0.2.png").stat().st_size > 1000
+    assert (out / "fig_study.png").stat().st_size > 1000  # one figure, a panel per task
+    assert "![every task: cumulative successes per trial](fig_study.png)" in report
 
 
 def test_study_rerun_reuses_the_task_folders(study):
@@ -82,3 +83,26 @@ def test_study_command_shows_progress_within_a_task_and_a_summary(tmp_path, caps
     captured = capsys.readouterr()
     assert "study: task 1/1 FrozenLake-4x4-v1 (2 algorithms)" in captured.err and "32/32" in captured.err
     assert "mean successes per seed (10 trials)" in captured.out and "FrozenLake-4x4-v1" in captured.out
+
+
+def test_study_compiles_one_program_per_algorithm_for_tasks_of_one_chance_budget(tmp_path, monkeypatch):
+    """Three tasks with C = 100 (a deterministic one, a stochastic one, a larger one): each algorithm's
+    run compiles once and E8's trials loop of eac once, for all three tasks (tables as inputs)."""
+    from jaxeac.running import batch, diagnostics
+
+    built, diagnosed = [], []
+    make_batch_run, keyed = batch.make_batch_run, diagnostics._keyed_program
+    monkeypatch.setattr(batch, "make_batch_run", lambda *a, **k: built.append(a[1].agent) or make_batch_run(*a, **k))
+    monkeypatch.setattr(diagnostics, "_keyed_program",
+                        lambda key, *a: (key in [d[0] for d in diagnosed] or diagnosed.append((key, a[1]))) and False
+                        or keyed(key, *a))
+    batch._COMPILED.clear()
+    diagnostics._PROGRAMS.clear()
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1", "FrozenLake-4x4-slippery-v1", "CliffWalking-v1"),
+                             algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
+    result = run_study(settings, tmp_path, progress=False)
+    assert len(built) == 2 and len(diagnosed) == 1
+    assert result["comparisons_in_family"] == 3
+    for task in settings.tasks:  # each task's folder: its own states' policies, its own config
+        summary = json.loads((tmp_path / "tasks" / task / "summary.json").read_text())
+        assert summary["config"]["env"] == task and "memory_diagnostics" in summary

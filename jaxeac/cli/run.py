@@ -56,6 +56,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from jaxeac.experiments.pipeline import run_and_compare
 
     settings = grid_settings(args).resolved()
+    if settings.seeds < 2:
+        raise UsageError(f"--seeds {settings.seeds}: a run reports each algorithm's mean with a 95% CI, "
+                         "which needs at least 2 seeds (e.g. --seeds 100)")
     env = settings.make_env()  # a bad map or environment fails here, before any compute
     if args.process_id >= args.num_processes:
         raise UsageError(f"--process-id {args.process_id} must be below --num-processes {args.num_processes}")

@@ -10,9 +10,16 @@ Per comparison: mean successes of 200 trials (the primary measure, SPEC §6) wit
 CI, the difference from AC with a BCa CI, Hedges' g, the IQM and the probability of
 improvement (`jaxeac.stats.tidy.compare_samples`). Results are what the run found.
 
-A task's run folder is kept under ``tasks/`` and reused by a rerun with the same settings,
-so a study killed midway resumes where it stopped; ``study.json``, ``report.md`` and one
-figure per task (``fig_<task>.png``) are written when every task is done.
+Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
+compiled programs (`jaxeac.envs.tabular.TableLayout`), padded to the largest task of its group
+(tasks with the same C), so one program per algorithm and C serves every task of the group
+(the run's and E8's); the figure is drawn once, a panel per task.
+
+A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chunk at a time)
+and reused by a rerun with the same settings, so a study killed midway resumes where it
+stopped. Tasks are compared one at a time as they finish, keeping only their statistics and
+success curves' counts, so host memory does not grow with the number of tasks;
+``study.json``, ``report.md`` and ``fig_study.png`` are written when every task is done.
 """
 
 from __future__ import annotations
@@ -42,8 +49,10 @@ def parse_task(text: str) -> tuple[str, float]:
     """``NAME`` or ``NAME:slip=P`` → (name, slip); bad forms and unknown names are `UsageError`s."""
     from jaxeac.envs import registered
 
-    name, _, option = text.partition(":")
+    name, colon, option = text.partition(":")
     slip = 0.0
+    if colon and not option:
+        raise UsageError(f"task {text!r}: nothing after ':'; write NAME or NAME:slip=P (e.g. grid-paper-v0:slip=0.1)")
     if option:
         key, _, value = option.partition("=")
         if key != "slip" or not value:
@@ -78,22 +87,36 @@ class StudySettings:
         if not self.tasks:
             raise UsageError("no tasks; name at least one (see `jaxeac.registered()`)")
         for task in self.tasks:
-            parse_task(task)
-        if len(set(self.tasks)) != len(self.tasks):
-            raise UsageError("a task is listed twice; list each once")
+            try:
+                parse_task(task)
+            except UsageError as exc:
+                raise UsageError(f"--tasks: {exc}") from None
+        seen: dict = {}
+        for task in self.tasks:  # `T`, `T:slip=0` and `T:slip=0.0` are one task
+            if (same := seen.setdefault(parse_task(task), task)) != task or list(self.tasks).count(task) > 1:
+                raise UsageError(f"--tasks names one task twice ({same!r} and {task!r}); list each once")
         check_algos(self.algos)
         if "ac" not in self.algos:
             raise UsageError("a study compares every algorithm with ac: --algos must include ac")
+        if len(set(self.algos)) < 2:
+            raise UsageError(f"--algos {' '.join(self.algos)}: a study compares algorithms with ac; "
+                             "name ac and at least one other (e.g. --algos ac eac)")
         check_positive_int("seeds", self.seeds)
+        if self.seeds < 2:
+            raise UsageError(f"--seeds {self.seeds}: a comparison needs at least 2 seeds per algorithm "
+                             "(e.g. --seeds 100)")
         check_positive_int("resamples", self.resamples)
+        from jaxeac.stats.engine import check_resamples
+
+        check_resamples(self.resamples, 0.95)  # too few for the CIs: refused here, not after the runs
         check_key(self.key)
         self.task_settings(self.tasks[0])  # rates and sizes checked once, as a task will use them
 
     def task_settings(self, task: str) -> GridSettings:
         name, slip = parse_task(task)
-        return GridSettings(env=name, slip=slip, algos=tuple(self.algos), seeds=self.seeds, trials=self.trials,
-                            key=self.key, epsilon=self.epsilon, chunk_size=self.chunk_size,
-                            lanes=self.lanes).resolved()
+        return GridSettings(env=name, slip=slip, algos=tuple(self.algos), seeds=self.seeds,
+                            trials=self.trials, key=self.key, epsilon=self.epsilon,
+                            chunk_size=self.chunk_size, lanes=self.lanes).resolved()
 
 
 def folder_name(task: str) -> str:
@@ -101,12 +124,52 @@ def folder_name(task: str) -> str:
     return task.replace(":slip=", "-slip")
 
 
+@dataclasses.dataclass(frozen=True)
+class _TaskSettings(GridSettings):
+    """A study task's `GridSettings` (the same fields, so its run folder's config is a plain grid
+    run's) whose environment is the task's tables padded to its group's layout (`task_envs`)."""
+
+    def make_env(self):
+        return self.__dict__.get("_env") or GridSettings.make_env(self)
+
+    @classmethod
+    def of(cls, grid: GridSettings, env) -> _TaskSettings:
+        out = cls(**{f.name: getattr(grid, f.name) for f in dataclasses.fields(GridSettings)})
+        object.__setattr__(out, "_env", env)
+        return out
+
+
+def task_envs(grids: dict[str, GridSettings]) -> dict:
+    """Each task's environment, its tables padded to the `TableLayout` covering every task with its
+    C, actions and r̃ rule (the paper grid as its table, `grid_task`: the same runs), so one compiled
+    program per algorithm serves all of them. Environments without tables are left as they are."""
+    from jaxeac.envs.grid import GridWorld
+    from jaxeac.envs.tabular import TableLayout, TabularEnv
+    from jaxeac.envs.tasks import grid_task
+
+    envs = {}
+    for task, grid in grids.items():
+        env = grid.make_env()
+        if isinstance(env, GridWorld):
+            env = TabularEnv(grid_task(env.map, env.n_chances, name=grid.env))
+        envs[task] = env
+    groups: dict = {}
+    for task, env in envs.items():
+        if isinstance(env, TabularEnv):
+            groups.setdefault((env.n_actions, env.n_chances, env.rtilde_rule), []).append(task)
+    for tasks in groups.values():
+        layout = TableLayout.covering([envs[t] for t in tasks])
+        for t in tasks:
+            envs[t] = envs[t].padded(layout)
+    return envs
+
+
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
               on_task: Callable[[str, dict], None] | None = None) -> dict:
-    """Run (or reuse) every task's run folder, compare, and write study.json, report.md, figures."""
-    from jaxeac import plots
+    """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure."""
     from jaxeac.experiments.grid import run_grid_to_folder
     from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
+    from jaxeac.plots import cumulative_counts
     from jaxeac.results import OutputOptions
     from jaxeac.stats import holm
     from jaxeac.stats.tidy import compare_samples
@@ -115,24 +178,29 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     out = Path(out)
     from tqdm import tqdm
 
-    tasks = {}
+    grids = {task: settings.task_settings(task) for task in settings.tasks}
+    envs = task_envs(grids)
+    rows, per_task, curves = [], {}, {}
     n = len(settings.tasks)
-    for k, task in enumerate(settings.tasks, 1):
-        grid = settings.task_settings(task)
+    for i, task in enumerate(settings.tasks):
+        grid = _TaskSettings.of(grids[task], envs[task])
         folder = out / "tasks" / folder_name(task)
         if finished_run(folder, plain_json(dataclasses.asdict(grid))):
             if progress:
-                print(f"study: task {k}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
+                print(f"study: task {i + 1}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
                       flush=True)
         else:
             with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
-                      desc=f"study: task {k}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
+                      desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
                 run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds), figures=False,
                                    progress=bar.update)
-        tasks[task] = (grid, _successes(folder, grid))
-    rows, figures, per_task = [], {}, {}
-    for i, (task, (grid, success)) in enumerate(tasks.items()):
+        # One task's curves in memory at a time: its statistics and the figure's counts ([T, T + 1]).
+        success = _successes(folder, grid)
+        curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
         samples = {a: success[a].sum(axis=1) for a in grid.algos}
+        del success
+        # Per task, as before; the statistics engine's pass over all tasks (with the aggregate
+        # across tasks) takes the tasks' samples here.
         stats = compare_samples(samples, baseline="ac", resamples=settings.resamples, key=settings.key + i)
         per_task[task] = {"env": grid.env, "slip": grid.slip, "chances": grid.chances, "trials": grid.trials,
                           "algorithms": stats["algorithms"]}
@@ -142,7 +210,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             on_task(task, per_task[task])
     for row, p in zip(rows, holm([r["p_welch"] for r in rows]) if rows else [], strict=True):
         row["p_holm"] = float(p)
-    first = settings.task_settings(settings.tasks[0])
+    first = grids[settings.tasks[0]]
     result = {
         "family": "every algorithm but ac against ac, on every task; Holm across all of them",
         "comparisons_in_family": len(rows), "seeds": settings.seeds, "key": settings.key,
@@ -152,14 +220,54 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         "tasks": per_task, "comparisons": rows,
     }
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
-        for task, (_, success) in tasks.items():
-            name = f"fig_{folder_name(task)}.png"
-            plots.cumulative_success_figure(success, stage / name)
-            figures[task] = name
-        result["figures"] = figures
+        study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
+        result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
         atomic_write_json(stage / "study.json", result)
         atomic_write_text(stage / "report.md", report_markdown(result))
     return result
+
+
+STUDY_FIGURE = "fig_study.png"
+
+
+def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int, path: Path) -> None:
+    """One figure for the whole study: a panel per task, each algorithm's mean cumulative successes
+    over trials with a pointwise 95 % CI band, from the per-trial counts of the cumulative values
+    (`jaxeac.plots.cumulative_counts`, [T, T + 1] per algorithm: `curves[task][algo]`)."""
+    import matplotlib.pyplot as plt
+    from scipy import special
+
+    from jaxeac import style
+
+    cols = min(4, len(curves))
+    rows = -(-len(curves) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.9 * rows), squeeze=False)
+    for ax, (task, per_algo) in zip(axes.flat, curves.items(), strict=False):
+        for algo, counts in per_algo.items():
+            t = counts.shape[0]
+            values, trials = np.arange(t + 1), np.arange(1, t + 1)
+            mean = counts @ values / n
+            ax.plot(trials, mean, color=style.color(algo), lw=1.4, label=style.label(algo))
+            if n > 1:
+                sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
+                half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
+                ax.fill_between(trials, mean - half, mean + half, color=style.color(algo), alpha=0.25, lw=0)
+        ax.set_title(task, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(curves):]:
+        ax.axis("off")
+    for ax in axes[-1]:
+        ax.set_xlabel("trial", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("successes so far", fontsize=8)
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(8, len(labels)), fontsize=7,
+               title=f"mean cumulative successes of {n:,} seeds per algorithm (shaded: 95% CI of the mean)",
+               title_fontsize=7, bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, 0.08 if rows > 1 else 0.14, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _successes(folder: Path, grid: GridSettings) -> dict[str, np.ndarray]:
@@ -185,9 +293,12 @@ def report_markdown(result: dict) -> str:
     by_task: dict[str, list[dict]] = {}
     for row in result["comparisons"]:
         by_task.setdefault(row["task"], []).append(row)
+    figure = next(iter(result["figures"].values()), None)
+    if figure:
+        lines += [f"![every task: cumulative successes per trial]({figure})", ""]
     for task, info in result["tasks"].items():
         algos = info["algorithms"]
-        lines += [f"## {task}", "", f"C = {info['chances']} chances per trial. ![{task}]({result['figures'][task]})",
+        lines += [f"## {task}", "", f"C = {info['chances']} chances per trial.",
                   "", "| algorithm | mean successes | IQM [95% CI] | − AC [95% CI] | Hedges' g | P(> AC) | Holm p |",
                   "|---|---|---|---|---|---|---|"]
         ac = algos["ac"]
