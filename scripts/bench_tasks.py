@@ -10,6 +10,15 @@ Writes JSON; ``--render`` prints the BENCHMARKS.md table.
 
     python scripts/bench_tasks.py --seeds 10000 --out scripts/bench_results/cpu_tasks.json
     python scripts/bench_tasks.py --render scripts/bench_results/cpu_tasks.json
+
+``--study`` times whole commands instead, each in a fresh process with the persistent
+compilation cache off (first-run numbers), taking turns: `jaxeac study` of the first task
+alone, of all `--tasks`, and with ``--plain`` the same runs done plainly (`jaxeac run` of
+each task with every algorithm, their times added). Wall seconds and each process's peak
+resident memory:
+
+    python scripts/bench_tasks.py --study --tasks FrozenLake-4x4-v1 FrozenLake-4x4-slippery-v1 \
+        CliffWalking-v1 --seeds 200 --repeats 2 --out scripts/bench_results/cpu_study.json
 """
 
 from __future__ import annotations
@@ -49,6 +58,65 @@ def bench_task(task: str, algos: list[str], n_seeds: int, repeats: int, chunk: i
             "wall_s": sum(r["compile_s"] + r["run_s"] for r in rows), "rows": rows}
 
 
+def timed(argv: list[str]) -> tuple[float, float]:
+    """(wall seconds, peak resident GiB) of one command in a fresh process (compilation cache off)."""
+    import os
+    import subprocess
+    import time
+
+    env = {**os.environ, "JAXEAC_COMPILATION_CACHE": "off"}
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"failed ({status}): {' '.join(argv)}")
+    return wall, usage.ru_maxrss / 2**20  # KiB on Linux
+
+
+def bench_study(tasks: list[str], n_seeds: int, repeats: int, plain: bool, out_dir: Path) -> dict:
+    """`jaxeac study` of tasks[0] alone and of all tasks (and, with `plain`, `jaxeac run` of each),
+    taking turns `repeats` times; the best wall time of each."""
+    import shutil
+    import tempfile
+
+    from jaxeac.experiments.study import DEFAULT_ALGOS, parse_task
+
+    cli = [sys.executable, "-m", "jaxeac"]
+    work = Path(tempfile.mkdtemp(dir=out_dir))
+
+    def study(names):
+        return [[*cli, "study", "--tasks", *names, "--seeds", str(n_seeds), "--quiet", "--out", str(work / "s")]]
+
+    def runs():
+        cmds = []
+        for i, task in enumerate(tasks):
+            name, slip = parse_task(task)
+            cmds.append([*cli, "run", "--env", name, "--slip", str(slip), "--algos", *DEFAULT_ALGOS, "--seeds",
+                         str(n_seeds), "--quiet", "--out", str(work / f"r{i}")])
+        return cmds
+
+    variants = {"study_one": study(tasks[:1]), "study_all": study(tasks)} | ({"plain_all": runs()} if plain else {})
+    times: dict = {k: [] for k in variants}
+    rss: dict = {k: 0.0 for k in variants}
+    for _ in range(repeats):
+        for name, cmds in variants.items():
+            total = 0.0
+            for argv in cmds:
+                shutil.rmtree(work, ignore_errors=True)
+                wall, peak = timed(argv)
+                total, rss[name] = total + wall, max(rss[name], peak)
+            times[name].append(total)
+            print(f"{name}: {total:.1f} s, peak RSS {rss[name]:.2f} GiB", flush=True)
+    shutil.rmtree(work, ignore_errors=True)
+    best = {k: min(v) for k, v in times.items()}
+    rec = {"tasks": tasks, "seeds": n_seeds, "repeats": repeats, "wall_s": times, "best_s": best,
+           "peak_rss_gib": rss, "study_all_over_one": best["study_all"] / best["study_one"]}
+    if plain:
+        rec["study_all_over_plain"] = best["study_all"] / best["plain_all"]
+    return rec
+
+
 def render(paths: list[Path]) -> str:
     out = []
     for path in paths:
@@ -77,6 +145,9 @@ def main() -> None:
                         help="memory jumps (RunConfig.jump; default auto: wherever exact)")
     parser.add_argument("--lanes", type=int, default=None,
                         help="seeds in flight per device (RunConfig.lanes; default: automatic)")
+    parser.add_argument("--study", action="store_true",
+                        help="time `jaxeac study` of the first task against all --tasks (fresh processes)")
+    parser.add_argument("--plain", action="store_true", help="with --study: also `jaxeac run` of each task")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--render", nargs="+", type=Path, metavar="JSON")
     args = parser.parse_args()
@@ -90,6 +161,15 @@ def main() -> None:
     if args.seeds < 1 or args.repeats < 1:
         parser.error("--seeds and --repeats must be positive")
     tasks, algos = args.tasks or list(DEFAULT_TASKS), args.algos or list(DEFAULT_ALGOS)
+    if args.study:
+        rec = {"command": command_line(), "environment": environment(),
+               **bench_study(tasks, args.seeds, args.repeats, args.plain, Path(".").resolve())}
+        text = json.dumps(rec, indent=1)
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(text)
+        print(text)
+        return
     rec = {"command": command_line(), "environment": environment(), "seeds": args.seeds, "repeats": args.repeats,
            "algos": algos, "tasks": []}
     for task in tasks:
