@@ -100,12 +100,12 @@ def test_two_sample_parity_with_scipy():
 
 def _rliable_reference(scores: dict, reps: int, seed: int = 0):
     """rliable's definitions (Agarwal et al. 2021), written independently: aggregates over the
-    flattened [runs, tasks] scores, a stratified bootstrap of runs within each task, percentile
+    flattened [runs, tasks] scores (mean and median: of the per-task means), a stratified bootstrap of runs within each task, percentile
     intervals. The numbers of rliable itself: scripts/rliable_parity.py."""
     rng = np.random.default_rng(seed)
 
     def agg(s):
-        return {"mean": s.mean(), "median": np.median(s), "iqm": stats.trim_mean(s.reshape(-1), 0.25),
+        return {"mean": s.mean(0).mean(), "median": np.median(s.mean(0)), "iqm": stats.trim_mean(s.reshape(-1), 0.25),
                 "optimality_gap": 1 - np.minimum(s, 1).mean()}
 
     point = {a: agg(s) for a, s in scores.items()}
@@ -189,3 +189,85 @@ def test_multi_task_table_and_bad_input(tmp_path, capsys):
         assert "array(s); an rliable-style .npz needs one [runs, tasks] array per algorithm" in err
     with pytest.raises(ValueError, match="every task needs the same algorithms"):
         compare(PerSeed({"a": {"x": np.ones(3), "y": np.ones(3)}, "b": {"x": np.ones(3)}}, None, "", "arrays"))
+
+
+def test_wilson_bounds_exact_at_none_and_all():
+    from statsmodels.stats.proportion import proportion_confint
+
+    from jaxeac.stats import wilson_ci
+
+    assert wilson_ci(0, 200)[0] == 0.0 and wilson_ci(200, 200)[1] == 1.0
+    for count in (0, 1, 37, 199, 200):
+        ref = proportion_confint(count, 200, alpha=0.05, method="wilson")
+        assert wilson_ci(count, 200) == pytest.approx(ref, abs=1e-15)
+
+
+def test_plain_words_say_p_below_the_floor():
+    from jaxeac.fmt import p_is
+    from jaxeac.stats.report import plain_words
+
+    def renamed(obj):
+        if isinstance(obj, dict):
+            return {(k[:-2] if k.endswith("_ci95") or k == "ci95" else k): renamed(v) for k, v in obj.items()}
+        return obj
+
+    stats = renamed(json.loads(PINNED.read_text()))
+    assert stats["primary"]["p_holm"] == 0.0
+    text = plain_words(stats)
+    assert "Holm-adjusted p < 1e-4)" in text and "p = <" not in text
+    assert p_is(0.0139) == "p = 0.0139" and p_is(2e-5) == "p < 1e-4" and p_is(None) == "p = —"
+
+
+def test_aggregates_agree_with_rliable_itself():
+    """rliable's own numbers on fixed data (tests/data/make_rliable_reference.py says how they
+    were made): point estimates identical; 95 % intervals and profile bands within Monte-Carlo
+    error (rliable: 50,000 stratified resamples, 10,000 for the pairs and profiles)."""
+    ref = json.loads((PINNED.parent / "rliable_reference.json").read_text())
+    tasks = list(ref["scores"])
+    algos = list(ref["scores"][tasks[0]])
+    runs = {a: np.stack([ref["scores"][t][a] for t in tasks], 1) for a in algos}  # rliable's [runs, tasks]
+    reference = {f"task{j}": ref["reference"][t] for j, t in enumerate(tasks)}
+    res = compare(runs, baseline="A", resamples=20_000, key=3, normalize="minmax",
+                  reference_scores=reference, profile_points=ref["tau"])
+    agg = res.aggregate
+    assert agg["profiles"]["tau"] == ref["tau"]
+    for a in algos:
+        for k, want in ref["algorithms"][a].items():
+            got = agg["algorithms"][a][k]
+            assert got["estimate"] == pytest.approx(want["estimate"], rel=1e-12, abs=1e-15), (a, k)
+            width = want["ci"][1] - want["ci"][0]
+            assert got["ci"] == pytest.approx(want["ci"], abs=0.06 * width), (a, k)
+        prof, want = agg["profiles"][a], ref["profiles"][a]
+        assert prof["share"] == pytest.approx(want["share"], abs=1e-12)
+        assert prof["low"] == pytest.approx(want["low"], abs=0.05) and prof["high"] == pytest.approx(want["high"], abs=0.05)
+    for want in ref["pairs"]:
+        (got,) = [p for p in agg["pairs"] if (p["x"], p["y"]) == (want["x"], want["y"])]
+        assert got["estimate"] == pytest.approx(want["estimate"], rel=1e-12)
+        width = want["ci"][1] - want["ci"][0]
+        assert got["ci"] == pytest.approx(want["ci"], abs=0.06 * width)
+
+
+def test_tables_refused_before_reading(tmp_path, capsys):
+    """A text table over the size limit is refused from its size alone (nothing read), a first
+    line too long to be a header is quoted only in a short excerpt, and resamples too few for
+    the level's tails are refused."""
+    from jaxeac.stats.inputs import MAX_TEXT_BYTES
+
+    big = tmp_path / "big.csv"
+    with open(big, "wb") as fh:  # sparse: a header, then a hole past the limit
+        fh.write(b"algo,seed,value\n")
+        fh.truncate(MAX_TEXT_BYTES + (1 << 20))
+    assert main(["compare", "--table", str(big)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "1.0 GiB" in err and "Parquet" in err
+    long_line = tmp_path / "line.csv"
+    long_line.write_text("x" * 300_000)
+    assert main(["compare", "--table", str(long_line)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < 400 and "first line" in err
+    table = tmp_path / "t.csv"
+    table.write_text("algo,seed,value\n" + "".join(f"{a},{s},{s * (a == 'b')}\n" for a in "ab" for s in range(5)))
+    for few in ("1", "2"):
+        assert main(["compare", "--table", str(table), "--resamples", few, "--out", str(tmp_path / "o")]) == 2
+        assert "too few" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

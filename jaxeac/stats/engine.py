@@ -35,13 +35,16 @@ from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
 from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, read_any
-from jaxeac.stats.resample import boot_counts
+from jaxeac.stats.resample import boot_counts, cumulative
 from jaxeac.stats.result import Comparison
+from jaxeac.stats.tasks import wins_replicates
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
 PAIRED_STREAM = 1 << 20
 #: Each tail of an interval needs at least this many resamples beyond it.
 MIN_TAIL_RESAMPLES = 10
+#: Bootstrap counts kept for the aggregate across tasks (beyond, drawn again from the same keys).
+MAX_KEPT_BYTES = 1 << 30
 #: Unit resamples (resamples × seeds) a comparison may ask for: about an hour on a 2-core CPU.
 MAX_WORK = 2e11
 WORK_PER_SECOND = 5e7
@@ -155,7 +158,8 @@ def select(data: PerSeed, tasks=None, baseline=None, treatment=None) -> list[tup
 # ---------------------------------------------------------------- one group: a task's algorithm
 class Group:
     """One algorithm on one task: sorted values (raw) or distinct values with counts, and the
-    bootstrap counts over them [R, D] (float64), drawn by the group's path."""
+    bootstrap counts over them, units first, CT [D, R] float32 (exact integers), drawn by the
+    group's path; their cumulative counts and sums are computed once, on first use."""
 
     def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000):
         self.x = np.sort(np.asarray(x, np.float64))
@@ -164,27 +168,39 @@ class Group:
         self.path = resampling_path(self.n, distinct.size)
         if self.path == "raw draws":
             self.values, self.k = self.x, np.ones(self.n, np.int64)
-            self.C = boot_counts(key, self.n, resamples, chunk=chunk).astype(np.float64)
+            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True)
         elif self.path == "exact per-value counts":
             self.values, self.k = distinct, counts
-            self.C = large.multinomial_counts(large.host_rng(key), counts, resamples)
+            c = large.multinomial_counts(large.host_rng(key), counts, resamples)
+            self.CT = np.ascontiguousarray(c.T, np.float32)
         else:
-            self.values, self.k, self.C = distinct, counts, None
+            self.values, self.k, self.CT = distinct, counts, None
         self.mean = float(self.x.mean())
+        self._cum = self._sums = None
+
+    @property
+    def cum(self) -> np.ndarray:
+        """Cumulative counts [D + 1, R], row i the units below value i."""
+        if self._cum is None:
+            self._cum = cumulative(self.CT, zero_row=True)
+        return self._cum
 
     def sums(self):
-        return self.C @ self.values, self.C @ (self.values * self.values)
+        if self._sums is None:
+            s = np.stack([self.values, self.values * self.values]) @ self.CT.astype(np.float64)
+            self._sums = (s[0], s[1])
+        return self._sums
 
     def iqm(self, alpha: float) -> list[float]:
         est = float(np.mean(self.x[self.n // 4 : self.n - self.n // 4]))
-        if self.C is None:
+        if self.CT is None:
             return [est, *large.normal_bca(est, jackknife_iqm(self.x), alpha)]
         jk = (
             jackknife_iqm(self.x)
             if self.path == "raw draws"
             else large.jackknife_iqm_counts(self.k, self.values)
         )
-        star = large.iqm_from_counts(self.C, self.values)
+        star = large.iqm_from_counts(self.CT, self.values, units_first=True, cum=self.cum[1:])
         jk = [jk] if self.path == "raw draws" else [(jk, self.k)]
         return [est, *bca_interval(est, star, jk, alpha)]
 
@@ -200,9 +216,8 @@ def wins(gx: Group, gy: Group):
     nx, ny = gx.n, gy.n
     est = float(gx.k @ s / (nx * ny))
     star = None
-    if gx.C is not None and gy.C is not None:
-        cum = np.concatenate([np.zeros((gy.C.shape[0], 1)), np.cumsum(gy.C, axis=1)], axis=1)
-        star = np.einsum("ri,ri->r", gx.C, cum[:, lo] + 0.5 * (cum[:, hi] - cum[:, lo])) / (nx * ny)
+    if gx.CT is not None and gy.CT is not None:
+        star = wins_replicates(gx.values, gx.CT, gy.values, gy.cum, nx, ny)
     total = gx.k @ s
     jx = (total - s) / ((nx - 1) * ny)
     jy = (total - t) / (nx * (ny - 1))
@@ -223,7 +238,7 @@ def _normal_two(est, jks, alpha):
 def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
     """The unpaired comparison of one task's pair (X − Y)."""
     welch = cf.welch_t(gy.x, gx.x)
-    if gx.C is not None and gy.C is not None:
+    if gx.CT is not None and gy.CT is not None:
         sy, sx = gy.sums(), gx.sums()
         d = bca_two_sample_counts("mean_diff", gy.values, gy.k, gx.values, gx.k, *sy, *sx, alpha)
         diff_ci = [d.low, d.high]
@@ -264,8 +279,8 @@ def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key) -> dict:
         "p_paired_t": t.pvalue,
         "d_z": cf.d_z(d),
     }
-    if C is not None:
-        star = C @ d / n
+    if C is not None:  # C: the shared draw, units first [n, R]
+        star = d @ C.astype(np.float64) / n
         out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
         return out
     from jaxeac.stats.paired import paired_analysis
@@ -290,7 +305,7 @@ def compare(
     tasks=None,
     normalize: str | None = None,
     reference_scores: dict | None = None,
-    profile_points: int = 101,
+    profile_points=101,
     chunk: int = 1000,
 ) -> Comparison:
     """Compare per-seed results (see the module docstring); returns a `Comparison`.
@@ -300,7 +315,9 @@ def compare(
     of arrays. `paired`: "auto", "paired" (refuse unpaired designs) or "unpaired". `normalize`
     (several tasks): "minmax" with `reference_scores` {task: (low, high)}, "baseline" (divide by
     the baseline's mean on the task), or "none" (raw scores are on one scale); the aggregates
-    across tasks need one of them. Bad input raises `UsageError` (a `ValueError`)."""
+    across tasks need one of them; `profile_points`: the number of performance-profile thresholds
+    (evenly spread over the scores), or the thresholds. Bad input raises `UsageError` (a
+    `ValueError`)."""
     level = check_level(level)
     if paired not in ("auto", "paired", "unpaired"):
         raise UsageError(f"paired must be 'auto', 'paired' or 'unpaired' (got {excerpt(paired)})")
@@ -332,7 +349,9 @@ def compare(
     alpha = round(1 - level, 12)
     root = as_key(key)
     used = list(dict.fromkeys(a for p in family for a in p))
-    rows, algos, paths = [], [], {}
+    rows, algos, paths, drawn = [], [], {}, []
+    aggregating = len(per.tasks) > 1 and normalize is not None
+    keep = units * resamples * 4 <= MAX_KEPT_BYTES
     for i, task in enumerate(per.tasks):
         tkey = jax.random.fold_in(root, i)
         groups = {
@@ -357,6 +376,8 @@ def compare(
         shared, order = _shared_draw(
             per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples, chunk
         )
+        if aggregating:
+            drawn.append(_for_aggregate(per, task, tkey, groups, shared, order, resamples, chunk, keep))
         for x, y in family:
             row = {"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha)}
             if order is not None and x in order and y in order:
@@ -378,20 +399,18 @@ def compare(
     ):
         r["p_holm"], r["p_welch_holm"] = float(p), float(pw)
     aggregate_result = None
-    if len(per.tasks) > 1 and normalize is not None:
+    if aggregating:
         from jaxeac.stats.tasks import aggregate_across_tasks
 
         aggregate_result = aggregate_across_tasks(
             per,
             family,
             normalize=normalize,
+            drawn=drawn,
             reference=reference_scores,
             baseline=baseline,
-            key=jax.random.fold_in(root, 1 << 24),
-            resamples=resamples,
             level=level,
             points=profile_points,
-            shared=paired != "unpaired",
         )
     family_text = (
         "all pairs"
@@ -441,4 +460,22 @@ def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
     n = ref.size
     if resampling_path(n, n) != "raw draws":
         return None, order
-    return boot_counts(key, n, resamples, chunk=chunk).astype(np.float64), order
+    return boot_counts(key, n, resamples, chunk=chunk, units_first=True), order
+
+
+def _for_aggregate(per: PerSeed, task, tkey, groups, shared, order, resamples, chunk, keep):
+    """The task's draws for the aggregate across tasks: the shared draw where every algorithm ran
+    the same seed ids, else each group's own (drawn again from its key when not kept, by raw
+    draws where its path has none)."""
+    if shared is not None and len(order) == len(per.algos):
+        return {a: (order[a], shared) for a in per.algos}, True
+
+    def one(j, a):
+        g = groups[a] if keep else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples, chunk)
+        if g.CT is None:
+            return g.x, boot_counts(jax.random.fold_in(tkey, j), g.n, resamples, chunk=chunk, units_first=True)
+        return g.values, g.CT
+
+    if keep:
+        return {a: one(j, a) for j, a in enumerate(per.algos)}, False
+    return {a: (lambda j=j, a=a: one(j, a)) for j, a in enumerate(per.algos)}, False

@@ -67,14 +67,31 @@ def _counts(key, c, n: int, chunk: int):
 
 
 _counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk"))
+_counts_chunk_t = jax.jit(lambda key, c, n, chunk: _counts(key, c, n, chunk).T, static_argnames=("n", "chunk"))
 
 
-def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000) -> np.ndarray:
-    """Bootstrap resamples of n units as counts per unit, [resamples, n] float32: the draws
-    `bootstrap_sums` makes under the same key (so its sums are these counts times the rows)."""
+def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: bool = False) -> np.ndarray:
+    """Bootstrap resamples of n units as counts per unit, [resamples, n] float32 ([n, resamples]
+    with `units_first`, the layout in which cumulative counts over units and row gathers are fast
+    in NumPy): the draws `bootstrap_sums` makes under the same key (so its sums are these counts
+    times the rows)."""
     chunk = _cap(chunk, resamples, n)
+    if units_first:
+        parts = [_counts_chunk_t(key, c, n, chunk) for c in range(-(-resamples // chunk))]
+        return np.concatenate([np.asarray(p) for p in parts], axis=1)[:, :resamples]
     parts = [_counts_chunk(key, c, n, chunk) for c in range(-(-resamples // chunk))]
     return np.concatenate([np.asarray(p) for p in parts])[:resamples]
+
+
+def cumulative(ct: np.ndarray, *, zero_row: bool = False) -> np.ndarray:
+    """Inclusive cumulative sums over the rows of ct [D, R] (units first), row by row: NumPy's
+    cumsum along axis 0 is several times slower; the additions are in the same order. With
+    `zero_row` a row of zeros leads, so row i holds the sum of the first i rows."""
+    out = np.empty((ct.shape[0] + 1, ct.shape[1]), ct.dtype)
+    out[0] = 0
+    for i in range(ct.shape[0]):
+        np.add(out[i], ct[i], out=out[i + 1])
+    return out if zero_row else out[1:]
 
 
 @partial(jax.jit, static_argnames=("chunk", "iqm"))

@@ -3,9 +3,9 @@
 Scores are first put on one scale per task: min–max against stated reference scores
 (``(x − low) / (high − low)``, e.g. random and human scores), relative to a baseline algorithm
 (``x / mean of the baseline on that task``), or as they are (``"none"``, for scores already on
-one scale). Then, per algorithm, over all runs of all tasks pooled (as rliable does on its
-``[runs, tasks]`` arrays, so a task with more seeds weighs more): the mean, the median, the IQM
-(``scipy.stats.trim_mean(x, 0.25)``) and the optimality gap ``γ − mean(min(x, γ))``, γ = 1;
+one scale). Then, per algorithm, as rliable's `metrics`: the mean and the median of the
+per-task means, and over all runs of all tasks pooled (so a task with more seeds weighs more)
+the IQM (``scipy.stats.trim_mean(x, 0.25)``) and the optimality gap ``γ − mean(min(x, γ))``, γ = 1;
 per pair, the probability of improvement averaged over tasks (P(X > Y) + ½ P(X = Y) per task,
 Mann–Whitney); and performance profiles, the share of runs scoring above τ on a grid of
 thresholds. Intervals are percentile intervals (rliable's default) of the stratified
@@ -17,15 +17,16 @@ from __future__ import annotations
 
 import math
 
-import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
 from jaxeac.stats import large
 from jaxeac.stats.inputs import PerSeed, excerpt
-from jaxeac.stats.resample import boot_counts
+from jaxeac.stats.resample import cumulative
 
 NORMALIZATIONS = ("minmax", "baseline", "none")
+#: Units × resamples of pooled counts handled at once.
+BLOCK_ELEMENTS = 1 << 22
 GAMMA = 1.0
 
 
@@ -62,18 +63,25 @@ def check_normalization(per: PerSeed, normalize, reference, baseline) -> None:
                 )
 
 
-def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict]:
-    """{task: {algo: scores on one scale}} and the normalisation's record."""
+def _scales(per: PerSeed, normalize, reference, baseline) -> dict:
+    """{task: the map of raw scores onto one scale}."""
     out = {}
     for t in per.tasks:
         if normalize == "minmax":
             low, high = (float(v) for v in reference[t])
-            out[t] = {a: (x - low) / (high - low) for a, x in per.values[t].items()}
+            out[t] = lambda x, low=low, high=high: (x - low) / (high - low)
         elif normalize == "baseline":
             m = float(per.values[t][baseline].mean())
-            out[t] = {a: x / m for a, x in per.values[t].items()}
+            out[t] = lambda x, m=m: x / m
         else:
-            out[t] = dict(per.values[t])
+            out[t] = lambda x: x
+    return out
+
+
+def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict]:
+    """{task: {algo: scores on one scale}} and the normalisation's record."""
+    scale = _scales(per, normalize, reference, baseline)
+    out = {t: {a: scale[t](x) for a, x in per.values[t].items()} for t in per.tasks}
     text = {
         "minmax": "min–max normalised per task, (x − low) / (high − low) with the stated reference scores",
         "baseline": f"relative to {baseline}: x / mean of {baseline} on the task",
@@ -85,69 +93,50 @@ def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict
     return out, rec
 
 
-def _draws(per: PerSeed, scores: dict, task_index: int, task, key, resamples: int, shared: bool, only=None):
-    """Per algorithm of one task: (values sorted, counts [R, n] float32 in that order)."""
-    tkey = jax.random.fold_in(key, task_index)
-    algos = per.algos
-    ids = None if (per.seeds is None or not shared) else per.seeds[task]
-    same = ids is not None and all(np.array_equal(np.sort(ids[a]), np.sort(ids[algos[0]])) for a in algos)
-    out = {}
-    if same:
-        n = ids[algos[0]].size
-        C = boot_counts(tkey, n, resamples)
-        for a in algos:
-            by_id = scores[task][a][np.argsort(ids[a], kind="stable")]
-            order = np.argsort(by_id, kind="stable")
-            out[a] = (by_id[order], np.ascontiguousarray(C[:, order]))
-            if a == only:
-                return {a: out[a]}, True
-        return out, True
-    for j, a in enumerate(algos):
-        if only is not None and a != only:
-            continue
-        x = np.sort(scores[task][a])
-        out[a] = (x, boot_counts(jax.random.fold_in(tkey, j), x.size, resamples))
-    return out, False
-
-
-def _order_stat(cum: np.ndarray, v: np.ndarray, k: int) -> np.ndarray:
-    """The k-th smallest (0-based) of each resample, from inclusive cumulative counts [R, N]."""
-    return v[np.minimum((cum <= k).sum(1), v.size - 1)]
-
-
-def point_estimates(x: np.ndarray) -> dict:
-    """mean, median, IQM and optimality gap of pooled scores (rliable's definitions)."""
+def point_estimates(per_task: list) -> dict:
+    """rliable's aggregates of scores on one scale, a list of per-task arrays: the mean and the
+    median of the per-task means, the IQM and the optimality gap of all runs pooled."""
     from scipy import stats
 
+    means, x = [float(s.mean()) for s in per_task], np.concatenate(per_task)
     return {
-        "mean": float(x.mean()),
-        "median": float(np.median(x)),
+        "mean": float(np.mean(means)),
+        "median": float(np.median(means)),
         "iqm": float(stats.trim_mean(x, 0.25)),
         "optimality_gap": float(GAMMA - np.minimum(x, GAMMA).mean()),
     }
 
 
-def _replicates(v: np.ndarray, C: np.ndarray, tau: np.ndarray) -> tuple[dict, np.ndarray]:
-    """Aggregates [R] and profile [R, len(tau)] of each resample from counts C [R, N] (float32, exact
-    integers) over ascending pooled scores v."""
-    n = v.size
-    cum = np.cumsum(C, axis=1)  # along the contiguous axis, no dtype cast: fast
-    med = 0.5 * (_order_stat(cum, v, (n - 1) // 2) + _order_stat(cum, v, n // 2))
+def _replicates(v: np.ndarray, ct: np.ndarray, n: int, tau: np.ndarray) -> tuple[dict, np.ndarray]:
+    """IQM and optimality gap [R] and profile [len(tau), R] of each resample from counts units
+    first ct [D, R] (float32, exact integers; n units in all) over ascending pooled scores v."""
+    cum = cumulative(ct, zero_row=True)  # row i: units below value i
     reps = {
-        "mean": C @ v / n,
-        "median": med,
-        "iqm": large.iqm_from_counts(C, v),
-        "optimality_gap": GAMMA - C @ np.minimum(v, GAMMA) / n,
+        "iqm": large.iqm_from_counts(ct, v, units_first=True, cum=cum[1:]),
+        "optimality_gap": GAMMA - np.minimum(v, GAMMA) @ ct.astype(np.float64) / n,
     }
-    pos = np.searchsorted(v, tau, "right")  # runs at or below τ: the first pos scores
-    below = np.concatenate([np.zeros((C.shape[0], 1), C.dtype), cum], axis=1)[:, pos]
+    below = cum[np.searchsorted(v, tau, "right")]  # runs at or below τ
     return reps, 1.0 - below / n
 
 
-def _pair_wins(vx, cx, vy, cy) -> np.ndarray:
+def _sorted(v: np.ndarray, ct: np.ndarray):
+    if v.size > 1 and np.any(v[1:] < v[:-1]):
+        order = np.argsort(v, kind="stable")
+        return v[order], ct[order]
+    return v, ct
+
+
+def wins_replicates(vx, ctx, vy, cum_y, nx: int, ny: int) -> np.ndarray:
+    """P(X > Y) + ½ P(X = Y) of each resample [R] from counts units first over ascending values:
+    ctx [Dx, R] and cum_y [Dy + 1, R], y's cumulative counts with a leading zero row. Terms and
+    partial sums are multiples of ½ up to nx·ny, so float32 sums are exact while nx·ny ≤ 2²²."""
     lo, hi = np.searchsorted(vy, vx, "left"), np.searchsorted(vy, vx, "right")
-    cum = np.concatenate([np.zeros((cy.shape[0], 1), np.float32), np.cumsum(cy, axis=1)], axis=1)
-    return np.einsum("ri,ri->r", cx, cum[:, lo] + 0.5 * (cum[:, hi] - cum[:, lo])) / (vx.size * vy.size)
+    s = cum_y[lo]  # per x value: y units below it ...
+    tie = np.flatnonzero(hi != lo)
+    if tie.size:  # ... and half of those equal to it
+        s[tie] += 0.5 * (cum_y[hi[tie]] - s[tie])
+    wide = {} if nx * ny <= 1 << 22 else {"dtype": np.float64}
+    return np.einsum("ir,ir->r", ctx, s, **wide).astype(np.float64) / (nx * ny)
 
 
 def prob_improvement(x, y) -> float:
@@ -162,58 +151,73 @@ def aggregate_across_tasks(
     family,
     *,
     normalize: str,
+    drawn: list,
     reference=None,
     baseline=None,
-    key=0,
-    resamples: int = 10_000,
     level: float = 0.95,
     points: int = 101,
-    shared: bool = True,
     tau=None,
 ) -> dict:
-    """The aggregates across tasks (see the module docstring) as a JSON-ready dict."""
-    from jaxeac.stats._rng import as_key
-
+    """The aggregates across tasks (see the module docstring) as a JSON-ready dict. `drawn`, one
+    entry per task, is the comparison's own draw: ({algo: (raw values, counts units first
+    [rows, R]) or a function giving them}, whether the task's algorithms share one draw)."""
     check_normalization(per, normalize, reference, baseline)
     scores, norm = normalized(per, normalize, reference, baseline)
-    key = as_key(key)
+    scale = _scales(per, normalize, reference, baseline)
     algos, tasks = per.algos, per.tasks
+
+    def got(i, a, ordered=True):
+        e = drawn[i][0][a]
+        v, ct = e() if callable(e) else e
+        v = scale[tasks[i]](np.asarray(v, np.float64))
+        return _sorted(v, ct) if ordered else (v, ct)
+
     pooled = {a: np.concatenate([scores[t][a] for t in tasks]) for a in algos}
     lo_all = min(float(x.min()) for x in pooled.values())
     hi_all = max(float(x.max()) for x in pooled.values())
+    if tau is None and np.ndim(points):  # the thresholds themselves
+        tau = points
     tau = np.linspace(lo_all, hi_all, points) if tau is None else np.asarray(tau, np.float64)
     q = [50 * (1 - level), 50 * (1 + level)]
-    # pass 1, task by task: the pairs' probability of improvement
+    resamples = None
+    # task by task: the pairs' probability of improvement
     pair_est = {p: [] for p in family}
-    pair_star = {p: np.zeros(resamples) for p in family}
-    paired_tasks = 0
+    pair_star = {p: 0.0 for p in family}
     for i, t in enumerate(tasks):
-        drawn, same = _draws(per, scores, i, t, key, resamples, shared)
-        paired_tasks += same
+        here = {a: got(i, a) for a in dict.fromkeys(a for p in family for a in p)}
+        cums = {}
         for x, y in family:
-            (vx, cx), (vy, cy) = drawn[x], drawn[y]
-            pair_est[(x, y)].append(prob_improvement(vx, vy))
-            pair_star[(x, y)] += _pair_wins(vx, cx, vy, cy)
-    # pass 2, algorithm by algorithm: the same draws, pooled over tasks
+            (vx, cx), (vy, cy) = here[x], here[y]
+            if y not in cums:
+                cums[y] = cumulative(cy, zero_row=True)
+            nx, ny = per.values[t][x].size, per.values[t][y].size
+            pair_est[(x, y)].append(prob_improvement(scores[t][x], scores[t][y]))
+            pair_star[(x, y)] = pair_star[(x, y)] + wins_replicates(vx, cx, vy, cums[y], nx, ny)
+    # algorithm by algorithm: the same draws, pooled over tasks
     out_algos, profiles = {}, {"tau": tau.tolist()}
     for a in algos:
-        parts = [_draws(per, scores, i, t, key, resamples, shared, a)[0][a] for i, t in enumerate(tasks)]
-        v = np.concatenate([p[0] for p in parts])
+        parts = [got(i, a, ordered=False) for i in range(len(tasks))]
+        means = np.stack([v @ ct.astype(np.float64) / per.values[t][a].size for (v, ct), t in zip(parts, tasks)])
+        v, ct = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
         order = np.argsort(v, kind="stable")
-        C = np.ascontiguousarray(np.concatenate([p[1] for p in parts], axis=1)[:, order])
-        v = v[order]
-        reps, prof = _replicates(v, C, tau)
-        est = point_estimates(v)
+        v, resamples = v[order], ct.shape[1]
+        block = max(64, BLOCK_ELEMENTS // v.size)  # resamples at a time: the block stays in cache
+        done = [_replicates(v, ct[order, r : r + block], pooled[a].size, tau) for r in range(0, resamples, block)]
+        reps = {k: np.concatenate([d[0][k] for d in done]) for k in done[0][0]}
+        reps.update(mean=means.mean(0), median=np.median(means, 0))
+        prof = np.concatenate([d[1] for d in done], axis=1)
+        est = point_estimates([scores[t][a] for t in tasks])
         out_algos[a] = {k: {"estimate": est[k], "ci": np.percentile(reps[k], q).tolist()} for k in est}
-        share = (v[None, :] > tau[:, None]).mean(1)
-        lo, hi = np.percentile(prof, q, axis=0)
+        share = (pooled[a][None, :] > tau[:, None]).mean(1)
+        lo, hi = np.percentile(prof, q, axis=1)
         profiles[a] = {"share": share.tolist(), "low": lo.tolist(), "high": hi.tolist()}
+    paired_tasks = sum(bool(d[1]) for d in drawn)
     pairs = [
         {
             "x": x,
             "y": y,
             "estimate": float(np.mean(pair_est[(x, y)])),
-            "ci": np.percentile(pair_star[(x, y)] / len(tasks), q).tolist(),
+            "ci": np.percentile(np.asarray(pair_star[(x, y)]) / len(tasks), q).tolist(),
             "per_task": dict(zip(tasks, pair_est[(x, y)], strict=True)),
         }
         for x, y in family
@@ -224,8 +228,8 @@ def aggregate_across_tasks(
         "level": level,
         "resamples": resamples,
         "method": (
-            f"Per algorithm over all runs of the {len(tasks)} tasks pooled: mean, median, IQM, optimality "
-            f"gap (γ = {GAMMA:g}); probability of improvement averaged over tasks; {100 * level:.6g}% "
+            f"Per algorithm: mean and median of the {len(tasks)} per-task means; IQM and optimality gap "
+            f"(γ = {GAMMA:g}) over all runs of the tasks pooled; probability of improvement averaged over tasks; {100 * level:.6g}% "
             f"percentile intervals from {resamples:,} stratified bootstrap resamples (seeds within each "
             f"task; {paired_tasks} of {len(tasks)} tasks with shared seed ids drawn once for all "
             "algorithms). As rliable (Agarwal et al. 2021)."
