@@ -72,6 +72,14 @@ def p_sig(x, digits: int = 3, *, missing: str = "—") -> str:
     return f"{x:#.{digits}g}"
 
 
+def p_is(x, floor: str = "1e-4") -> str:
+    """"p = 0.0139" in plain words, or "p < 1e-4" below `floor` (for a sentence; tables print
+    `p_sig`)."""
+    if x is not None and math.isfinite(float(x)) and float(x) < float(floor):
+        return f"p < {floor}"
+    return f"p = {p_sig(x)}"
+
+
 def percent(level: float) -> str:
     """A confidence level as printed: 0.95 -> '95%', 0.999 -> '99.9%'."""
     return f"{100 * level:.6g}%"

@@ -96,6 +96,11 @@ def welch_interval(x_baseline, x_treatment, level: float = 0.95) -> Estimate:
     return Estimate(diff, diff - half, diff + half, level)
 
 
+def t_half_width(sd, n: int, level: float = 0.95):
+    """Half the width of the Student t interval of a mean: t_{n−1, (1+level)/2} · sd / √n."""
+    return special.stdtrit(n - 1, 0.5 + level / 2) * sd / math.sqrt(n)
+
+
 def t_interval(x, level: float = 0.95, axis=None):
     """(mean, sd, low, high): the Student t interval of a mean (NaN sd and bounds where n < 2);
     along `axis` of an array, each an array."""
@@ -106,7 +111,7 @@ def t_interval(x, level: float = 0.95, axis=None):
         nan = np.full(np.shape(mean), np.nan)
         return (float(mean), math.nan, math.nan, math.nan) if axis is None else (mean, nan, nan, nan)
     sd = x.std(ddof=1, axis=axis)
-    half = special.stdtrit(n - 1, 0.5 + level / 2) * sd / math.sqrt(n)
+    half = t_half_width(sd, n, level)
     if axis is None:
         return float(mean), float(sd), float(mean - half), float(mean + half)
     return mean, sd, mean - half, mean + half
@@ -344,7 +349,9 @@ def wilson_ci(count: float, nobs: float, alpha: float = 0.05) -> tuple[float, fl
     den = 1 + z**2 / nobs
     centre = (p + z**2 / (2 * nobs)) / den
     half = z * math.sqrt(p * (1 - p) / nobs + z**2 / (4 * nobs**2)) / den
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # at a count of 0 (of nobs) the bound is exactly 0 (1): centre and half are equal there
+    low = 0.0 if count <= 0 else max(0.0, centre - half)
+    return low, 1.0 if count >= nobs else min(1.0, centre + half)
 
 
 def newcombe_diff(count_baseline, n_baseline, count_treatment, n_treatment, alpha=0.05) -> Estimate:

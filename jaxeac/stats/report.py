@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
-from jaxeac.fmt import compact, compact_interval, p_sig, size_word
+from jaxeac.fmt import compact, compact_interval, p_is, p_sig, size_word
 from jaxeac.stats.figures import FIGURES  # noqa: F401 (the figures' file names, also here)
 
 
-#: This report's p-values: 4 decimals, "< 1e-4" below that.
 def _pct(stats: dict) -> str:
     """The level of the report's intervals, as printed ("95 %", "99 %")."""
     level = stats.get("level", 1 - stats["settings"]["alpha"])
@@ -28,7 +27,7 @@ def plain_words(stats: dict) -> str:
         f"On the primary measure ({pr['description']}), {t} averaged {compact(pr['mean_treatment'], 2)} "
         f"and {b} {compact(pr['mean_baseline'], 2)} over {pr['n_treatment']} and {pr['n_baseline']} seeds: "
         f"a difference of {compact(pr['diff'], 2)} ({_pct(stats)} CI {compact_interval(pr['diff_ci'], 2)}, "
-        f"Holm-adjusted p = {p_sig(p_holm)})."
+        f"Holm-adjusted {p_is(p_holm)})."
     ]
     if sig:
         lines.append(f"{t} is {'better' if better else 'worse'} than {b} on this measure at α = {alpha}.")
