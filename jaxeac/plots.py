@@ -16,11 +16,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
-from scipy import special  # noqa: E402
 
 from jaxeac import style  # noqa: E402
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
+from jaxeac.stats.closed_form import t_half_width  # noqa: E402
 
 COLORS = style.PALETTE  # one colour per algorithm, every figure (jaxeac/style.py)
 LABELS = style.LABELS
@@ -82,7 +82,7 @@ def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, pap
         ax.plot(trials, mean, color=color, lw=1.8, label=f"{style.label(algo)}: mean of {n:,} seeds")
         if n > 1:
             sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
-            half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
+            half = t_half_width(sd, n)
             ax.fill_between(trials, mean - half, mean + half, color=color, alpha=0.25, lw=0)
             lo, hi = count_percentile(counts, 5), count_percentile(counts, 95)
             ax.plot(trials, lo, color=color, lw=0.7, ls=":")

@@ -14,11 +14,11 @@ from collections.abc import Callable
 
 import jax
 import numpy as np
-from scipy import special
 
 from jaxeac.runtime import versions
 from jaxeac.algorithm.config import ALGORITHMS, algorithm
 from jaxeac.errors import UsageError
+from jaxeac.stats.closed_form import t_interval, welch_interval
 
 # ------------------------------------------------------------------ input checks
 
@@ -324,27 +324,16 @@ def check_compare_resources(resamples: int, trials: int) -> None:
 
 
 def mean_ci95(x: np.ndarray) -> tuple[float, float, float, float]:
-    """(mean, sd, lo, hi): Student-t 95 % interval of the mean (NaN bounds when n < 2)."""
-    x = np.asarray(x, float)
-    n, mean = x.size, float(x.mean())
-    if n < 2:
-        return mean, float("nan"), float("nan"), float("nan")
-    sd = float(x.std(ddof=1))
-    half = float(special.stdtrit(n - 1, 0.975)) * sd / math.sqrt(n)
-    return mean, sd, mean - half, mean + half
+    """(mean, sd, lo, hi): Student-t 95 % interval of the mean (NaN bounds when n < 2), as
+    `jaxeac.stats.closed_form.t_interval` (its one definition)."""
+    return t_interval(x)
 
 
 def welch_diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
-    """(mean(b) − mean(a), lo, hi) with the Welch–Satterthwaite 95 % interval."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    diff = float(b.mean() - a.mean())
-    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
-    se = math.sqrt(va + vb)
-    if se == 0:
-        return diff, diff, diff
-    df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
-    half = float(special.stdtrit(df, 0.975)) * se
-    return diff, diff - half, diff + half
+    """(mean(b) − mean(a), lo, hi) with the Welch–Satterthwaite 95 % interval
+    (`jaxeac.stats.closed_form.welch_interval`, its one definition)."""
+    e = welch_interval(a, b)
+    return e.estimate, e.low, e.high
 
 
 def summary_base(experiment: str, primary: str, settings, results: dict, measures: dict) -> dict:
