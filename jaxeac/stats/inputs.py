@@ -38,8 +38,11 @@ SB3_LAST_SHARE = 0.10
 #: The largest |value| the statistics take (float32 sums of squares), and the smallest spread.
 MAX_VALUE = 1e15
 MIN_SPREAD = 1e-15
-#: Tables above this size are refused before reading (a per-seed table of 10⁸ rows is ~3 GB).
+#: Tables above this size are refused before reading: a Parquet or .npz file (a per-seed table of
+#: 10⁸ rows is ~3 GB as CSV, less in Parquet), and a text (CSV) table, which parsing blows up ~10×
+#: in memory.
 MAX_TABLE_BYTES = 4 << 30
+MAX_TEXT_BYTES = 1 << 30
 #: The header of a CSV must end within this many bytes.
 MAX_HEADER_BYTES = 1 << 16
 ONE_TASK = ""
@@ -84,14 +87,16 @@ def _check_file(path: Path, kind: str) -> None:
     size = path.stat().st_size
     if size == 0:
         raise UsageError(f"{path} is empty; pass a {kind} with a header and rows")
-    if size > MAX_TABLE_BYTES:
+    suffix = path.suffix.lower()
+    limit = MAX_TABLE_BYTES if suffix in (".parquet", ".pq", ".npz") else MAX_TEXT_BYTES
+    if size > limit:
         raise UsageError(
-            f"{path} is {size / 2**30:.1f} GiB, above the {MAX_TABLE_BYTES >> 30} GiB a table may "
-            "have; reduce it to one row per seed (and trial) first"
+            f"{path} is {size / 2**30:.1f} GiB, above the {limit >> 30} GiB a "
+            f"{'text ' if limit == MAX_TEXT_BYTES else ''}table may have; reduce it to one row per seed "
+            f"(and trial){', or save it as Parquet' if limit == MAX_TEXT_BYTES else ''} first"
         )
     with open(path, "rb") as fh:
         head = fh.read(MAX_HEADER_BYTES)
-    suffix = path.suffix.lower()
     if suffix in (".parquet", ".pq"):
         if not head.startswith(b"PAR1"):
             raise UsageError(
