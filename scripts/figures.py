@@ -1,13 +1,15 @@
 """Draw the figures of BENCHMARKS.md from the records in scripts/bench_results/.
 
-Reads only the kept records (each figure names the ones it uses) and writes three PNGs:
+Reads only the kept records (each figure names the ones it uses) and writes four PNGs:
 
 * ``throughput_vs_seeds.png``: useful agent-steps/s of the paper grid against seeds, on the
   2-core CPU and on one H100 (fused kernel and XLA ops);
 * ``end_to_end_vs_seeds.png``: wall time of ``jaxeac grid --preset paper --seeds N`` (run,
   statistics report and figures) against N, first runs and cached;
 * ``peers.png``: jaxeac against the peers measured in the same run (grid on the 2-core CPU:
-  C, numba, NumPy; bowling: plain MuJoCo stepping, MuJoCo Warp, MJX in JAX).
+  C, numba, NumPy; bowling: plain MuJoCo stepping, MuJoCo Warp, MJX in JAX);
+* ``scaling.png``: speed-up of a 4M-seed run on two GPUs over one against the ideal line, for
+  the kernel alone and the command's run phase, before and after a program per GPU.
 
 Usage::
 
@@ -224,6 +226,36 @@ def peers(records: Path, out: Path) -> Path:
     return path
 
 
+SCALE_RECORD = "gpu_h100x2_timeline_4m.json"
+
+
+def scaling(records: Path, out: Path) -> Path:
+    """Speed-up (one GPU's wall time over n GPUs') against GPUs, from `scale.py --timeline`."""
+    import matplotlib.pyplot as plt
+
+    runs = load(records, SCALE_RECORD)["runs"]
+    fig, ax = plt.subplots(figsize=(7, 5.2))
+    ax.plot([1, 2], [1, 2], color="black", ls=":", label="ideal")
+    for build, ls in (("base", "--"), ("new", "-")):
+        one, two = runs[f"{build}_1gpu"], runs[f"{build}_2gpu"]
+        for a, b in zip(one, two, strict=True):
+            what = "kernel " + a["algo"].upper() if a["mode"] == "kernel" else "command run phase, AC+EAC"
+            color = COLORS.get(a["algo"], "tab:gray")
+            ax.plot([1, 2], [1, a["wall_s"] / b["wall_s"]], marker="o", ls=ls, color=color,
+                    label=f"{what}, {'one program over both GPUs' if build == 'base' else 'a program per GPU'}")
+    ax.set_xticks([1, 2])
+    ax.set_xlabel("H100 GPUs (one host)")
+    ax.set_ylabel("speed-up over one GPU (wall time of the run, 4,194,304 seeds)")
+    ax.set_title(f"Scaling over GPUs ({SCALE_RECORD})", fontsize=10)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = out / "scaling.png"
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -236,7 +268,7 @@ def main() -> None:
 
     matplotlib.use("Agg")
     args.out.mkdir(parents=True, exist_ok=True)
-    for draw in (throughput_vs_seeds, end_to_end_vs_seeds, peers):
+    for draw in (throughput_vs_seeds, end_to_end_vs_seeds, peers, scaling):
         print(draw(args.records, args.out))
 
 

@@ -4,7 +4,15 @@ For AC and EAC on the paper preset: the run of N seeds on all local devices and 
 one device (compile timed apart), the scaling efficiency t₁ / (n · tₙ), and a check
 that the per-seed results of the first K seeds are bit-identical on 1 and n devices.
 
+``--timeline`` instead records where a run's time goes, per chunk and per device: when each
+chunk was dispatched, ready on its device, copied to the host and collected, for the kernel
+alone (host arrays, as bench.py) and for the `jaxeac run` command's run phase (results
+streamed to results.parquet, `--mode command`); it prints, per device, kernel seconds and idle
+gaps, and per run the host's copy and collect seconds. It reads the jaxeac on PYTHONPATH,
+so an older build is timed too (its chunks spanning every device: ready times per shard).
+
     python scripts/scale.py --seeds 1000000 --chunk 1000000 --subset 100000 --out scale.json
+    python scripts/scale.py --timeline --seeds 4194304 --mode kernel command --out timeline.json
 """
 
 from __future__ import annotations
@@ -12,6 +20,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,28 +34,23 @@ configure("grid", start_jax=False)  # before JAX starts, as `jaxeac` does
 import jax  # noqa: E402
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, default=1_000_000)
-    p.add_argument("--chunk", type=int, default=1_000_000)
-    p.add_argument("--subset", type=int, default=100_000, help="seeds compared across device counts")
-    p.add_argument("--single", action="store_true", help="also time the whole run on one device")
-    p.add_argument("--out", type=Path)
-    args = p.parse_args()
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench import command_line, environment
-
+def _paper(algo: str):
     from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
-    from jaxeac.running.batch import run_seeds
     from jaxeac.running.config import RunConfig
 
-    env = GridWorld(get_map("paper"), 40)
+    return GridWorld(get_map("paper"), 40), RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3,
+                                                      gamma=0.9)
+
+
+def scaling(args) -> dict:
+    """One device against all local devices, with the per-seed check (the default)."""
+    from jaxeac.running.batch import run_seeds
+
     devices = jax.local_devices()
-    record = {"environment": environment(), "command": command_line(), "rows": []}
-    for algo in ("ac", "eac"):
-        cfg = RunConfig(trials=200, agent=algorithm(algo), alpha=0.1, beta=0.3, gamma=0.9)
+    rows = []
+    for algo in args.algos:
+        env, cfg = _paper(algo)
         row = {"algo": algo, "seeds": args.seeds, "chunk": args.chunk, "devices": len(devices)}
         for label, devs in [("all", devices)] + ([("one", devices[:1])] if args.single else []):
             first = run_seeds(env, cfg, root_key=0, n_seeds=args.seeds, chunk_size=args.chunk, devices=devs)
@@ -63,7 +69,166 @@ def main() -> None:
         row["subset_identical"] = bool(all(np.array_equal(getattr(one, f), getattr(many, f))
                                            for f in ("success", "steps", "policy")))
         print(json.dumps(row), flush=True)
-        record["rows"].append(row)
+        rows.append(row)
+    return {"rows": rows}
+
+
+class _Recorder:
+    """Chunk events of a build without `record_timeline` (chunks split over every device with
+    `shard_map`): its dispatches and collections wrapped, each shard's ready time from a thread."""
+
+    def __init__(self, batch):
+        self.events: list[dict] = []
+        self.lock = threading.Lock()
+        entries = batch._Entries
+        dispatch, collect = entries.dispatch, entries.collect
+        recorder = self
+
+        def timed_dispatch(job, start):
+            t = time.perf_counter()
+            got = dispatch(job, start)
+            out = got[2]
+            for i, shard in enumerate(out.log.addressable_shards):
+                threading.Thread(target=recorder._wait, args=(job, start, i, shard.data, t), daemon=True).start()
+            return got
+
+        def timed_collect(job, start, size, out, pool, progress):
+            t = time.perf_counter()
+            collect(job, start, size, out, pool, progress)
+            recorder._add({"event": "collect", "job": str(id(job)), "start": start, "size": size, "collect": t,
+                           "collected": time.perf_counter()})
+
+        entries.dispatch, entries.collect = timed_dispatch, timed_collect
+
+    def _wait(self, job, start, group, data, dispatched):
+        data.block_until_ready()
+        self._add({"event": "shard", "job": str(id(job)), "start": start, "group": group, "dispatch": dispatched,
+                   "ready": time.perf_counter()})
+
+    def _add(self, event):
+        with self.lock:
+            self.events.append(event)
+
+
+def _merged(events: list[dict]) -> list[dict]:
+    """An older build's shard and collect events as chunk events (one per shard)."""
+    collects = {(e["job"], e["start"]): e for e in events if e["event"] == "collect"}
+    last = {}  # the chunk's last shard: its collection waits for every shard
+    for e in events:
+        if e["event"] == "shard":
+            key = (e["job"], e["start"])
+            last[key] = max(last.get(key, 0.0), e["ready"])
+    out = []
+    for e in events:
+        if e["event"] == "shard":
+            key = (e["job"], e["start"])
+            c = collects.get(key, {})
+            begin = max(c.get("collect", e["ready"]), last[key])
+            out.append({**e, "event": "chunk", "size": c.get("size", 0), "fetched": begin, "collect": begin,
+                        "collected": c.get("collected", begin)})
+    return out
+
+
+def summarize(chunks: list[dict]) -> dict:
+    """Per device group: chunks, kernel seconds (ready − the later of its dispatch and the group's
+    previous ready), idle seconds between its chunks; per run: wall, the host's copy and collect
+    seconds, and the seconds the last chunk's collection took after the devices were done."""
+    if not chunks:
+        return {}
+    t0 = min(c["dispatch"] for c in chunks)
+    end = max(c["collected"] for c in chunks)
+    groups = {}
+    for g in sorted({c["group"] for c in chunks}):
+        mine = sorted((c for c in chunks if c["group"] == g), key=lambda c: c["ready"])
+        busy, prev = 0.0, t0
+        for c in mine:
+            busy += c["ready"] - max(c["dispatch"], prev)
+            prev = c["ready"]
+        groups[str(g)] = {"chunks": len(mine), "kernel_s": busy, "idle_s": max(c["ready"] for c in mine) - t0 - busy,
+                          "done_s": max(c["ready"] for c in mine) - t0}
+    collects = {(c["job"], c["start"]): c for c in chunks}.values()  # one per chunk, whichever shard
+    return {"wall_s": end - t0, "devices": groups,
+            "copy_s": sum(c["fetched"] - c["ready"] for c in chunks),
+            "collect_s": sum(c["collected"] - c["collect"] for c in collects),
+            "tail_s": end - max(c["ready"] for c in chunks)}
+
+
+def _digest(r) -> str:
+    """A hash of every seed's successes, steps and policy: equal digests, identical results."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.packbits(r.success, axis=1).tobytes())
+    h.update(r.steps.astype(np.uint16).tobytes())
+    h.update(r.policy.astype(np.uint8).tobytes())
+    return h.hexdigest()
+
+
+def timeline(args) -> dict:
+    """`--timeline`: per mode and algorithm, the second run's chunk events and their summary."""
+    from jaxeac.running import batch
+
+    own = hasattr(batch, "record_timeline")
+    recorder = None if own else _Recorder(batch)
+    runs, digests = [], {}
+
+    def record(mode: str, algo: str, go) -> None:
+        go()  # compiles, and captures the CUDA graphs: not timed
+        t = time.perf_counter()
+        if own:
+            with batch.record_timeline() as events:
+                got = go()
+            chunks = [e for e in events if e["event"] == "chunk"]
+        else:
+            recorder.events.clear()
+            got = go()
+            chunks = _merged(recorder.events)
+        wall = time.perf_counter() - t
+        if mode == "kernel":
+            digests[algo] = _digest(got)
+        row = {"mode": mode, "algo": algo, "seeds": args.seeds, "devices": len(jax.local_devices()),
+               "call_s": wall, **summarize(chunks), "digest": digests.get(algo), "chunks": chunks}
+        print(json.dumps({k: v for k, v in row.items() if k != "chunks"}), flush=True)
+        runs.append(row)
+
+    for mode in args.mode:
+        if mode == "kernel":
+            from jaxeac.running.batch import run_seeds
+
+            for algo in args.algos:
+                env, cfg = _paper(algo)
+                record(mode, algo, lambda env=env, cfg=cfg: run_seeds(env, cfg, root_key=0, n_seeds=args.seeds,
+                                                                     chunk_size=args.chunk))
+        else:
+            from jaxeac.experiments.grid import GridSettings, run_grid_to_folder
+
+            settings = GridSettings(seeds=args.seeds, algos=tuple(args.algos), chunk_size=args.chunk).resolved()
+            with tempfile.TemporaryDirectory() as tmp:
+                record(mode, "+".join(args.algos), lambda: run_grid_to_folder(settings, Path(tmp) / "run"))
+    return {"rows": runs, "build": "record_timeline" if own else "wrapped"}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, default=1_000_000)
+    p.add_argument("--chunk", type=int, default=None, help="seeds per chunk, split over the devices "
+                   "(default: automatic, 2^20 per GPU)")
+    p.add_argument("--subset", type=int, default=100_000, help="seeds compared across device counts")
+    p.add_argument("--single", action="store_true", help="also time the whole run on one device")
+    p.add_argument("--algos", nargs="+", choices=["ac", "eac"], default=["ac", "eac"])
+    p.add_argument("--timeline", action="store_true",
+                   help="record per chunk and device where the time goes (see the description)")
+    p.add_argument("--mode", nargs="+", choices=["kernel", "command"], default=["kernel"],
+                   help="--timeline: the kernel with host arrays (as bench.py), the command's run phase, "
+                        "or both")
+    p.add_argument("--out", type=Path)
+    args = p.parse_args()
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench import command_line, environment
+
+    record = {"environment": environment(), "command": command_line(),
+              **(timeline(args) if args.timeline else scaling(args))}
     if args.out:
         args.out.write_text(json.dumps(record, indent=2) + "\n")
 
