@@ -106,3 +106,32 @@ def test_study_compiles_one_program_per_algorithm_for_tasks_of_one_chance_budget
     for task in settings.tasks:  # each task's folder: its own states' policies, its own config
         summary = json.loads((tmp_path / "tasks" / task / "summary.json").read_text())
         assert summary["config"]["env"] == task and "memory_diagnostics" in summary
+
+
+def test_study_aggregates_across_tasks_min_max_on_zero_to_t(study):
+    out, settings, result = study
+    agg = result["aggregate"]
+    assert agg["tasks"] == list(settings.tasks)
+    assert agg["normalization"]["method"] == "minmax"
+    assert agg["normalization"]["reference"] == {t: [0.0, 30.0] for t in settings.tasks}
+    # the point estimates are rliable's on the per-seed successes / T
+    means = [result["tasks"][t]["algorithms"]["eac"]["mean"] / 30 for t in settings.tasks]
+    assert agg["algorithms"]["eac"]["mean"]["estimate"] == pytest.approx(np.mean(means))
+    for a in settings.algos:
+        m = agg["algorithms"][a]
+        for k in ("iqm", "mean", "median", "optimality_gap"):
+            lo, hi = m[k]["ci"]
+            assert lo <= m[k]["estimate"] + 1e-12 and m[k]["estimate"] <= hi + 1e-12
+        assert m["optimality_gap"]["estimate"] == pytest.approx(1 - m["mean"]["estimate"])  # scores ≤ 1
+    pairs = {(r["x"], r["y"]): r for r in agg["pairs"]}
+    assert set(pairs) == {("eac", "ac"), ("sarsa", "ac")}
+    assert 0 <= pairs["eac", "ac"]["estimate"] <= 1
+    report = (out / "report.md").read_text()
+    assert "## Across tasks" in report and "| eac |" in report.split("## Across tasks")[1]
+    assert "P(> ac) over tasks" in report
+
+
+def test_one_task_study_has_no_aggregate(tmp_path):
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
+    result = run_study(settings, tmp_path, progress=False)
+    assert result["aggregate"] is None and "## Across tasks" not in (tmp_path / "report.md").read_text()
