@@ -10,6 +10,7 @@ tracing; the traced code only reads resolved values, and a run records them.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, Literal
 
 import jax
@@ -161,7 +162,13 @@ def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Lit
     """How the flat loop runs its chances: ``pallas`` (the fused kernel of `jaxeac.running.kernel`)
     or ``xla``. `auto`: the kernel on GPUs where it supports the env and config, XLA ops
     otherwise. ``pallas`` asks for the kernel anywhere; off GPUs it runs in Pallas's (slow)
-    interpreter."""
+    interpreter.
+
+    The kernel is written for Pallas's Triton backend, which JAX deprecated in 0.11: where that
+    backend cannot be imported, or (GPUs) cannot lower the kernel, `auto` runs XLA ops and warns
+    once per process (a `RuntimeWarning` naming why), and ``pallas`` is a `UsageError` naming why
+    and the fix, ``kernel='xla'``. Per-seed results are the same either way (XLA ops are the
+    reference)."""
     if cfg.kernel == "xla":
         return "xla"
     backend = backend or jax.default_backend()
@@ -171,8 +178,36 @@ def resolved_kernel(env: Any, cfg: RunConfig, backend: str | None = None) -> Lit
     if cfg.kernel == "pallas":
         if why is not None:
             raise UsageError(f"{why}; use kernel='xla' (or 'auto')")
+        problem = _backend_problem(env, cfg, backend)
+        if problem is not None:
+            raise UsageError(f"kernel='pallas' cannot run: {problem}; use kernel='xla' (the same per-seed "
+                             "results as XLA ops) or 'auto'")
         return "pallas"
-    return "pallas" if why is None and backend == "gpu" else "xla"
+    if why is not None or backend != "gpu":
+        return "xla"
+    problem = _backend_problem(env, cfg, backend)
+    if problem is not None:
+        global _fallback_warned
+        if not _fallback_warned:  # once per process, whatever the number of chunks and configs
+            _fallback_warned = True
+            warnings.warn(f"kernel='auto' runs XLA ops instead of the fused GPU kernel (the same per-seed "
+                          f"results, slower): {problem}. Pass kernel='xla' to choose XLA ops without this "
+                          "warning.", RuntimeWarning, stacklevel=2)
+        return "xla"
+    return "pallas"
+
+
+_fallback_warned = False  # `resolved_kernel` warned that `auto` fell back to XLA ops
+
+
+def _backend_problem(env: Any, cfg: RunConfig, backend: str) -> str | None:
+    """`jaxeac.running.kernel.backend_problem` for the run's config: the kernel with its jump setting,
+    lowered where it would run on GPUs (in the interpreter off GPUs, it needs the backend's module only)."""
+    from jaxeac.running.kernel import backend_problem
+
+    run = dataclasses.replace(cfg, agent=cfg.agent.resolve(backend), loop="flat", kernel="pallas", lanes=None)
+    run = dataclasses.replace(run, jump=resolved_jump(env, run))
+    return backend_problem(env, run, lower=backend == "gpu")
 
 
 def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:

@@ -25,6 +25,10 @@ protocol of `jaxeac.envs.protocol`): the grid world and every tabular task (the 
 flags and, in a stochastic task, the outcome's draw read from its tables), rows
 tables, the packed dense memory or none (AC), both E6 rules, the E2 variant, constant step
 sizes. Anything else runs the XLA loop (`jaxeac.running.config.kernel_unsupported` says why).
+JAX deprecated the Triton backend in 0.11: where it cannot be imported or cannot lower this kernel
+(`backend_problem`), `kernel='auto'` runs the XLA loop with one warning and `kernel='pallas'` is an
+error (`jaxeac.running.config.resolved_kernel`). Pallas's Mosaic GPU backend cannot express the
+kernel's per-lane gathers and scatters yet (BENCHMARKS.md, "What did not help").
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 """
 
@@ -48,7 +52,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.protocol import KernelTables
 from jaxeac.rng import action_uniform
-from jaxeac.running.carry import visit_fields, visit_word
+from jaxeac.running.carry import flat_init, visit_fields, visit_word
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
 
@@ -203,14 +207,28 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
             put(state[k].at[lane], v)
 
 
+def _build(env, cfg, tables: KernelTables, names: tuple[str, ...], out_shape: list, *, n_in: int,
+           interpret: bool):
+    """The kernel as a callable of (inputs, state): one program per `LANES_PER_PROGRAM` lanes, the
+    state's outputs aliased to its inputs."""
+    from jax.experimental import pallas as pl
+    from jax.experimental.pallas import triton as plgpu
+
+    return pl.pallas_call(
+        functools.partial(_chance_kernel, env, cfg, tables, names),
+        out_shape=out_shape,
+        grid=(out_shape[0].shape[0] // LANES_PER_PROGRAM,),
+        input_output_aliases={n_in + i: i for i in range(len(names))},
+        compiler_params=plgpu.CompilerParams(num_warps=LANES_PER_PROGRAM // 32, num_stages=1),
+        interpret=interpret,
+    )
+
+
 def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     """C chances of every lane of ``run`` (a `_FlatCarry` with leaves [L, ...]) in one kernel.
 
     Same result as C applications of the vmapped `flat_slot` (see the module docstring).
     """
-    from jax.experimental import pallas as pl
-    from jax.experimental.pallas import triton as plgpu
-
     agent = run.agent
     assert isinstance(agent.tables, RowTables)
     n_lanes = words.shape[0]
@@ -241,15 +259,9 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
           for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature)),
         *(jnp.asarray(x) for x in tables.arrays.values()),
     )
-    n_in = len(consts)
-    out = pl.pallas_call(
-        functools.partial(_chance_kernel, env, cfg, tables, names),
-        out_shape=[jax.ShapeDtypeStruct(x.shape, x.dtype) for x in state.values()],
-        grid=(n_lanes // LANES_PER_PROGRAM,),
-        input_output_aliases={n_in + i: i for i in range(len(names))},
-        compiler_params=plgpu.CompilerParams(num_warps=LANES_PER_PROGRAM // 32, num_stages=1),
-        interpret=interpret,
-    )(*consts, *state.values())
+    call = _build(env, cfg, tables, names, [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in state.values()],
+                  n_in=len(consts), interpret=interpret)
+    out = call(*consts, *state.values())
     new = dict(zip(names, out, strict=True))
     memory = agent.memory if agent.memory is None else agent.memory.replace(words=new["memory"])
     agent = agent.replace(
@@ -264,3 +276,60 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     return run.replace(agent=agent, jumps=jumps, env_state=run.env_state.replace(
         position=new["position"], chance=new["env_chance"]))
 
+
+
+_PROBED: dict = {}  # (env, config, platform) -> `backend_problem`'s answer, once per process
+_PROBING: list = []  # the probe under way (its tracing resolves the config again)
+
+
+def backend_problem(env, cfg, *, lower: bool) -> str | None:
+    """Why the fused kernel cannot be built in this JAX (None: it can), for an env the kernel
+    supports and a config with the kernel and jump settings of its run.
+
+    The kernel needs Pallas's Triton backend (`jax.experimental.pallas.triton`), which JAX
+    deprecated in 0.11 and will remove. Checked: that the backend imports, and with `lower`
+    that it lowers this kernel for a GPU (on `LANES_PER_PROGRAM` lanes, from shapes alone; on a
+    CPU-only JAX too, for CUDA). Answers are kept for the process.
+    """
+    try:
+        from jax.experimental.pallas import triton  # noqa: F401
+    except ImportError as exc:
+        return (f"Pallas's Triton backend cannot be imported in JAX {jax.__version__} "
+                f"(jax.experimental.pallas.triton: {_first_line(exc)})")
+    if not lower:
+        return None
+    platform = jax.default_backend() if jax.default_backend() == "gpu" else "cuda"
+    try:
+        key = (env, cfg, platform)
+        hash(key)
+    except TypeError:  # an unhashable env or rate: probed every time
+        key = None
+    if key in _PROBED:
+        return _PROBED[key]
+    if _PROBING:  # the probe's own tracing resolves its config again
+        return None
+    _PROBING.append(key)
+    try:
+        _lower(env, cfg, platform)
+        problem = None
+    except Exception as exc:  # noqa: BLE001 - whatever the backend raises is the reason
+        problem = (f"Pallas's Triton backend could not lower the fused kernel in JAX {jax.__version__} "
+                   f"({type(exc).__name__}: {_first_line(exc)})")
+    finally:
+        _PROBING.pop()
+    if key is not None:
+        _PROBED[key] = problem
+    return problem
+
+
+def _lower(env, cfg, platform: str) -> None:
+    """Trace and lower `advance_chances` for `platform` on one program's lanes (nothing runs)."""
+    words = jax.ShapeDtypeStruct((LANES_PER_PROGRAM, 2), jnp.uint32)
+    run = jax.eval_shape(lambda w: jax.vmap(lambda x: flat_init(env, cfg, x))(w), words)
+    hyper = jax.tree.map(lambda x: jax.ShapeDtypeStruct((LANES_PER_PROGRAM,), x.dtype), cfg.hyper())
+    advance = jax.jit(lambda r, w, h: advance_chances(env, cfg, r, w, h, interpret=False))
+    advance.trace(run, words, hyper).lower(lowering_platforms=(platform,))
+
+
+def _first_line(exc: BaseException) -> str:
+    return ((str(exc).strip().splitlines() or [type(exc).__name__])[0])[:200]
