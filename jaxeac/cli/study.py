@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from jaxeac.cli.flags import finite_float, folder_name, positive_int, prng_key
+from jaxeac.errors import UsageError
 
 
 def add_parser(sub) -> None:
@@ -26,6 +27,14 @@ def add_parser(sub) -> None:
                     help="seeds per compiled batch (default: automatic; results do not depend on it)")
     st.add_argument("--lanes", type=positive_int, default=None, metavar="L",
                     help="seeds in flight per device (default: automatic; results do not depend on it)")
+    st.add_argument("--tune", action="append", metavar="[ALGO.]KEY=V1,V2,...",
+                    help="tune: a grid of values of alpha, beta, gamma, temperature or epsilon, each algorithm over "
+                         "the keys it reads (ALGO.KEY: that algorithm only); repeat for several keys. Every algorithm "
+                         "is then also evaluated at its best setting per task and across tasks")
+    st.add_argument("--tune-seeds", type=positive_int, default=None, metavar="N",
+                    help="tuning seeds per setting, algorithm and task (default with --tune: 200)")
+    st.add_argument("--tune-key", type=prng_key, default=None, metavar="K",
+                    help="root PRNG key of the tuning seeds; must differ from --key (default: --key + 1)")
     st.add_argument("--out", type=folder_name, default="runs/study", metavar="DIR",
                     help="study folder (default runs/study)")
     st.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -41,12 +50,24 @@ def cmd_study(args: argparse.Namespace) -> int:
         trials=args.trials, key=args.key, epsilon=args.epsilon, resamples=args.resamples,
         chunk_size=args.chunk_size, lanes=args.lanes)
     settings.validate()  # bad names and settings fail before any compute
+    tuning = None
+    if args.tune or args.tune_seeds is not None or args.tune_key is not None:
+        from jaxeac.experiments.tune import Tuning
+
+        if not args.tune:
+            raise UsageError("--tune-seeds and --tune-key need a grid: give at least one --tune KEY=V1,V2,...")
+        tuning = Tuning.build(args.tune, algos=settings.algos, seeds=args.tune_seeds or 200, key=args.tune_key,
+                              eval_key=settings.key, trials=settings.task_settings(settings.tasks[0]).trials)
     for task in settings.tasks:  # sizes that cannot fit or finish fail here, for every task
         grid = settings.task_settings(task)
         check_grid_resources(grid, grid.make_env())
     _claim_out(args, args.out, kind="study")
-    result = run_study(settings, args.out, progress=not args.quiet)
+    result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning)
     print(summary_table(result))
+    if tuning is not None:
+        from jaxeac.experiments.tune import tuned_summary
+
+        print(tuned_summary(result["tuning"]))
     print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "
           f"{result['comparisons_in_family']} comparisons with ac; report in {args.out}/report.md")
     return 0

@@ -165,9 +165,11 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
 
 
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
-              on_task: Callable[[str, dict], None] | None = None) -> dict:
-    """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure."""
+              on_task: Callable[[str, dict], None] | None = None, tuning=None) -> dict:
+    """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
+    with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``)."""
     from jaxeac.experiments.grid import run_grid_to_folder
+    from jaxeac.experiments.tune import across_tasks, run_tuning
     from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.plots import cumulative_counts
     from jaxeac.results import OutputOptions
@@ -219,6 +221,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         "tasks": per_task, "comparisons": rows,
         "aggregate": across_tasks(kept, first.trials, resamples=settings.resamples, key=settings.key),
     }
+    if tuning is not None:
+        result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
         study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
         result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
@@ -228,36 +232,6 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
 
 STUDY_FIGURE = "fig_study.png"
-
-
-def across_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, resamples: int, key: int,
-                 baseline: str = "ac") -> dict | None:
-    """The aggregate across tasks (`jaxeac.stats.engine.compare`, Agarwal et al. 2021) of per-seed
-    successes ``samples[task][algo]``: each algorithm's mean, median, IQM and optimality gap with
-    95 % stratified-bootstrap intervals, and P(algo > `baseline`) averaged over tasks. None for one task.
-
-    Scores are min–max normalised with the stated references (0, T) on every task: successes per
-    seed lie in [0, T] whatever the task, so the scale is fixed before any run and the same for
-    every algorithm and setting (a tuning's selection can use it), and the optimality gap is the
-    share of trials short of succeeding on every one. Relative to AC would put AC at 1 by
-    construction, be undefined where AC never succeeds and let a task where AC nearly never
-    succeeds outweigh the rest. Every algorithm of a task ran the same seeds, so one draw of
-    those seeds serves all of them (paired)."""
-    if len(samples) < 2:
-        return None
-    from jaxeac.stats.engine import compare
-    from jaxeac.stats.inputs import PerSeed
-
-    values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
-    seeds = {t: {a: np.arange(x.size).astype(str) for a, x in per.items()} for t, per in values.items()}
-    per = PerSeed(values, seeds, "successes per seed over the trials", "study")
-    res = compare(per, baseline=baseline, level=0.95, resamples=resamples, key=key, normalize="minmax",
-                  reference_scores={t: (0.0, float(trials)) for t in values}, profile_points=min(trials + 1, 101))
-    agg = res.aggregate
-    agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed lie in "
-                            "[0, T], a scale fixed before any run and the same for every algorithm")
-    agg["key"] = key
-    return agg
 
 
 def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int, path: Path) -> None:
@@ -344,6 +318,10 @@ def report_markdown(result: dict) -> str:
         lines.append("")
     if result.get("aggregate"):
         lines += across_markdown(result["aggregate"])
+    if result.get("tuning"):
+        from jaxeac.experiments.tune import tuned_markdown
+
+        lines += tuned_markdown(result["tuning"])
     return "\n".join(lines)
 
 
