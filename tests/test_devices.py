@@ -77,3 +77,55 @@ def test_processes_write_parts_and_merge_to_the_single_run(tmp_path, capsys):
     capsys.readouterr()
     assert main(["merge", str(merged), "--no-compare"]) == 2
     assert "part-0001-of-0003" in capsys.readouterr().err
+
+
+APART = textwrap.dedent("""
+    import jax, numpy as np
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.running import batch
+    from jaxeac.running.batch import run_seeds
+    from jaxeac.running.config import RunConfig
+    from jaxeac.running.outputs import CompactCollector
+    assert len(jax.devices()) == 3, jax.devices()
+    batch.DEVICES_APART["cpu"] = True  # a program per device, as on GPUs
+    env = GridWorld(get_map("paper"), 40)
+    configs = [RunConfig(trials=30, agent=algorithm(algo), loop=loop)
+               for algo, loop in [("ac", "flat"), ("eac", "flat"), ("eac", "trials")]]
+    configs.append(RunConfig(trials=15, agent=algorithm("eac", tables="rows"), kernel="pallas", lanes=128))
+    for cfg in configs:
+        one = run_seeds(env, cfg, root_key=1, n_seeds=40, chunk_size=40, devices=jax.devices()[:1])
+        for chunk in (3, 7, 40):  # chunks of 1, 3 and 14 seeds per device, the last ones padded
+            with batch.record_timeline() as events:
+                three = run_seeds(env, cfg, root_key=1, n_seeds=40, chunk_size=chunk)
+            for field in ("success", "steps", "policy", "finite"):
+                np.testing.assert_array_equal(getattr(one, field), getattr(three, field))
+            ran = [e for e in events if e["event"] == "chunk"]
+            assert chunk == 40 or len({e["group"] for e in ran}) > 1, ran  # each device takes chunks
+            assert sorted(e["start"] for e in ran) == [e["start"] for e in ran]  # collected in seed order
+            assert all(e["dispatch"] <= e["ready"] <= e["fetched"] <= e["collect"] for e in ran)
+            assert three.settings["devices"] == 3
+    # a streamed run: every chunk reaches the writer once, in seed order
+    seen = []
+    collector = CompactCollector(np.arange(40), 30, env.n_states,
+                                 on_chunk=lambda start, chunk, m: seen.append(start))
+    compact = run_seeds(env, configs[1], root_key=1, n_seeds=40, chunk_size=6, collector=collector)
+    assert seen == list(range(0, 40, 2)), seen  # chunks of 6: 2 seeds a device
+    np.testing.assert_array_equal(compact.successes, one_eac := run_seeds(
+        env, configs[1], root_key=1, n_seeds=40, devices=jax.devices()[:1]).successes)
+    # one compile per device, side by side without a persistent cache
+    assert batch._persistent_cache_shared("cpu") is False
+    print("identical on 1 and 3 devices apart")
+""")
+
+
+def test_devices_apart_bit_identical():
+    """A program per device, each taking chunks from the shared queue (`DEVICES_APART`, the GPU
+    path), on three virtual CPU devices: the same per-seed results as one device (R1), devices
+    sharing the chunks, collected in seed order."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3", JAX_PLATFORMS="cpu")
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "-c", APART], capture_output=True, text=True, env=env,
+                          cwd=root, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "identical on 1 and 3 devices apart" in proc.stdout

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import jax
 import numpy as np
@@ -241,28 +242,40 @@ def test_algorithms_in_one_pipeline_equal_separate_runs():
 
 
 class _LoggedJob:
-    """A stand-in for a compiled program in `_run_chunks`: logs its dispatches and collections."""
+    """A stand-in for a compiled program in `_run_chunks`: logs its dispatches and collections;
+    group 0 of `groups` takes `slow` seconds a chunk, the others none."""
 
-    def __init__(self, name: str, log: list, chunks: int, on_collect=None):
+    def __init__(self, name: str, log: list, chunks: int, on_collect=None, groups: int = 1, slow: float = 0.0):
         self.name, self.log, self.chunks, self.on_collect = name, log, chunks, on_collect
+        self.groups, self.slow, self.ran = [(None,)] * groups, slow, []
         self.first_dispatch = self.last_collect = self.started_after = 0.0
 
     def starts(self):
         return range(self.chunks)
 
-    def dispatch(self, start):
+    def dispatch(self, start, group):
         self.log.append(f"dispatch {self.name}{start}")
-        return start, 1, None
+        self.ran.append(group)
+        return 1, group
 
-    def collect(self, start, size, out, pool, progress):
+    def ready(self, out):
+        if out == 0:
+            time.sleep(self.slow)
+
+    @staticmethod
+    def fetch(size, out):
+        return out
+
+    def collect(self, start, host, pool):
         self.log.append(f"collect {self.name}{start}")
         if self.on_collect is not None:
             self.on_collect()
 
 
 def test_a_program_runs_while_the_next_one_compiles():
-    """`_run_chunks`: one chunk in flight while the one before comes back; a job still compiling
-    (a pending future) lets the last chunk come back first instead of waiting with it in flight."""
+    """`_run_chunks`: a device keeps two chunks dispatched while the host collects, in order; a
+    job still compiling (a pending future) lets the chunks in flight come back meanwhile instead
+    of waiting with them."""
     from concurrent.futures import Future
 
     from jaxeac.running.batch import _run_chunks
@@ -271,7 +284,9 @@ def test_a_program_runs_while_the_next_one_compiles():
     ready = Future()
     ready.set_result(_LoggedJob("b", log, 1))
     _run_chunks([_LoggedJob("a", log, 2), ready], None)
-    assert log == ["dispatch a0", "dispatch a1", "collect a0", "dispatch b0", "collect a1", "collect b0"]
+    assert [x for x in log if x.startswith("dispatch")] == ["dispatch a0", "dispatch a1", "dispatch b0"]
+    assert [x for x in log if x.startswith("collect")] == ["collect a0", "collect a1", "collect b0"]
+    assert log.index("dispatch a1") < log.index("collect a0")  # two in flight
     log.clear()
     compiling = Future()  # compiles until a's last chunk is back
     first = _LoggedJob("a", log, 2, on_collect=lambda: log[-1] == "collect a1" and compiling.set_result(
@@ -280,12 +295,36 @@ def test_a_program_runs_while_the_next_one_compiles():
     assert log == ["dispatch a0", "dispatch a1", "collect a0", "collect a1", "dispatch b0", "collect b0"]
 
 
+def test_devices_take_chunks_at_their_own_pace():
+    """`_run_chunks` with several device groups: each takes the next chunk from the shared queue
+    when it has room (at most `CHUNKS_IN_FLIGHT` + 1 ahead of the host's collection), so a slow
+    device runs fewer chunks; the host still collects them in seed order."""
+    from jaxeac.running.batch import _run_chunks
+
+    log: list[str] = []
+    job = _LoggedJob("a", log, 24, groups=2, slow=0.05)
+    _run_chunks([job], None)
+    assert [x for x in log if x.startswith("collect")] == [f"collect a{i}" for i in range(24)]
+    assert job.ran.count(1) > job.ran.count(0) > 0, job.ran
+
+
+def test_a_failing_device_stops_the_run():
+    """An error on a device's thread reaches the caller, and the run stops."""
+    from jaxeac.running.batch import _run_chunks
+
+    class Failing(_LoggedJob):
+        def ready(self, out):
+            raise RuntimeError("device lost")
+
+    with pytest.raises(RuntimeError, match="device lost"):
+        _run_chunks([Failing("a", [], 5, groups=2)], None)
+
+
 @pytest.mark.parametrize(("platform", "most_at_once"), [("cpu", 1), ("gpu", 3)])
 def test_programs_compile_side_by_side_on_accelerators_only(platform, most_at_once):
     """`_prepare_all`: on CPUs one compile at a time, in order (they share the cores with the runs);
     on accelerators all side by side (`COMPILES_SIDE_BY_SIDE`)."""
     import threading
-    import time
 
     from jaxeac.running.batch import _prepare_all
 

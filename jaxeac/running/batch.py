@@ -1,14 +1,18 @@
 """Many seeds of one algorithm: chunks, devices, one compile, results back on the host.
 
-`run_entries` runs entries (seed i, hyper i) in fixed-size chunks through one
-compiled program (`make_batch_run`), split over the local devices with `shard_map`
-(seeds are independent, R1), and copies each chunk back while the next computes.
+`run_entries` runs entries (seed i, hyper i) in fixed-size chunks through one compiled
+program (`make_batch_run`) per device group: on GPUs each device runs its own program on
+chunks it takes from a shared queue, at its own pace; on CPUs one program splits each chunk
+over the cores with `shard_map` (seeds are independent, R1). The host collects each chunk,
+in seed order, while the devices compute the next ones.
 Seed i uses ``fold_in(root_key, i)`` (R1), so results never depend on the chunk size,
 the device count or the seeds beside it, and reruns are bit-identical (R2).
 """
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import os
 import threading
 import time
@@ -98,6 +102,24 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
 
+#: Per platform, whether each device runs its own program on its own share of chunks
+#: (`device_groups`) rather than one program spanning every device with `shard_map`. On GPUs,
+#: one program per device fed from a shared queue of chunks (`_run_chunks`) keeps a device from
+#: waiting on another or on the host. On CPUs the devices are the host's cores: one program over
+#: all of them, compiled once (an XLA:CPU program per core would compile once per core).
+DEVICES_APART = {"gpu": True, "tpu": True}
+#: Chunks a device holds dispatched and not yet collected, per program: with two, the next
+#: chunk is queued on the device while the host collects the one before.
+CHUNKS_IN_FLIGHT = 2
+
+
+def device_groups(devices: Sequence[jax.Device], platform: str | None = None) -> list[tuple]:
+    """The devices as groups that each run one program: a group per device where the platform
+    runs its devices apart (`DEVICES_APART`), else one group of them all."""
+    devices = tuple(devices)
+    platform = platform or devices[0].platform
+    return [(d,) for d in devices] if DEVICES_APART.get(platform, False) else [devices]
+
 
 def _check_seeds(seeds) -> np.ndarray:
     """int64 [N]: seed indices, each in 0..2^32−1 (R1: `fold_in` keeps 32 bits)."""
@@ -130,10 +152,18 @@ def _check_configs(env, cfgs) -> list:
     return list(cfgs)
 
 
-def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
-    """(compiled chunk program, seconds this call spent compiling it) for this env (`program_key`: its
-    object, or a tabular task's layout), config, devices and chunk shape, compiled once: a later
-    caller, on any thread, waits for the first and gets 0 seconds (cached)."""
+def _placed(group: tuple, *inputs) -> tuple:
+    """The program's inputs on `group`: on its one device (committed, so the program compiles for
+    that device), or as they are for a mesh program (split by its `shard_map`)."""
+    if len(group) > 1:
+        return inputs
+    return jax.device_put(inputs, jax.sharding.SingleDeviceSharding(group[0]))
+
+
+def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tables: dict):
+    """(compiled chunk program, seconds this call spent compiling it) for this env object, config,
+    devices (one device, or a mesh of several) and chunk shape, compiled once: a later caller, on
+    any thread, waits for the first and gets 0 seconds (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
     key = (program_key(env), cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
     with _COMPILED_LOCK:
@@ -147,7 +177,7 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
     try:
         t0 = time.perf_counter()
         mesh = seed_mesh(devices) if len(devices) > 1 else None
-        program = make_batch_run(env, cfg, mesh).lower(root, seeds, hyper, program_inputs(env)).compile()
+        program = make_batch_run(env, cfg, mesh).lower(*_placed(devices, root, seeds, hyper, tables)).compile()
         seconds = time.perf_counter() - t0
         trim_host_memory()
         future.set_result((program, seconds))
@@ -159,87 +189,266 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper):
             future.set_exception(RuntimeError("the program's compile did not finish"))
 
 
+def _persistent_cache_shared(platform: str) -> bool:
+    """Whether a program compiled for one device is found in JAX's persistent compilation cache
+    by the same program on another: on GPUs the cache's key leaves out the device."""
+    return platform == "gpu" and bool(jax.config.jax_compilation_cache_dir)
+
+
+def _compile_groups(env: Env, cfg: RunConfig, groups: list[tuple], root, seeds, hyper,
+                    tables: dict) -> tuple[list, float]:
+    """(a compiled program per device group, seconds spent compiling). The first group compiles;
+    where the persistent cache serves the others (`_persistent_cache_shared`) they load its
+    program after it, else they compile beside it on threads."""
+    t0 = time.perf_counter()
+    compile = lambda group: _compiled(env, cfg, group, root, seeds, hyper, tables)  # noqa: E731
+    if len(groups) == 1:
+        program, seconds = compile(groups[0])
+        return [program], seconds
+    if _persistent_cache_shared(groups[0][0].platform):
+        done = [compile(groups[0])]
+        with ThreadPoolExecutor(max_workers=len(groups) - 1) as pool:
+            done += list(pool.map(compile, groups[1:]))
+    else:
+        with ThreadPoolExecutor(max_workers=len(groups)) as pool:
+            done = list(pool.map(compile, groups))
+    compiled_any = any(seconds > 0 for _, seconds in done)
+    return [program for program, _ in done], (time.perf_counter() - t0) if compiled_any else 0.0
+
+
 def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> tuple[list, int]:
     """(devices, chunk size actually run) for n entries: `auto_chunk_size` when None, then
-    `even_chunk` over the devices (all local devices by default)."""
+    `even_chunk` over the devices (all local devices by default). A chunk is split over the
+    device groups (`device_groups`), each group running its share as a chunk of its own."""
     devices = list(devices) if devices is not None else jax.local_devices()
     if chunk_size is None:
         chunk_size = auto_chunk_size(env, cfg, n, devices)
     return devices, even_chunk(n, chunk_size, len(devices))
 
 
+_TIMELINE: list | None = None  # `record_timeline`'s events, or None
+_TIMELINE_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def record_timeline() -> Iterator[list[dict]]:
+    """Within the block, every run records its compiles and, per chunk and device group, when it
+    was dispatched, ready on the device, copied to the host and collected (`time.perf_counter`
+    seconds): the list of these events (dicts, `scripts/scale.py --timeline` reads them)."""
+    global _TIMELINE
+    events: list[dict] = []
+    _TIMELINE = events
+    try:
+        yield events
+    finally:
+        _TIMELINE = None
+
+
+def _record(event: dict) -> None:
+    if _TIMELINE is not None:
+        with _TIMELINE_LOCK:
+            _TIMELINE.append(event)
+
+
 class _Entries:
-    """One program's entries (seed i, hyper i), compiled and cut into chunks (`run_entries`)."""
+    """One program's entries (seed i, hyper i), compiled for each device group and cut into
+    chunks, each run whole by one group (`run_entries`)."""
 
     def __init__(self, env: Env, cfg: RunConfig, *, root_key: int, seeds: np.ndarray, hyper: Hyper,
-                 chunk_size: int | None, devices, collector: Collector | None):
+                 chunk_size: int | None, devices, collector: Collector | None, name: str = ""):
         n = int(seeds.size)
         if n < 1:
             raise UsageError("seeds is empty; pass at least one seed index")
         self.devices, self.chunk_size = _plan(env, cfg, n, chunk_size, devices)
-        self.n, self.seeds, self.root = n, seeds, jax.random.key(root_key)
-        self.tables, self.n_states = program_inputs(env), env.n_states
+        self.groups = device_groups(self.devices)
+        # a group's chunk: its devices' share of a chunk (every group has as many devices)
+        self.piece = self.chunk_size // len(self.devices) * len(self.groups[0])
+        self.n, self.seeds, self.name = n, seeds, name
+        root = jax.random.key(root_key)
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
         _, seeds0, hyper0 = self.chunk_inputs(0)
-        self.compiled, self.compile_seconds = _compiled(env, cfg, tuple(self.devices), self.root, seeds0,
-                                                        hyper0)
+        t0 = time.perf_counter()
+        tables = program_inputs(env)
+        self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0, tables)
+        _record({"event": "compile", "job": name, "start": t0, "end": time.perf_counter(),
+                 "compile_s": self.compile_seconds, "groups": len(self.groups)})
+        self.fixed = [_placed(g, root, tables) for g in self.groups]  # each group's root key and tables
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
+        self.n_states = env.n_states  # a padded tabular layout's extra states are dropped (`collect`)
         self.first_dispatch = self.last_collect = self.started_after = 0.0
 
     def chunk_inputs(self, start: int):
-        stop = min(start + self.chunk_size, self.n)
-        take = np.pad(np.arange(start, stop), (0, self.chunk_size - (stop - start)), mode="edge")
+        stop = min(start + self.piece, self.n)
+        take = np.pad(np.arange(start, stop), (0, self.piece - (stop - start)), mode="edge")
         return stop - start, self.seeds[take].astype(np.int32), jax.tree.map(lambda x: x[take], self.hyper)
 
     def starts(self) -> range:
-        return range(0, self.n, self.chunk_size)
+        return range(0, self.n, self.piece)
 
-    def dispatch(self, start: int):
-        if start == 0:
-            self.first_dispatch = time.perf_counter()
+    def dispatch(self, start: int, group: int):
+        """Start chunk `start` on device group `group`; returns (its size, its output on the device)."""
         size, chunk_seeds, chunk_hyper = self.chunk_inputs(start)
-        out = self.compiled(self.root, chunk_seeds, chunk_hyper, self.tables)
+        chunk_seeds, chunk_hyper = _placed(self.groups[group], chunk_seeds, chunk_hyper)
+        root, tables = self.fixed[group]
+        out = self.programs[group](root, chunk_seeds, chunk_hyper, tables)
         for leaf in jax.tree.leaves(out):
             leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
-        return start, size, out
+        return size, out
 
-    def collect(self, start: int, size: int, out: BatchOutput, pool: ThreadPoolExecutor, progress) -> None:
-        host = jax.tree.map(lambda x: np.asarray(x)[:size], jax.device_get(out))  # padding dropped
+    @staticmethod
+    def ready(out: BatchOutput) -> None:
+        jax.block_until_ready(out)
+
+    @staticmethod
+    def fetch(size: int, out: BatchOutput) -> BatchOutput:
+        """The chunk's output on the host, padding dropped."""
+        return jax.tree.map(lambda x: np.asarray(x)[:size], out)
+
+    def collect(self, start: int, host: BatchOutput, pool: ThreadPoolExecutor) -> None:
         if host.policy.shape[1] != self.n_states:  # tables padded to a layout (`program_inputs`)
             host = host.replace(policy=host.policy[:, :self.n_states])
         self.collector.add(start, host, pool)
-        self.last_collect = time.perf_counter()
-        if progress is not None:
-            progress(size)
 
     @property
     def run_seconds(self) -> float:
         """From its first dispatch (or the previous job's last result, if later: the pipeline
-        overlaps jobs by a chunk) to its last result, so the jobs' times add up to the wall time."""
+        overlaps jobs) to its last result, so the jobs' times add up to the wall time."""
         return self.last_collect - max(self.first_dispatch, self.started_after)
 
 
+class _Queue:
+    """Every chunk of every job, in order, handed out one at a time to the device groups. A job
+    may be a future of one still compiling: taking its first chunk waits for it."""
+
+    def __init__(self, jobs: Sequence):
+        self.lock = threading.Lock()
+        self.jobs, self.done = collections.deque(jobs), []
+        self.starts: collections.deque = collections.deque()
+        self.taken = 0
+        self.total: int | None = None  # chunks in all, once the last one is handed out
+
+    def blocks(self) -> bool:
+        """Whether taking the next chunk would wait for a compile."""
+        with self.lock:
+            return not self.starts and bool(self.jobs) and isinstance(self.jobs[0], Future) \
+                and not self.jobs[0].done()
+
+    def take(self):
+        """(sequence number, job, start) of the next chunk, or None when none is left."""
+        with self.lock:
+            while not self.starts:
+                if not self.jobs:
+                    self.total = self.taken
+                    return None
+                item = self.jobs[0]
+                job = item.result() if isinstance(item, Future) else item
+                self.jobs.popleft()
+                self.done.append(job)
+                self.starts.extend(job.starts())
+            self.taken += 1
+            return self.taken - 1, self.done[-1], self.starts.popleft()
+
+
+class _Pipeline:
+    """The device groups' workers and the collecting thread's hand-over (`_run_chunks`)."""
+
+    def __init__(self, jobs: Sequence, n_groups: int):
+        self.queue = _Queue(jobs)
+        self.cond = threading.Condition()
+        self.ready: dict[int, tuple] = {}  # sequence number -> (job, start, group, host output, times)
+        self.error: BaseException | None = None
+        self.stop = False
+        self.room = [threading.Semaphore(CHUNKS_IN_FLIGHT + 1) for _ in range(n_groups)]
+
+    def work(self, group: int) -> None:
+        """Group `group`'s worker: take chunks, keep `CHUNKS_IN_FLIGHT` of them dispatched, and
+        hand each, copied to the host, to the collecting thread; at most `CHUNKS_IN_FLIGHT` + 1
+        dispatched and not yet collected (host memory stays bounded when the host is behind)."""
+        flight: collections.deque = collections.deque()
+        try:
+            while not self.stop:
+                if flight and (len(flight) >= CHUNKS_IN_FLIGHT or self.queue.blocks()):
+                    self.finish(flight.popleft())  # the device is busy; nothing waits on a compile
+                    continue
+                if not self.room[group].acquire(blocking=False):  # the host is behind: hand over
+                    while flight:  # everything held, so the collector can move on
+                        self.finish(flight.popleft())
+                    self.room[group].acquire()
+                item = self.queue.take()
+                if item is None:
+                    self.room[group].release()
+                    break
+                seq, job, start = item
+                t = time.perf_counter()
+                size, out = job.dispatch(start, group)
+                if job.first_dispatch == 0.0 or t < job.first_dispatch:
+                    job.first_dispatch = t
+                flight.append((seq, job, start, group, size, out, t))
+            while flight and not self.stop:
+                self.finish(flight.popleft())
+        except BaseException as e:  # noqa: BLE001 (re-raised on the collecting thread)
+            with self.cond:
+                self.error = self.error or e
+                self.cond.notify_all()
+        finally:
+            with self.cond:
+                self.cond.notify_all()
+
+    def finish(self, item) -> None:
+        seq, job, start, group, size, out, dispatched = item
+        job.ready(out)
+        ready = time.perf_counter()
+        host = job.fetch(size, out)
+        times = {"dispatch": dispatched, "ready": ready, "fetched": time.perf_counter()}
+        with self.cond:
+            self.ready[seq] = (job, start, group, size, host, times)
+            self.cond.notify_all()
+
+    def next_ready(self, seq: int):
+        """Chunk `seq` once a worker has it on the host, or None after the last one."""
+        with self.cond:
+            while seq not in self.ready and self.error is None:
+                if self.queue.total is not None and seq >= self.queue.total:
+                    return None
+                self.cond.wait()
+            if self.error is not None:
+                raise self.error
+            return self.ready.pop(seq)
+
+
 def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
-    """Every chunk of every job, in order, one in flight while the one before comes back:
-    dispatch is asynchronous, so the device computes the next chunk (of the same job or the
-    next one) while the host collects this one. A job may be a future of one still compiling
-    (`_prepare_all`): the jobs before it run meanwhile, and the last chunk in flight is
-    collected while it compiles. Returns the jobs."""
-    done: list[_Entries] = []
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        pending = None
-        for item in jobs:
-            if pending is not None and isinstance(item, Future) and not item.done():
-                pending[0].collect(*pending[1], pool, progress)  # nothing else to do until it compiles
-                pending = None
-            job = item.result() if isinstance(item, Future) else item
-            done.append(job)
-            for start in job.starts():
-                running = job, job.dispatch(start)
-                if pending is not None:
-                    pending[0].collect(*pending[1], pool, progress)
-                pending = running
-        pending[0].collect(*pending[1], pool, progress)
+    """Every chunk of every job, each run whole by one device group: each group's worker takes
+    the next chunk from a shared queue and keeps `CHUNKS_IN_FLIGHT` dispatched, so every device
+    computes at its own pace; this thread collects the chunks, in seed order, as they come back.
+    A job may be a future of one still compiling (`_prepare_all`): the jobs before it run
+    meanwhile, and chunks in flight come back while it compiles. Returns the jobs."""
+    first = next((j for j in jobs if not isinstance(j, Future)), None) or jobs[0].result()
+    pipe = _Pipeline(jobs, len(first.groups))
+    workers = [threading.Thread(target=pipe.work, args=(g,), daemon=True, name=f"jaxeac-device-{g}")
+               for g in range(len(first.groups))]
+    for w in workers:
+        w.start()
+    try:
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            seq = 0
+            while (got := pipe.next_ready(seq)) is not None:
+                job, start, group, size, host, times = got
+                times["collect"] = time.perf_counter()
+                job.collect(start, host, pool)
+                job.last_collect = time.perf_counter()
+                pipe.room[group].release()
+                _record({"event": "chunk", "job": job.name, "start": start, "size": size, "group": group,
+                         **times, "collected": job.last_collect})
+                if progress is not None:
+                    progress(size)
+                seq += 1
+    finally:
+        pipe.stop = True
+        for room in pipe.room:  # a worker waiting for room stops
+            room.release()
+    for w in workers:
+        w.join()
+    done = pipe.queue.done
     for before, job in zip(done[:-1], done[1:], strict=True):  # time starts where the last job ended
         job.started_after = before.last_collect
     trim_host_memory()
@@ -281,9 +490,9 @@ def run_entries(
 
     `hyper` leaves have one value per entry, so a hyperparameter sweep shares one
     compiled program. `chunk_size` None: `auto_chunk_size` for the devices.
-    Chunks are split over `devices` (all local devices by default);
-    the chunk size is rounded up to a multiple of their number, and the last chunk is
-    padded with copies of its final entry whose results are dropped. Each chunk's results
+    Chunks are split over `devices` (all local devices by default) as `device_groups`,
+    each group running its share as a chunk of its own at its own pace; the chunk size is
+    rounded up to a multiple of their number, and a group's last chunk is padded with copies of its final entry whose results are dropped. Each chunk's results
     go, in seed order, to `collector` (default `HostArrays`: every record in host arrays).
     Returns (the collector's result, seconds the program's compile took, run seconds).
     """
@@ -312,8 +521,8 @@ def run_algorithms(
     hypers: Sequence[Hyper | None] | None = None,
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
-    pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and the
-    next algorithm's first chunk computes while the last one's results come back. Results as
+    pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and a
+    device takes the next algorithm's chunks once the last one's are handed out. Results as
     `run_seeds` gives them, one per config (`collectors[i]` takes config i's chunks, None: host
     arrays; `hypers[i]` its rates, None: the config's own)."""
     cfgs = _check_configs(env, cfgs)
@@ -339,7 +548,7 @@ def run_algorithms(
     def make(i: int) -> _Entries:
         hyper = cfgs[i].hyper() if hypers[i] is None else hypers[i]
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
-                        chunk_size=chunk_size, devices=devices, collector=collectors[i])
+                        chunk_size=chunk_size, devices=devices, collector=collectors[i], name=str(i))
 
     jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform)
     results = []
