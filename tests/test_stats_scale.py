@@ -351,7 +351,7 @@ def test_normal_permutation_p_matches_exact_permutation():
     h = large.hypergeometric_counts(large.host_rng(jax.random.key(3)), t.kb + t.kt, BIG, R)
     s1, s2 = large.moment_sums(h, v)
     tot1, tot2 = (t.kb + t.kt) @ v, (t.kb + t.kt) @ (v * v)
-    from jaxeac.stats.curves import welch_t_stat
+    from jaxeac.stats.closed_form import welch_t_stat
 
     t_star = welch_t_stat(BIG, tot1 - s1, tot2 - s2, BIG, s1, s2)
     p_exact = (1 + (np.abs(t_star) >= abs(res["t_welch"])).sum()) / (R + 1)
@@ -387,7 +387,7 @@ def test_gaussian_curve_bands_and_max_t_match_the_seed_resampling():
     assert sps.ks_2samp(boot_dev, g_dev).pvalue > 1e-3
     lo, hi = _mc_band(boot_dev, 1 - alpha)
     assert lo <= gauss["sup_t_critical"]["baseline"] <= hi
-    from jaxeac.stats.curves import welch_t_stat
+    from jaxeac.stats.closed_form import welch_t_stat
 
     tot = sb.sum(0) + st.sum(0)
     perm_max = np.abs(welch_t_stat(n, tot - pt, None, n, pt, None)).max(1)

@@ -52,21 +52,35 @@ def check_sample(x, name: str = "x") -> np.ndarray:
 
 
 # ---------------------------------------------------------------- Welch
+def mean_var(n, s, ss):
+    """Mean and unbiased variance from sums (ss=None: 0/1 data, var from the mean)."""
+    m = s / n
+    v = m * (1 - m) * n / (n - 1) if ss is None else np.maximum(ss - n * m**2, 0) / (n - 1)
+    return m, np.maximum(v, 0)
+
+
+def welch_t_stat(nb, sb, ssb, nt, st, sst):
+    """Welch's t (treatment − baseline) from sums, its one definition; where both variances are
+    0: t = ±inf if the means differ, else 0. Arrays broadcast (bootstrap and permutation sums)."""
+    mb, vb = mean_var(nb, sb, ssb)
+    mt, vt = mean_var(nt, st, sst)
+    se = np.sqrt(vb / nb + vt / nt)
+    gap = mt - mb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(se > 0, gap / np.where(se > 0, se, 1), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
+
+
 def welch_from_moments(n1, s1, ss1, n2, s2, ss2):
     """Welch t (group 2 minus group 1), df and p from sums and centred sums of squares.
 
     Welch (1947); Satterthwaite (1946) degrees of freedom. Arrays broadcast.
     """
-    m1, m2 = s1 / n1, s2 / n2
-    v1 = np.maximum(ss1 - n1 * m1**2, 0.0) / (n1 - 1)
-    v2 = np.maximum(ss2 - n2 * m2**2, 0.0) / (n2 - 1)
+    t = welch_t_stat(n1, s1, ss1, n2, s2, ss2)
+    (m1, v1), (m2, v2) = mean_var(n1, s1, ss1), mean_var(n2, s2, ss2)
     a, b = v1 / n1, v2 / n2
-    se = np.sqrt(a + b)
-    pos = se > 0
+    pos = np.sqrt(a + b) > 0
     gap = m2 - m1
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # zero variance in both groups: t = ±inf (p = 0) if the means differ, else t = 0 (p = 1)
-        t = np.where(pos, gap / np.where(pos, se, 1.0), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
+    with np.errstate(divide="ignore", invalid="ignore"):  # zero variances: p = 0 where the means differ
         df = np.where(pos, (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1)), np.nan)
     p = np.where(pos, 2 * stats.t.sf(np.abs(t), np.where(pos, df, 1.0)), np.where(gap == 0, 1.0, 0.0))
     return t, df, p
@@ -137,7 +151,8 @@ def d_z(d) -> float:
 
 
 def iqm(x) -> float:
-    """Interquartile mean: the mean of the middle 50 % (`scipy.stats.trim_mean(x, 0.25)`; Agarwal et al. 2021)."""
+    """Interquartile mean: the mean of the middle 50 % (`scipy.stats.trim_mean(x, 0.25)`; Agarwal et
+    al. 2021)."""
     return float(stats.trim_mean(check_sample(x), 0.25))
 
 

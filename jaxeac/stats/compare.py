@@ -35,7 +35,8 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
-from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary, welch_t_stat
+from jaxeac.stats.closed_form import welch_t_stat
+from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
 from jaxeac.stats.measure_large import measure_large, perm_p
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
 from jaxeac.stats.rundir import Coded, as_values, event_counts, fill_values, value_counts
@@ -103,6 +104,36 @@ def _power(g: float, alpha: float) -> dict:
     }
 
 
+def _row(name, hib, nb, nt, means, moments, ranks, alpha) -> dict:
+    """One measure's result, the same dictionary on both paths: `means` (mean and sd of each
+    method), `moments` (Σx, Σx², Σy, Σy² of the centred values), `ranks` (A12, Brunner–Munzel
+    W, df, p and A12's interval); the resampled intervals and p are filled in later."""
+    mean_b, mean_t, sd_b, sd_t = means
+    sx, sxx, sy, syy = moments
+    t, df, p = cf.welch_from_moments(nb, sx, sxx, nt, sy, syy)
+    g = float(cf.hedges_from_moments(nb, sx, sxx, nt, sy, syy))
+    a, w, bm_df, bm_p, a_lo, a_hi = ranks
+    return {
+        "measure": name,
+        "higher_is_better": hib,
+        "n_baseline": nb,
+        "n_treatment": nt,
+        "mean_baseline": float(mean_b),
+        "mean_treatment": float(mean_t),
+        "sd_baseline": float(sd_b),
+        "sd_treatment": float(sd_t),
+        "diff": float(mean_t - mean_b),
+        "diff_ci95": None,
+        "t_welch": float(t),
+        "df_welch": float(df),
+        "p_welch": float(p),
+        "p_permutation": None,
+        "hedges_g": g,
+        "hedges_g_ci95": None,
+        **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, _power(g, alpha)),
+    }
+
+
 def _analyse(
     mb: dict,
     mt: dict,
@@ -154,31 +185,12 @@ def _analyse(
     for j, name in enumerate(names):
         x, y = xb[:, j], xt[:, j]
         hib = True if higher_is_better is None else bool(higher_is_better.get(name, True))
-        t, df, p = cf.welch_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
         pooled = np.concatenate([x, y])
         mask = np.r_[np.zeros(nb, bool), np.ones(nt, bool)][None]
-        a, w, bm_df, bm_p, a_lo, a_hi = (float(v[0]) for v in cf.brunner_munzel_masks(pooled, mask, alpha))
-        g = float(cf.hedges_from_moments(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum()))
-        pw = _power(g, alpha)
-        out[name] = {
-            "measure": name,
-            "higher_is_better": hib,
-            "n_baseline": nb,
-            "n_treatment": nt,
-            "mean_baseline": float(mb[name].mean()),
-            "mean_treatment": float(mt[name].mean()),
-            "sd_baseline": float(mb[name].std(ddof=1)),
-            "sd_treatment": float(mt[name].std(ddof=1)),
-            "diff": float(mt[name].mean() - mb[name].mean()),
-            "diff_ci95": None,
-            "t_welch": float(t),
-            "df_welch": float(df),
-            "p_welch": float(p),
-            "p_permutation": None,
-            "hedges_g": g,
-            "hedges_g_ci95": None,
-            **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, pw),
-        }
+        ranks = [float(v[0]) for v in cf.brunner_munzel_masks(pooled, mask, alpha)]
+        means = (mb[name].mean(), mt[name].mean(), mb[name].std(ddof=1), mt[name].std(ddof=1))
+        sums = (x.sum(), (x**2).sum(), y.sum(), (y**2).sum())
+        out[name] = _row(name, hib, nb, nt, means, sums, ranks, alpha)
     t_closed = time.perf_counter()
     (boot_b, iqm_b), (boot_t, iqm_t), perm = wait_b(), wait_t(), wait_p()
     t_resample = time.perf_counter() - t0
@@ -251,17 +263,7 @@ def _analyse_large(
             xr, yr = fill_values(mb[name], pooled[:nb]), fill_values(mt[name], pooled[nb:])
             c = pooled.mean()
             hib = True if higher_is_better is None else bool(higher_is_better.get(name, True))
-            fields = {
-                "measure": name,
-                "higher_is_better": hib,
-                "n_baseline": nb,
-                "n_treatment": nt,
-                "mean_baseline": float(xr.mean()),
-                "mean_treatment": float(yr.mean()),
-                "sd_baseline": float(xr.std(ddof=1)),
-                "sd_treatment": float(yr.std(ddof=1)),
-                "diff": float(yr.mean() - xr.mean()),
-            }
+            means = (xr.mean(), yr.mean(), xr.std(ddof=1), yr.std(ddof=1))
             table = large.ValueTable(mb[name], mt[name])
             pooled -= c
             t2 = time.perf_counter()
@@ -279,24 +281,11 @@ def _analyse_large(
             )
             del pooled, xr, yr
             t3 = time.perf_counter()
-        sx, sxx, sy, syy = res["sums"]
-        t, df, p = cf.welch_from_moments(nb, sx, sxx, nt, sy, syy)
-        a, w, bm_df, bm_p, a_lo, a_hi = (
-            float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)
-        )
-        g = float(cf.hedges_from_moments(nb, sx, sxx, nt, sy, syy))
-        pw = _power(g, alpha)
+        ranks = [float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)]
+        fields = _row(name, hib, nb, nt, means, res["sums"], ranks, alpha)
         diff, hg = res["diff"], res["hedges_g"]
-        fields |= {
-            "diff_ci95": [diff.low, diff.high],
-            "t_welch": float(t),
-            "df_welch": float(df),
-            "p_welch": float(p),
-            "p_permutation": res["p_permutation"],
-            "hedges_g": g,
-            "hedges_g_ci95": [hg.low, hg.high],
-            **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, pw),
-        }
+        fields |= {"diff_ci95": [diff.low, diff.high], "p_permutation": res["p_permutation"],
+                   "hedges_g_ci95": [hg.low, hg.high]}
         if j == 0:
             for side in ("baseline", "treatment"):
                 est, lo, hi = res[f"iqm_{side}"]

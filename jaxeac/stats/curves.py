@@ -17,24 +17,8 @@ import numpy as np
 from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
 from jaxeac.stats._rng import as_key
+from jaxeac.stats.closed_form import mean_var, welch_t_stat
 from jaxeac.stats.resample import bootstrap_sums, permutation_sums
-
-
-def _mean_var(n, s, ss):
-    """Mean and unbiased variance from sums (ss=None: 0/1 data, var from the mean)."""
-    m = s / n
-    v = m * (1 - m) * n / (n - 1) if ss is None else np.maximum(ss - n * m**2, 0) / (n - 1)
-    return m, np.maximum(v, 0)
-
-
-def welch_t_stat(nb, sb, ssb, nt, st, sst):
-    """Welch t (treatment − baseline) from sums; 0 or ±inf where both variances are 0."""
-    mb, vb = _mean_var(nb, sb, ssb)
-    mt, vt = _mean_var(nt, st, sst)
-    se = np.sqrt(vb / nb + vt / nt)
-    gap = mt - mb
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(se > 0, gap / np.where(se > 0, se, 1), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
 
 
 def _sup_t(star, est, se, alpha):
@@ -86,8 +70,8 @@ def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
 
     sb, ssb = cb.sum(0), (None if binary else (cb**2).sum(0))
     st, sst = ct.sum(0), (None if binary else (ct**2).sum(0))
-    mb, vb = _mean_var(nb, sb, ssb)
-    mt, vt = _mean_var(nt, st, sst)
+    mb, vb = mean_var(nb, sb, ssb)
+    mt, vt = mean_var(nt, st, sst)
     seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
     bb, _ = split(boot_b)
     bt, _ = split(boot_t)
@@ -177,8 +161,8 @@ def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: f
         return None if binary else np.diag(m["G"])
 
     sb, st = mom_b["s"], mom_t["s"]
-    mb, vb = _mean_var(nb, sb, sq(mom_b))
-    mt, vt = _mean_var(nt, st, sq(mom_t))
+    mb, vb = mean_var(nb, sb, sq(mom_b))
+    mt, vt = mean_var(nt, st, sq(mom_t))
     seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
     k_b, k_t, k_p = (jax.random.fold_in(k, large.CURVE_STREAM) for k in keys)
     dev_b = large.gaussian_draws(large.host_rng(k_b), large.covariance(mom_b) / nb, resamples)

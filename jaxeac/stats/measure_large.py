@@ -13,7 +13,7 @@ import numpy as np
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
-from jaxeac.stats.curves import welch_t_stat
+from jaxeac.stats.closed_form import welch_t_stat
 
 
 def perm_p(t_obs, t_star):
