@@ -257,9 +257,9 @@ def _tidy_table(path):
 def test_compare_reads_a_table_file_given_as_path(tmp_path, capsys):
     """`jaxeac compare results.csv` reads the file as a table, as `--table results.csv` does."""
     table = _tidy_table(tmp_path / "results.csv")
-    assert main(["compare", str(table), "--resamples", "200", "--out", str(tmp_path / "as_path")]) == 0
+    assert main(["compare", str(table), "--resamples", "400", "--out", str(tmp_path / "as_path")]) == 0
     by_path = capsys.readouterr().out
-    argv = ["compare", "--table", str(table), "--resamples", "200", "--out", str(tmp_path / "as_table")]
+    argv = ["compare", "--table", str(table), "--resamples", "400", "--out", str(tmp_path / "as_table")]
     assert main(argv) == 0
     assert capsys.readouterr().out.replace("as_table", "as_path") == by_path and "95% CI" in by_path
     stats = [json.loads((tmp_path / d / "stats_table.json").read_text()) for d in ("as_path", "as_table")]

@@ -473,7 +473,8 @@ def _for_aggregate(per: PerSeed, task, tkey, groups, shared, order, resamples, c
     def one(j, a):
         g = groups[a] if keep else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples, chunk)
         if g.CT is None:
-            return g.x, boot_counts(jax.random.fold_in(tkey, j), g.n, resamples, chunk=chunk, units_first=True)
+            key = jax.random.fold_in(tkey, j)
+            return g.x, boot_counts(key, g.n, resamples, chunk=chunk, units_first=True)
         return g.values, g.CT
 
     if keep:

@@ -138,7 +138,8 @@ def _frame(path: Path):
         return pd.read_csv(path, dtype=str, keep_default_na=False, na_filter=False, skipinitialspace=True)
     except (OSError, ValueError, ImportError, UnicodeDecodeError) as exc:
         raise UsageError(
-            f"cannot read the table {path}: {excerpt(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 80)}"
+            f"cannot read the table {path}: "
+            f"{excerpt(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 80)}"
         ) from None
 
 
@@ -429,7 +430,7 @@ def default_out(path) -> Path:
 
 def check_scale(data: PerSeed) -> None:
     """Values the statistics can take: within ±`MAX_VALUE`, and spread by at least `MIN_SPREAD`."""
-    for t, per in data.values.items():
+    for per in data.values.values():
         for a, x in per.items():
             if not np.all(np.abs(x) <= MAX_VALUE):
                 raise UsageError(

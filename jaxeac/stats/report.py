@@ -131,13 +131,15 @@ def paired_section(stats: dict) -> list[str]:
     return [
         "## Paired analysis (this design's default: it answers the question)",
         "",
-        f"Design: {paired['design']}. Differences are {t} − {b} of the same seed; CIs are {_pct(stats)} paired "
+        f"Design: {paired['design']}. Differences are {t} − {b} of the same seed; CIs are "
+        f"{_pct(stats)} paired "
         "BCa bootstrap (seeds resampled as pairs); p from the paired t test and the sign-flip "
         "permutation test; d_z = mean / sd of the differences; r: correlation of the two methods' "
         f"per-seed values. On the primary measure the paired interval is {relative} the "
         "width of the unpaired one below (`jaxeac compare --unpaired` leaves this section out).",
         "",
-        f"| measure | mean difference [{_pct(stats)} CI] | SE | p paired t | p sign-flip | d_z [{_pct(stats)} CI] | r |",
+        f"| measure | mean difference [{_pct(stats)} CI] | SE | p paired t | p sign-flip | "
+        f"d_z [{_pct(stats)} CI] | r |",
         "|---|---|---|---|---|---|---|",
         *rows,
         "",
@@ -205,16 +207,18 @@ def render_markdown(stats: dict) -> str:
         "",
         *sequential_section(stats.get("sequential")),
         *paired_section(stats),
-        "## Estimates" + (" as independent samples (unpaired; secondary: the paired results above answer the question)"
-                          if stats.get("analysis") == "paired" else ""),
+        "## Estimates" + (" as independent samples (unpaired; secondary: the paired results above answer "
+                          "the question)" if stats.get("analysis") == "paired" else ""),
         "",
-        f"Differences are {t} − {b}. CIs are {_pct(stats)} BCa bootstrap ({st['resamples']} resamples per method) "
+        f"Differences are {t} − {b}. CIs are {_pct(stats)} BCa bootstrap ({st['resamples']} resamples "
+        "per method) "
         "except A12 (Brunner–Munzel). p (Holm) adjusts the declared family "
         f"({', '.join(holm['family'])}) with each measure's declared test "
         f"({'; '.join(f'{k}: {v}' for k, v in holm['tests'].items())}).",
         "",
         f"| measure | {b} mean | {t} mean | difference [{_pct(stats)} CI] | Hedges' g [{_pct(stats)} CI] | "
-        f"P({t} better) [{_pct(stats)} CI] | p Welch | p perm. | p Brunner–Munzel | p (Holm) | seeds for 80 % power |",
+        f"P({t} better) [{_pct(stats)} CI] | p Welch | p perm. | p Brunner–Munzel | p (Holm) | "
+        "seeds for 80 % power |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in res:

@@ -67,7 +67,8 @@ def _counts(key, c, n: int, chunk: int):
 
 
 _counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk"))
-_counts_chunk_t = jax.jit(lambda key, c, n, chunk: _counts(key, c, n, chunk).T, static_argnames=("n", "chunk"))
+_counts_chunk_t = jax.jit(lambda key, c, n, chunk: _counts(key, c, n, chunk).T,
+                          static_argnames=("n", "chunk"))
 
 
 def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: bool = False) -> np.ndarray:

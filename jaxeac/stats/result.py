@@ -127,7 +127,8 @@ class Comparison:
             "# Comparison of per-seed results",
             "",
             f"Source: `{src['source']}` ({src['format']}); {src['per_seed_value']}.",
-            f"Family: {self.family} ({self.family_size} comparison(s)); Holm's adjustment over the family, on "
+            f"Family: {self.family} ({self.family_size} comparison(s)); Holm's adjustment over the "
+            "family, on "
             "the paired t test where a pair ran the same seed ids (the paired result answers; the unpaired "
             "one is secondary), else on Welch's. Intervals: "
             f"{pct} BCa from {self.resamples:,} bootstrap resamples, seeds resampled within each algorithm "

@@ -197,12 +197,14 @@ def aggregate_across_tasks(
     out_algos, profiles = {}, {"tau": tau.tolist()}
     for a in algos:
         parts = [got(i, a, ordered=False) for i in range(len(tasks))]
-        means = np.stack([v @ ct.astype(np.float64) / per.values[t][a].size for (v, ct), t in zip(parts, tasks)])
+        means = np.stack([v @ ct.astype(np.float64) / per.values[t][a].size
+                          for (v, ct), t in zip(parts, tasks, strict=True)])
         v, ct = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
         order = np.argsort(v, kind="stable")
         v, resamples = v[order], ct.shape[1]
         block = max(64, BLOCK_ELEMENTS // v.size)  # resamples at a time: the block stays in cache
-        done = [_replicates(v, ct[order, r : r + block], pooled[a].size, tau) for r in range(0, resamples, block)]
+        done = [_replicates(v, ct[order, r : r + block], pooled[a].size, tau)
+                for r in range(0, resamples, block)]
         reps = {k: np.concatenate([d[0][k] for d in done]) for k in done[0][0]}
         reps.update(mean=means.mean(0), median=np.median(means, 0))
         prof = np.concatenate([d[1] for d in done], axis=1)
@@ -229,7 +231,8 @@ def aggregate_across_tasks(
         "resamples": resamples,
         "method": (
             f"Per algorithm: mean and median of the {len(tasks)} per-task means; IQM and optimality gap "
-            f"(γ = {GAMMA:g}) over all runs of the tasks pooled; probability of improvement averaged over tasks; {100 * level:.6g}% "
+            f"(γ = {GAMMA:g}) over all runs of the tasks pooled; probability of improvement averaged "
+            f"over tasks; {100 * level:.6g}% "
             f"percentile intervals from {resamples:,} stratified bootstrap resamples (seeds within each "
             f"task; {paired_tasks} of {len(tasks)} tasks with shared seed ids drawn once for all "
             "algorithms). As rliable (Agarwal et al. 2021)."
