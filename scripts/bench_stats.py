@@ -189,11 +189,13 @@ def bench_tidy(args) -> None:
                 lines += [f"t{t},algo{a},{i},{v:.6f}" for i, v in enumerate(values)]
         table.write_text("\n".join(lines) + "\n")
         runs = []
+        load_before = os.getloadavg()
         for i in range(args.repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             result = compare(table, resamples=args.resamples, key=i, baseline="algo0" if tasks > 1 else None,
                              normalize="baseline" if tasks > 1 else None)
-            runs.append({"wall_seconds": time.perf_counter() - t0, "includes_compile": i == 0})
+            runs.append({"wall_seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+                         "includes_compile": i == 0})
     record = {
         "command": "python scripts/bench_stats.py " + " ".join(sys.argv[1:]),
         "algorithms": args.tidy_algos, "seeds_per_algorithm": seeds, "resamples": args.resamples,
@@ -202,7 +204,8 @@ def bench_tidy(args) -> None:
         "first_run_plus_import_seconds": runs[0]["wall_seconds"] + import_seconds,
         "versions": {"python": sys.version.split()[0], "jax": jax.__version__, "numpy": np.__version__},
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "backend": jax.default_backend()},
+                    "backend": jax.default_backend(), "loadavg_before": load_before,
+                    "loadavg_after": os.getloadavg()},
     }
     text = json.dumps(record, indent=2)
     print(text)
