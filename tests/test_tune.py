@@ -115,6 +115,7 @@ def test_tuned_report_and_json(tuned):
     report = (out / "report.md").read_text()
     assert "## Tuned: every algorithm at its best setting" in report
     assert "### Across tasks, per condition" in report and "sensitivity" in report
+    assert report.count("Highest mean: ") == len(TASKS)
 
 
 @pytest.mark.parametrize(

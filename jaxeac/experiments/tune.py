@@ -300,6 +300,9 @@ def tuned_markdown(tu: dict, *, level: float = 0.05) -> list[str]:
             o = tu["optimism"][a][t]
             lines.append(f"| {a} | {' | '.join(cells)} | {o['optimism']:+.2f} [{o['ci95'][0]:+.2f}, "
                          f"{o['ci95'][1]:+.2f}] |")
+        best = [max(algos, key=lambda a, c=c: conds[c]["means"][t][a]) for c in CONDITIONS]
+        lines += ["", f"Highest mean: {' / '.join(best)} (preset / per-task / cross-task; the leaders are not "
+                  "tested against each other, only against AC)."]
     lines += ["", "### Across tasks, per condition", "",
               "| algorithm | " + " | ".join(f"IQM {c} [95% CI] | P(> ac) {c}" for c in CONDITIONS) + " |",
               "|---|" + "---|---|" * len(CONDITIONS)]
