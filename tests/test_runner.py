@@ -242,7 +242,7 @@ def test_algorithms_in_one_pipeline_equal_separate_runs():
 
 
 class _LoggedJob:
-    """A stand-in for a compiled program in `_run_chunks`: logs its dispatches and collections;
+    """A stand-in for a compiled program in `run_chunks`: logs its dispatches and collections;
     group 0 of `groups` takes `slow` seconds a chunk, the others none."""
 
     def __init__(self, name: str, log: list, chunks: int, on_collect=None, groups: int = 1, slow: float = 0.0):
@@ -273,12 +273,12 @@ class _LoggedJob:
 
 
 def test_a_program_runs_while_the_next_one_compiles():
-    """`_run_chunks`: a device keeps two chunks dispatched while the host collects, in order; a
+    """`run_chunks`: a device keeps two chunks dispatched while the host collects, in order; a
     job still compiling (a pending future) lets the chunks in flight come back meanwhile instead
     of waiting with them."""
     from concurrent.futures import Future
 
-    from jaxeac.running.batch import _run_chunks
+    from jaxeac.running.schedule import run_chunks as _run_chunks
 
     log: list[str] = []
     ready = Future()
@@ -296,10 +296,10 @@ def test_a_program_runs_while_the_next_one_compiles():
 
 
 def test_devices_take_chunks_at_their_own_pace():
-    """`_run_chunks` with several device groups: each takes the next chunk from the shared queue
+    """`run_chunks` with several device groups: each takes the next chunk from the shared queue
     when it has room (at most `CHUNKS_IN_FLIGHT` + 1 ahead of the host's collection), so a slow
     device runs fewer chunks; the host still collects them in seed order."""
-    from jaxeac.running.batch import _run_chunks
+    from jaxeac.running.schedule import run_chunks as _run_chunks
 
     log: list[str] = []
     job = _LoggedJob("a", log, 24, groups=2, slow=0.05)
@@ -310,7 +310,7 @@ def test_devices_take_chunks_at_their_own_pace():
 
 def test_a_failing_device_stops_the_run():
     """An error on a device's thread reaches the caller, and the run stops."""
-    from jaxeac.running.batch import _run_chunks
+    from jaxeac.running.schedule import run_chunks as _run_chunks
 
     class Failing(_LoggedJob):
         def ready(self, out):

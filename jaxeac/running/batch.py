@@ -11,9 +11,6 @@ the device count or the seeds beside it, and reruns are bit-identical (R2).
 
 from __future__ import annotations
 
-import collections
-import contextlib
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -37,6 +34,7 @@ from jaxeac.running.loops import (
     trials_batch,
 )
 from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
+from jaxeac.running.schedule import record, record_timeline, run_chunks  # noqa: F401  (record_timeline: scripts)
 from jaxeac.runtime import trim_host_memory
 
 SEEDS_AXIS = "seeds"
@@ -108,9 +106,6 @@ _COMPILED_LOCK = threading.Lock()
 #: waiting on another or on the host. On CPUs the devices are the host's cores: one program over
 #: all of them, compiled once (an XLA:CPU program per core would compile once per core).
 DEVICES_APART = {"gpu": True, "tpu": True}
-#: Chunks a device holds dispatched and not yet collected, per program: with two, the next
-#: chunk is queued on the device while the host collects the one before.
-CHUNKS_IN_FLIGHT = 2
 
 
 def device_groups(devices: Sequence[jax.Device], platform: str | None = None) -> list[tuple]:
@@ -226,30 +221,6 @@ def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> 
     return devices, even_chunk(n, chunk_size, len(devices))
 
 
-_TIMELINE: list | None = None  # `record_timeline`'s events, or None
-_TIMELINE_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def record_timeline() -> Iterator[list[dict]]:
-    """Within the block, every run records its compiles and, per chunk and device group, when it
-    was dispatched, ready on the device, copied to the host and collected (`time.perf_counter`
-    seconds): the list of these events (dicts, `scripts/scale.py --timeline` reads them)."""
-    global _TIMELINE
-    events: list[dict] = []
-    _TIMELINE = events
-    try:
-        yield events
-    finally:
-        _TIMELINE = None
-
-
-def _record(event: dict) -> None:
-    if _TIMELINE is not None:
-        with _TIMELINE_LOCK:
-            _TIMELINE.append(event)
-
-
 class _Entries:
     """One program's entries (seed i, hyper i), compiled for each device group and cut into
     chunks, each run whole by one group (`run_entries`)."""
@@ -270,7 +241,7 @@ class _Entries:
         t0 = time.perf_counter()
         tables = program_inputs(env)
         self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0, tables)
-        _record({"event": "compile", "job": name, "start": t0, "end": time.perf_counter(),
+        record({"event": "compile", "job": name, "start": t0, "end": time.perf_counter(),
                  "compile_s": self.compile_seconds, "groups": len(self.groups)})
         self.fixed = [_placed(g, root, tables) for g in self.groups]  # each group's root key and tables
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
@@ -316,150 +287,11 @@ class _Entries:
         return self.last_collect - max(self.first_dispatch, self.started_after)
 
 
-class _Queue:
-    """Every chunk of every job, in order, handed out one at a time to the device groups. A job
-    may be a future of one still compiling: taking its first chunk waits for it."""
-
-    def __init__(self, jobs: Sequence):
-        self.lock = threading.Lock()
-        self.jobs, self.done = collections.deque(jobs), []
-        self.starts: collections.deque = collections.deque()
-        self.taken = 0
-        self.total: int | None = None  # chunks in all, once the last one is handed out
-
-    def blocks(self) -> bool:
-        """Whether taking the next chunk would wait for a compile."""
-        with self.lock:
-            return not self.starts and bool(self.jobs) and isinstance(self.jobs[0], Future) \
-                and not self.jobs[0].done()
-
-    def take(self):
-        """(sequence number, job, start) of the next chunk, or None when none is left."""
-        with self.lock:
-            while not self.starts:
-                if not self.jobs:
-                    self.total = self.taken
-                    return None
-                item = self.jobs[0]
-                job = item.result() if isinstance(item, Future) else item
-                self.jobs.popleft()
-                self.done.append(job)
-                self.starts.extend(job.starts())
-            self.taken += 1
-            return self.taken - 1, self.done[-1], self.starts.popleft()
-
-
-class _Pipeline:
-    """The device groups' workers and the collecting thread's hand-over (`_run_chunks`)."""
-
-    def __init__(self, jobs: Sequence, n_groups: int):
-        self.queue = _Queue(jobs)
-        self.cond = threading.Condition()
-        self.ready: dict[int, tuple] = {}  # sequence number -> (job, start, group, host output, times)
-        self.error: BaseException | None = None
-        self.stop = False
-        self.room = [threading.Semaphore(CHUNKS_IN_FLIGHT + 1) for _ in range(n_groups)]
-
-    def work(self, group: int) -> None:
-        """Group `group`'s worker: take chunks, keep `CHUNKS_IN_FLIGHT` of them dispatched, and
-        hand each, copied to the host, to the collecting thread; at most `CHUNKS_IN_FLIGHT` + 1
-        dispatched and not yet collected (host memory stays bounded when the host is behind)."""
-        flight: collections.deque = collections.deque()
-        try:
-            while not self.stop:
-                if flight and (len(flight) >= CHUNKS_IN_FLIGHT or self.queue.blocks()):
-                    self.finish(flight.popleft())  # the device is busy; nothing waits on a compile
-                    continue
-                if not self.room[group].acquire(blocking=False):  # the host is behind: hand over
-                    while flight:  # everything held, so the collector can move on
-                        self.finish(flight.popleft())
-                    self.room[group].acquire()
-                item = self.queue.take()
-                if item is None:
-                    self.room[group].release()
-                    break
-                seq, job, start = item
-                t = time.perf_counter()
-                size, out = job.dispatch(start, group)
-                if job.first_dispatch == 0.0 or t < job.first_dispatch:
-                    job.first_dispatch = t
-                flight.append((seq, job, start, group, size, out, t))
-            while flight and not self.stop:
-                self.finish(flight.popleft())
-        except BaseException as e:  # noqa: BLE001 (re-raised on the collecting thread)
-            with self.cond:
-                self.error = self.error or e
-                self.cond.notify_all()
-        finally:
-            with self.cond:
-                self.cond.notify_all()
-
-    def finish(self, item) -> None:
-        seq, job, start, group, size, out, dispatched = item
-        job.ready(out)
-        ready = time.perf_counter()
-        host = job.fetch(size, out)
-        times = {"dispatch": dispatched, "ready": ready, "fetched": time.perf_counter()}
-        with self.cond:
-            self.ready[seq] = (job, start, group, size, host, times)
-            self.cond.notify_all()
-
-    def next_ready(self, seq: int):
-        """Chunk `seq` once a worker has it on the host, or None after the last one."""
-        with self.cond:
-            while seq not in self.ready and self.error is None:
-                if self.queue.total is not None and seq >= self.queue.total:
-                    return None
-                self.cond.wait()
-            if self.error is not None:
-                raise self.error
-            return self.ready.pop(seq)
-
-
-def _run_chunks(jobs: Sequence[_Entries | Future], progress) -> list[_Entries]:
-    """Every chunk of every job, each run whole by one device group: each group's worker takes
-    the next chunk from a shared queue and keeps `CHUNKS_IN_FLIGHT` dispatched, so every device
-    computes at its own pace; this thread collects the chunks, in seed order, as they come back.
-    A job may be a future of one still compiling (`_prepare_all`): the jobs before it run
-    meanwhile, and chunks in flight come back while it compiles. Returns the jobs."""
-    first = next((j for j in jobs if not isinstance(j, Future)), None) or jobs[0].result()
-    pipe = _Pipeline(jobs, len(first.groups))
-    workers = [threading.Thread(target=pipe.work, args=(g,), daemon=True, name=f"jaxeac-device-{g}")
-               for g in range(len(first.groups))]
-    for w in workers:
-        w.start()
-    try:
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            seq = 0
-            while (got := pipe.next_ready(seq)) is not None:
-                job, start, group, size, host, times = got
-                times["collect"] = time.perf_counter()
-                job.collect(start, host, pool)
-                job.last_collect = time.perf_counter()
-                pipe.room[group].release()
-                _record({"event": "chunk", "job": job.name, "start": start, "size": size, "group": group,
-                         **times, "collected": job.last_collect})
-                if progress is not None:
-                    progress(size)
-                seq += 1
-    finally:
-        pipe.stop = True
-        for room in pipe.room:  # a worker waiting for room stops
-            room.release()
-    for w in workers:
-        w.join()
-    done = pipe.queue.done
-    for before, job in zip(done[:-1], done[1:], strict=True):  # time starts where the last job ended
-        job.started_after = before.last_collect
-    trim_host_memory()
-    return done
-
-
 #: Per platform, whether the programs of a pipeline compile side by side (`_prepare_all`). On CPUs
 #: they compile one at a time, in order, each while the ones before it run: there compiles and runs
 #: share the same cores. Eight algorithms on stochastic Four Rooms, 10,000 seeds, 2-core CPU: peak
 #: memory 1.59 GiB against 1.76 GiB side by side, time within this machine's spread (93 s against
-#: 89 s on a first run, 74 s against 82 s cached; record cpu_e2e_fourrooms_stochastic_builds.json).
+#: 89 s on a first run, 74 s against 82 s cached).
 COMPILES_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
 
 
@@ -469,7 +301,7 @@ def _prepare_all(make: Callable[[int], _Entries], count: int, progress, platform
     soon as its program is ready (`_run_chunks`). Returns the jobs, run."""
     pool = ThreadPoolExecutor(max_workers=count if COMPILES_SIDE_BY_SIDE.get(platform, False) else 1)
     try:
-        return _run_chunks([pool.submit(make, i) for i in range(count)], progress)
+        return run_chunks([pool.submit(make, i) for i in range(count)], progress)
     finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
         pool.shutdown(wait=False, cancel_futures=True)
 
@@ -503,7 +335,7 @@ def run_entries(
     _check_chunk(chunk_size)
     job = _Entries(env, cfg, root_key=root_key, seeds=seeds, hyper=hyper, chunk_size=chunk_size,
                    devices=devices, collector=collector)
-    _run_chunks([job], progress)
+    run_chunks([job], progress)
     return job.collector.result(), job.compile_seconds, job.run_seconds
 
 
