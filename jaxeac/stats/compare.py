@@ -510,7 +510,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         raw, counts = value_counts(measures[names[j]], N)
         vals, inv = np.unique(raw - means[j], return_inverse=True)  # the centred values of the seeds
         K = np.bincount(inv.reshape(-1), weights=counts, minlength=vals.size).astype(np.int64)
-        exact = vals.size <= large.MAX_DISTINCT
+        exact = large.few_values(vals.size)
         rng = large.host_rng(jax.random.fold_in(key, j))
         H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
         s1, s2 = large.moment_sums(H, vals)

@@ -138,9 +138,32 @@ def job_bytes(*n: int) -> int:
     return 8 * 4 * sum(int(k) for k in n)
 
 
+RAW, PER_VALUE, ASYMPTOTIC = "raw draws", "exact per-value counts", "asymptotic"
+PATH_RULE = (
+    f"seeds resampled one by one up to {LARGE_N} seeds per group; above, counts per distinct "
+    f"value (exact) where a group has at most {MAX_DISTINCT} distinct values, else the normal "
+    "limit of the bootstrap (jackknife standard error and acceleration)"
+)
+
+
+def few_values(distinct: int) -> bool:
+    """Whether `distinct` values are few enough to resample as exact counts per value."""
+    return int(distinct) <= MAX_DISTINCT
+
+
+def resampling_path(n: int, distinct: int) -> str:
+    """The one rule (`PATH_RULE`) for a group of n seeds with `distinct` values: `RAW` up to
+    `LARGE_N` seeds, then `PER_VALUE` where the values are few (`few_values`), else `ASYMPTOTIC`.
+    (Paired differences, `jaxeac.stats.paired`, take per-value counts wherever their values are
+    few, at any n: the same law as raw draws, and the numbers its run folders have always had.)"""
+    if int(n) <= LARGE_N:
+        return RAW
+    return PER_VALUE if few_values(distinct) else ASYMPTOTIC
+
+
 def is_large(*n: int) -> bool:
-    """Whether a comparison with these seeds per method takes the large-N path."""
-    return max(int(k) for k in n) > LARGE_N
+    """Whether a comparison with these seeds per method leaves raw draws (`resampling_path`)."""
+    return any(resampling_path(k, 0) != RAW for k in n)
 
 
 def host_rng(key) -> np.random.Generator:
@@ -183,7 +206,7 @@ class ValueTable:
 
     @property
     def exact(self) -> bool:
-        return self.distinct <= MAX_DISTINCT
+        return few_values(self.distinct)
 
 
 def _column_sums(blocks) -> np.ndarray:

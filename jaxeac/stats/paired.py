@@ -86,7 +86,7 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
            "p_paired_t": p_t, "d_z": dz, "correlation": r, "distinct_differences": int(values.size)}
     rng = large.host_rng(k_boot)
-    if values.size <= large.MAX_DISTINCT:  # exact: counts per distinct difference
+    if large.few_values(values.size):  # exact: counts per distinct difference
         c = large.multinomial_counts(rng, counts, resamples)
         s1, s2 = large.moment_sums(c, values)
         boot_mean, boot_sq = s1 / n, s2 / n
@@ -96,7 +96,7 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
         jk = [(jk_mean, counts)]
         jk_dz = [(_dz(jk_mean, jk_sq, n - 1), counts)]
         out["bootstrap"] = "exact: multinomial counts per distinct difference (Efron 1979)"
-    elif n <= large.LARGE_N:  # pairs one by one
+    elif not large.is_large(n):  # pairs one by one
         boot_mean, boot_sq = np.empty(resamples), np.empty(resamples)
         step = max(1, DRAWS // n)  # resamples per block
         for i in range(0, resamples, step):
@@ -137,11 +137,11 @@ def sign_flip_p(d: np.ndarray, values: np.ndarray, counts: np.ndarray, key, resa
     keep = mags > 0
     mags, per_mag = mags[keep], per_mag[keep]
     tol = 1e-9 * max(1.0, observed)
-    if mags.size <= large.MAX_DISTINCT:  # exact: the number of + signs per magnitude is binomial
+    if large.few_values(mags.size):  # exact: the number of + signs per magnitude is binomial
         plus = rng.binomial(per_mag[None, :], 0.5, size=(resamples, mags.size))
         s = (2 * plus - per_mag[None, :]) @ mags
         method = "exact: binomial sign counts per distinct |difference| (Fisher 1935)"
-    elif d.size <= large.LARGE_N:
+    elif not large.is_large(d.size):
         s = np.empty(resamples)
         step = max(1, DRAWS // d.size)
         for i in range(0, resamples, step):

@@ -1,0 +1,155 @@
+"""One task's bootstrap groups and the rows the engine builds from them (`jaxeac.stats.engine`).
+
+A `Group` is one algorithm on one task: its sorted values (or distinct values with counts),
+the bootstrap counts over them drawn by the group's path (`large.resampling_path`), units
+first, and, computed once on first use, their cumulative counts and sums. `pair_row` is the
+unpaired comparison of two groups, `paired_row` the paired one of per-seed differences.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import special
+
+from jaxeac.stats import closed_form as cf
+from jaxeac.stats import large
+from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
+from jaxeac.stats.large import resampling_path
+from jaxeac.stats.resample import boot_counts, cumulative
+from jaxeac.stats.tasks import wins_replicates
+
+
+class Group:
+    """One algorithm on one task: sorted values (raw) or distinct values with counts, and the
+    bootstrap counts over them, units first, CT [D, R] float32 (exact integers), drawn by the
+    group's path; their cumulative counts and sums are computed once, on first use."""
+
+    def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000):
+        self.x = np.sort(np.asarray(x, np.float64))
+        self.n = self.x.size
+        distinct, counts = np.unique(self.x, return_counts=True)
+        self.path = resampling_path(self.n, distinct.size)
+        if self.path == "raw draws":
+            self.values, self.k = self.x, np.ones(self.n, np.int64)
+            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True)
+        elif self.path == "exact per-value counts":
+            self.values, self.k = distinct, counts
+            c = large.multinomial_counts(large.host_rng(key), counts, resamples)
+            self.CT = np.ascontiguousarray(c.T, np.float32)
+        else:
+            self.values, self.k, self.CT = distinct, counts, None
+        self.mean = float(self.x.mean())
+        self._cum = self._sums = None
+
+    @property
+    def cum(self) -> np.ndarray:
+        """Cumulative counts [D + 1, R], row i the units below value i."""
+        if self._cum is None:
+            self._cum = cumulative(self.CT, zero_row=True)
+        return self._cum
+
+    def sums(self):
+        if self._sums is None:
+            s = np.stack([self.values, self.values * self.values]) @ self.CT.astype(np.float64)
+            self._sums = (s[0], s[1])
+        return self._sums
+
+    def iqm(self, alpha: float) -> list[float]:
+        est = float(np.mean(self.x[self.n // 4 : self.n - self.n // 4]))
+        if self.CT is None:
+            return [est, *large.normal_bca(est, jackknife_iqm(self.x), alpha)]
+        jk = (
+            jackknife_iqm(self.x)
+            if self.path == "raw draws"
+            else large.jackknife_iqm_counts(self.k, self.values)
+        )
+        star = large.iqm_from_counts(self.CT, self.values, units_first=True, cum=self.cum[1:])
+        jk = [jk] if self.path == "raw draws" else [(jk, self.k)]
+        return [est, *bca_interval(est, star, jk, alpha)]
+
+
+def wins(gx: Group, gy: Group):
+    """P(X > Y) + ½ P(X = Y): the estimate, its replicates (or None) and the jackknife per sample."""
+    lo, hi = np.searchsorted(gy.values, gx.values, "left"), np.searchsorted(gy.values, gx.values, "right")
+    ky = np.concatenate([[0], np.cumsum(gy.k)])
+    s = ky[lo] + 0.5 * (ky[hi] - ky[lo])  # per x value: y units below it, ties half
+    lo2, hi2 = np.searchsorted(gx.values, gy.values, "left"), np.searchsorted(gx.values, gy.values, "right")
+    kx = np.concatenate([[0], np.cumsum(gx.k)])
+    t = (gx.n - kx[hi2]) + 0.5 * (kx[hi2] - kx[lo2])  # per y value: x units above it, ties half
+    nx, ny = gx.n, gy.n
+    est = float(gx.k @ s / (nx * ny))
+    star = None
+    if gx.CT is not None and gy.CT is not None:
+        star = wins_replicates(gx.values, gx.CT, gy.values, gy.cum, nx, ny)
+    total = gx.k @ s
+    jx = (total - s) / ((nx - 1) * ny)
+    jy = (total - t) / (nx * (ny - 1))
+    return est, star, [(jx, gx.k), (jy, gy.k)]
+
+
+def _normal_two(est, jks, alpha):
+    """Normal-limit interval from the jackknife of two independent samples (the asymptotic path)."""
+    var = 0.0
+    for jk, w in jks:
+        n = w.sum()
+        m = (w @ jk) / n
+        var += (n - 1) / n * (w @ (jk - m) ** 2)
+    z = special.ndtri(1 - alpha / 2) * math.sqrt(var)
+    return [est, est - z, est + z]
+
+
+def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
+    """The unpaired comparison of one task's pair (X − Y)."""
+    welch = cf.welch_t(gy.x, gx.x)
+    if gx.CT is not None and gy.CT is not None:
+        sy, sx = gy.sums(), gx.sums()
+        d = bca_two_sample_counts("mean_diff", gy.values, gy.k, gx.values, gx.k, *sy, *sx, alpha)
+        diff_ci = [d.low, d.high]
+    else:
+        e = large.abc_two_sample("mean_diff", gy.x, gx.x, alpha)
+        diff_ci = [e.low, e.high]
+    p_hat, star, jk = wins(gx, gy)
+    p_ci = (
+        list(bca_interval(p_hat, star, jk, alpha)) if star is not None else _normal_two(p_hat, jk, alpha)[1:]
+    )
+    return {
+        "n_x": gx.n,
+        "n_y": gy.n,
+        "mean_x": gx.mean,
+        "mean_y": gy.mean,
+        "diff": gx.mean - gy.mean,
+        "diff_ci": diff_ci,
+        "t_welch": welch.statistic,
+        "df_welch": welch.df,
+        "p_welch": welch.pvalue,
+        "hedges_g": cf.hedges_g(gy.x, gx.x),
+        "p_improvement": p_hat,
+        "p_improvement_ci": p_ci,
+    }
+
+
+def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples: int = 10_000) -> dict:
+    """The paired comparison: per-seed differences d (X − Y of the same seed id), C the task's shared
+    draw over its seeds (raw path), else `jaxeac.stats.paired.paired_analysis`."""
+    n = d.size
+    t = cf.paired_t(d)
+    out = {
+        "n": n,
+        "mean_diff": float(d.mean()),
+        "sd_diff": float(d.std(ddof=1)),
+        "t_paired": t.statistic,
+        "df": n - 1,
+        "p_paired_t": t.pvalue,
+        "d_z": cf.d_z(d),
+    }
+    if C is not None:  # C: the shared draw, units first [n, R]
+        star = d @ C.astype(np.float64) / n
+        out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
+        return out
+    from jaxeac.stats.paired import paired_analysis
+
+    res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha)
+    out["mean_diff_ci"] = res["mean_diff_ci"]
+    return out
