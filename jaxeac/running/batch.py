@@ -34,7 +34,13 @@ from jaxeac.running.loops import (
     trials_batch,
 )
 from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
-from jaxeac.running.schedule import record, record_timeline, run_chunks  # noqa: F401  (record_timeline: scripts)
+from jaxeac.running.schedule import (  # noqa: F401  (record_timeline, DEVICES_APART: scripts, tests)
+    DEVICES_APART,
+    device_groups,
+    record,
+    record_timeline,
+    run_chunks,
+)
 from jaxeac.runtime import trim_host_memory
 
 SEEDS_AXIS = "seeds"
@@ -99,22 +105,6 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
 
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
-
-#: Per platform, whether each device runs its own program on its own share of chunks
-#: (`device_groups`) rather than one program spanning every device with `shard_map`. On GPUs,
-#: one program per device fed from a shared queue of chunks (`_run_chunks`) keeps a device from
-#: waiting on another or on the host. On CPUs the devices are the host's cores: one program over
-#: all of them, compiled once (an XLA:CPU program per core would compile once per core).
-DEVICES_APART = {"gpu": True, "tpu": True}
-
-
-def device_groups(devices: Sequence[jax.Device], platform: str | None = None) -> list[tuple]:
-    """The devices as groups that each run one program: a group per device where the platform
-    runs its devices apart (`DEVICES_APART`), else one group of them all."""
-    devices = tuple(devices)
-    platform = platform or devices[0].platform
-    return [(d,) for d in devices] if DEVICES_APART.get(platform, False) else [devices]
-
 
 def _check_seeds(seeds) -> np.ndarray:
     """int64 [N]: seed indices, each in 0..2^32−1 (R1: `fold_in` keeps 32 bits)."""

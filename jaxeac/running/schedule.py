@@ -15,7 +15,25 @@ import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 
+import jax
+
 from jaxeac.runtime import trim_host_memory
+
+#: Per platform, whether each device runs its own program on its own share of chunks
+#: (`device_groups`) rather than one program spanning every device with `shard_map`. On GPUs,
+#: one program per device fed from a shared queue of chunks (`run_chunks`) keeps a device from
+#: waiting on another or on the host. On CPUs the devices are the host's cores: one program over
+#: all of them, compiled once (an XLA:CPU program per core would compile once per core).
+DEVICES_APART = {"gpu": True, "tpu": True}
+
+
+def device_groups(devices: Sequence[jax.Device], platform: str | None = None) -> list[tuple]:
+    """The devices as groups that each run one program: a group per device where the platform
+    runs its devices apart (`DEVICES_APART`), else one group of them all."""
+    devices = tuple(devices)
+    platform = platform or devices[0].platform
+    return [(d,) for d in devices] if DEVICES_APART.get(platform, False) else [devices]
+
 
 #: Chunks a device holds dispatched and not yet collected, per program: with two, the next
 #: chunk is queued on the device while the host collects the one before.
