@@ -195,7 +195,7 @@ def trace(env, config, key=0, seed=0):
 
 
 def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: float = 0.95,
-            names: tuple[str, str] = ("ac", "eac")):
+            names: tuple[str, str] = ("ac", "eac"), paired: bool | str = "auto"):
     """Compare two methods, treatment − baseline, with the statistics engine
     (`jaxeac.stats.engine.compare`); returns its `Comparison` (``.rows``, ``.to_dict()``,
     ``.markdown()``).
@@ -205,8 +205,9 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
       algorithms; the folder's full statistics are ``.stats`` (the content of stats.json).
     - ``compare(a, b)``: per-seed values (1-D arrays, or `SeedsResult`s, compared on successes):
       difference of means with a BCa interval, Welch's test, Hedges' g, the probability of
-      improvement, the IQMs; paired (same seeds) where both have the same number of seeds, as
-      two results of one `run` do (seed i of each shares its key).
+      improvement, the IQMs. `paired`: ``"auto"`` pairs two `SeedsResult`s of the same seeds (seed
+      i of each shares its key when both came from `run` with one key) and leaves arrays
+      unpaired; ``True`` pairs arrays of equal length element by element; ``False`` never pairs.
 
     `level`: the confidence level of every interval (0.95: 95 %). Per-seed data of several tasks
     or algorithms: `jaxeac.stats.engine.compare` directly.
@@ -222,11 +223,17 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
         if not isinstance(baseline, str | os.PathLike):
             raise TypeError("compare(folder) takes a run folder's path; to compare arrays give two: compare(a, b)")
         return engine_compare(baseline, baseline=b, treatment=t, resamples=resamples, level=float(level), key=key)
+    if paired not in ("auto", True, False):
+        raise ValueError(f"paired must be 'auto', True or False (got {paired!r})")
     xb, xt = _values(baseline, "baseline"), _values(treatment, "treatment")
     from jaxeac.stats.inputs import PerSeed
 
-    seeds = ({"": {b: np.arange(xb.size).astype(str), t: np.arange(xt.size).astype(str)}}
-             if xb.size == xt.size else None)
+    same = [getattr(x, "seeds", None) for x in (baseline, treatment)]
+    if paired is True and xb.size != xt.size:
+        raise ValueError(f"paired=True needs as many values on each side (got {xb.size} and {xt.size})")
+    pair = paired is True or (paired == "auto" and same[0] is not None and same[1] is not None
+                              and np.array_equal(same[0], same[1]))
+    seeds = {"": {b: np.arange(xb.size).astype(str), t: np.arange(xt.size).astype(str)}} if pair else None
     data = PerSeed({"": {b: xb, t: xt}}, seeds, "per-seed value: as given", "arrays")
     return engine_compare(data, baseline=b, treatment=t, resamples=resamples, level=float(level), key=key)
 

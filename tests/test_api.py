@@ -122,3 +122,14 @@ def test_release_0_1_spellings_warn_and_name_the_public_one():
     assert RunConfig is jaxeac.RunConfig
     with pytest.raises(AttributeError, match="no attribute 'nothing'"):
         jaxeac.running.nothing  # noqa: B018
+
+
+def test_compare_pairs_results_of_the_same_seeds_and_never_bare_arrays_unasked():
+    env = jaxeac.make("grid-paper7-v0", chances=12)
+    runs = jaxeac.run(env, ["ac", "eac"], seeds=SEEDS, key=KEY)
+    assert jaxeac.compare(runs["ac"], runs["eac"], resamples=400).rows[0]["analysis"] == "paired"
+    a, b = runs["ac"].successes, runs["eac"].successes
+    assert jaxeac.compare(a, b, resamples=400).rows[0]["analysis"] == "unpaired"
+    assert jaxeac.compare(a, b, resamples=400, paired=True).rows[0]["analysis"] == "paired"
+    with pytest.raises(ValueError, match="paired=True needs as many values"):
+        jaxeac.compare(a, b[:-1], resamples=400, paired=True)
