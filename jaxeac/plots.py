@@ -2,6 +2,9 @@
 
 Matplotlib with the Agg backend; every function writes PNGs into a folder and
 returns their file names.
+
+(Over 400 lines on purpose: every figure of a run folder in one place, drawn in one style
+(`jaxeac.style`).)
 """
 
 from __future__ import annotations

@@ -18,6 +18,9 @@ Physics backends (B7):
 All consume the same random numbers: E1 uniforms from `step_uniform` and throw
 noise from ``fold_in(fold_in(fold_in(root, seed), trial), chance)``.
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
+
+(Over 400 lines: the bowling experiment end to end: settings, the compiled learning steps around
+the physics, the trial rules and the outputs.)
 """
 
 from __future__ import annotations

@@ -15,9 +15,9 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from jaxeac.runtime import versions
 from jaxeac.algorithm.config import ALGORITHMS, algorithm
 from jaxeac.errors import UsageError
+from jaxeac.runtime import versions
 from jaxeac.stats.closed_form import t_interval, welch_interval
 
 # ------------------------------------------------------------------ input checks

@@ -10,6 +10,9 @@ input fails before any compute); `run_grid` runs every algorithm over seeds
 `run_grid_to_folder` does both at once, writing results.parquet a chunk at a time and
 keeping only the per-seed measures and success bits (`CompactSeeds`) in memory: the
 form that stays within a few GiB at 10^7 seeds.
+
+(Over 400 lines: the grid experiment's settings, its runs, multi-process parts and their merge,
+the summary and the folder.)
 """
 
 from __future__ import annotations

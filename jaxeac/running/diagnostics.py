@@ -16,7 +16,6 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 
 import jax
@@ -29,7 +28,14 @@ from jaxeac.algorithm.config import AgentConfig, Hyper
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key
 from jaxeac.running.config import RunConfig
-from jaxeac.running.loops import Env, bind_inputs, program_inputs, program_key, state_bytes_per_seed, trace_run
+from jaxeac.running.loops import (
+    Env,
+    bind_inputs,
+    program_inputs,
+    program_key,
+    state_bytes_per_seed,
+    trace_run,
+)
 from jaxeac.running.outputs import KEEP_LOGS
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):

@@ -13,6 +13,9 @@ A chance is `choose` (E1 with the seed's uniform, R1), the environment's move, a
 `learn_and_record` ((2)–(4), E5/E6 records); bowling calls the same two functions.
 All take a resolved `RunConfig` (`RunConfig.resolve`).
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
+
+(Over 400 lines on purpose: both loop structures side by side, so that their bit-identity can be
+read line against line.)
 """
 
 from __future__ import annotations

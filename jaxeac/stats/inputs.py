@@ -19,6 +19,9 @@ and algorithm, never silently; text that is no number and infinite values are er
 
 Malformed input raises `UsageError` (a `ValueError`) naming the row, column, file or
 algorithm, quoting at most a short printable excerpt, before anything is written.
+
+(Over 400 lines on purpose: one reader per input format (tidy tables, SB3 monitors, rliable
+arrays) with the checks that refuse bad input before any compute.)
 """
 
 from __future__ import annotations

@@ -2,6 +2,9 @@
 
 Writes `stats.json`, `report.md` and the figures together (or none of them)
 through `jaxeac.io.staged_dir`.
+
+(Over 400 lines: the run-folder comparison's sections (measures, paired analysis, curves,
+calibration, run side by side) until they are built on `jaxeac.stats.engine`.)
 """
 
 from __future__ import annotations

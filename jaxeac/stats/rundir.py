@@ -6,6 +6,9 @@ successes over T (grid) or total pins over T (bowling). Secondary measures:
 success rate over the last 20 % of trials, first successful trial (time to
 event, right-censored at T), and the normalised area under the cumulative
 success curve.
+
+(Over 400 lines: a run folder of either experiment, in every layout since release 0.1, read with
+the cross-checks that name a damaged file.)
 """
 
 from __future__ import annotations

@@ -3,6 +3,9 @@
 Every number the prose quotes is in the record (``reproduce.json``) it renders; numbers are
 printed through `jaxeac.fmt`, the paper's through `jaxeac.paper`. `export_document` copies a
 finished report and its figures into the repository (docs/REPLICATION.md).
+
+(Over 400 lines: the replication report's prose, a section per claim, all rendered from one
+record.)
 """
 
 from __future__ import annotations
