@@ -117,13 +117,13 @@ def end_to_end_vs_seeds(records: Path, out: Path) -> Path:
 
     first_1m, cached_1m = [], []
     for i in (1, 2, 3):
-        f, c = _builds_runs(load(records, f"gpu_h100_e2e_1m_first_runs_{i}.json"))
+        f, c = _builds_runs(load(records, "gpu_h100_e2e_1m_first_runs.json")[f"machine_{i}"])
         first_1m += f
         cached_1m.append(c)
     ten = load(records, "gpu_h100_e2e_10m.json")
     first_10m, cached_10m = _builds_runs(ten)
     ax.plot([1e6] * len(first_1m) + [1e7] * len(first_10m), first_1m + first_10m, marker="o", ls="none",
-            color=COLORS["gpu"], label="1× H100, first runs (gpu_h100_e2e_1m_first_runs_*.json, _10m)")
+            color=COLORS["gpu"], label="1× H100, first runs (gpu_h100_e2e_1m_first_runs.json, _10m)")
     ax.plot([1e6] * len(cached_1m) + [1e7], cached_1m + [cached_10m], marker="D", ls="none",
             color=COLORS["gpu"], mfc="none", ms=8, label="1× H100, compilation cache warm")
     one = load(records, "gpu_h100_e2e_1m.json")["grid"][0]
