@@ -145,8 +145,10 @@ def _run_to_folder(env, cfgs: dict, *, seeds: int, key, chunk_size, out) -> dict
                          f"{', '.join(scheduled)} is a schedule: run without out= to keep the results in memory")
     if any(name != _name(cfg) for name, cfg in cfgs.items()):
         raise ValueError("out= needs each config under its algorithm's name (the folder's 'algo' column)")
-    settings = GridSettings(env=env, algos=tuple(cfgs), seeds=seeds, key=_int_key(key), chunk_size=chunk_size,
-                            trials=first.trials, alpha=first.alpha, beta=first.beta, gamma=first.gamma,
+    from jaxeac.rng import root_key_int
+
+    settings = GridSettings(env=env, algos=tuple(cfgs), seeds=seeds, key=root_key_int(key, "key"),
+                            chunk_size=chunk_size, trials=first.trials, alpha=first.alpha, beta=first.beta, gamma=first.gamma,
                             temperature=first.temperature, epsilon=first.epsilon, lanes=first.lanes,
                             memory=first.agent.memory, capacity=first.agent.capacity)
     settings = settings.resolved()
@@ -166,31 +168,19 @@ def _run_to_folder(env, cfgs: dict, *, seeds: int, key, chunk_size, out) -> dict
     return results
 
 
-def _int_key(key) -> int:
-    """The 32-bit integer of a root key (an int or a JAX key), as a run folder records it."""
-    from jaxeac import rng
-
-    root = getattr(rng, "root_key_int", None)
-    if root is not None:
-        return root(key)
-    if isinstance(key, bool) or not isinstance(key, numbers.Integral) or not 0 <= key < 2**32:
-        raise ValueError(f"key must be an integer in 0 … 2**32 - 1 (got {key!r})")
-    return int(key)
-
-
 def trace(env, config, key=0, seed=0):
     """One seed's whole run as a pure function: ``(final agent, per-trial record)``, with each
     trial's states, actions, r̃ and outcome (the literal `trials` loop; jit and vmap it freely:
     `key` and `seed` may be traced)."""
     import jax
 
-    from jaxeac.rng import seed_key
+    from jaxeac.rng import root_key_int, seed_key
     from jaxeac.running.loops import trace_run
 
     environment, cfg = _env(env), _config(config)
     runtime.configure()
     if isinstance(key, numbers.Integral) and not isinstance(key, bool):
-        key = jax.random.key(_int_key(key))
+        key = jax.random.key(root_key_int(key, "key"))
     return trace_run(environment, cfg, seed_key(key, seed), cfg.hyper())
 
 

@@ -33,6 +33,18 @@ COLORS = {"ac": "tab:blue", "eac": "tab:orange", "c": "tab:green", "numba": "tab
           "numpy": "tab:gray", "cpu": "tab:green", "gpu": "tab:red"}
 
 
+
+def _save(fig, path: Path, title: str | None = None) -> Path:
+    """Title, lay out, write at the page's resolution and close a figure; its path."""
+    import matplotlib.pyplot as plt
+
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
 def load(records: Path, name: str) -> dict:
     return json.loads((records / name).read_text())
 
@@ -87,12 +99,8 @@ def throughput_vs_seeds(records: Path, out: Path) -> Path:
         ax.set_ylabel("useful agent-steps per second")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=1, frameon=False)
-    fig.suptitle("Grid-world throughput against seeds (compile excluded; best of the record's repeats)")
-    fig.tight_layout()
-    path = out / "throughput_vs_seeds.png"
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "throughput_vs_seeds.png",
+                 "Grid-world throughput against seeds (compile excluded; best of the record's repeats)")
 
 
 def _builds_runs(record: dict) -> tuple[list[float], float]:
@@ -140,11 +148,7 @@ def end_to_end_vs_seeds(records: Path, out: Path) -> Path:
     ax.set_title("`jaxeac grid --preset paper --seeds N`: run, statistics report and figures", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=1, frameon=False)
-    fig.tight_layout()
-    path = out / "end_to_end_vs_seeds.png"
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "end_to_end_vs_seeds.png")
 
 
 def _fmt(v: float) -> str:
@@ -218,12 +222,7 @@ def peers(records: Path, out: Path) -> Path:
     bowl.set_ylim(50, 5e4)
     bowl.set_title("Bowling, Newton 4/8 (the reference-accuracy default)", fontsize=10)
     bowl.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
-    fig.suptitle("jaxeac against peers measured in the same run")
-    fig.tight_layout()
-    path = out / "peers.png"
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "peers.png", "jaxeac against peers measured in the same run")
 
 
 SCALE_RECORD = "gpu_h100x2_timeline_4m.json"
@@ -249,11 +248,7 @@ def scaling(records: Path, out: Path) -> Path:
     ax.set_title(f"Scaling over GPUs ({SCALE_RECORD})", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = out / "scaling.png"
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "scaling.png")
 
 
 def main() -> None:
