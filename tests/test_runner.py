@@ -308,6 +308,68 @@ def test_devices_take_chunks_at_their_own_pace():
     assert job.ran.count(1) > job.ran.count(0) > 0, job.ran
 
 
+def test_a_device_joins_when_its_own_program_is_in():
+    """Each device takes chunks once its own program is in (`program_pending`): the first
+    device's runs while the second's is still loading; the second then joins, and the host
+    still collects every chunk once, in seed order."""
+    import threading
+    from concurrent.futures import Future
+
+    from jaxeac.running.schedule import run_chunks as _run_chunks
+
+    loading: Future = Future()
+
+    class Loading(_LoggedJob):
+        def program_pending(self, group):
+            return loading if group == 1 and not loading.done() else None
+
+        def dispatch(self, start, group):
+            assert group == 0 or loading.done()
+            if start == 3:  # the second device's program comes in while the first runs
+                threading.Timer(0.01, loading.set_result, args=("program",)).start()
+            return super().dispatch(start, group)
+
+        def ready(self, out):
+            time.sleep(0.005)
+
+    log: list[str] = []
+    job = Loading("a", log, 40, groups=2)
+    _run_chunks([job], None)
+    assert [x for x in log if x.startswith("collect")] == [f"collect a{i}" for i in range(40)]
+    assert job.ran[:4] == [0, 0, 0, 0] and 1 in job.ran, job.ran
+
+
+def test_chunks_are_prepared_on_the_device_threads_and_collected_in_order():
+    """`prepare` (a chunk's own rows) runs on the device groups' threads, several chunks at
+    once and in any order; `collect` gets every prepared chunk once, in seed order, on the
+    calling thread."""
+    import threading
+
+    from jaxeac.running.schedule import run_chunks as _run_chunks
+
+    class Prepared(_LoggedJob):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            self.prepared, self.threads = {}, set()
+
+        def prepare(self, start, host, pool):
+            self.threads.add(threading.current_thread().name)
+            time.sleep(0.002 * (start % 3))  # out of order
+            self.prepared[start] = host
+            return ("prepared", start)
+
+        def collect(self, start, host, pool):
+            assert host == ("prepared", start) and threading.current_thread() is threading.main_thread()
+            super().collect(start, host, pool)
+
+    log: list[str] = []
+    job = Prepared("a", log, 30, groups=3)
+    _run_chunks([job], None)
+    assert [x for x in log if x.startswith("collect")] == [f"collect a{i}" for i in range(30)]
+    assert sorted(job.prepared) == list(range(30))
+    assert job.threads <= {f"jaxeac-device-{g}" for g in range(3)} and len(job.threads) > 1, job.threads
+
+
 def test_a_failing_device_stops_the_run():
     """An error on a device's thread reaches the caller, and the run stops."""
     from jaxeac.running.schedule import run_chunks as _run_chunks

@@ -183,25 +183,45 @@ def _persistent_cache_shared(platform: str) -> bool:
     return platform == "gpu" and bool(jax.config.jax_compilation_cache_dir)
 
 
+def _in_background(work: Callable, name: str) -> Future:
+    """`work()` on a daemon thread of its own (an interrupted run does not wait for it): a future."""
+    future: Future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(work())
+        except BaseException as e:  # noqa: BLE001 (the future carries it to whoever waits)
+            future.set_exception(e)
+
+    threading.Thread(target=run, daemon=True, name=name).start()
+    return future
+
+
 def _compile_groups(env: Env, cfg: RunConfig, groups: list[tuple], root, seeds, hyper,
-                    tables: dict) -> tuple[list, float]:
-    """(a compiled program per device group, seconds spent compiling). The first group compiles;
-    where the persistent cache serves the others (`_persistent_cache_shared`) they load its
-    program after it, else they compile beside it on threads."""
-    t0 = time.perf_counter()
-    compile = lambda group: _compiled(env, cfg, group, root, seeds, hyper, tables)  # noqa: E731
-    if len(groups) == 1:
-        program, seconds = compile(groups[0])
-        return [program], seconds
-    if _persistent_cache_shared(groups[0][0].platform):
-        done = [compile(groups[0])]
-        with ThreadPoolExecutor(max_workers=len(groups) - 1) as pool:
-            done += list(pool.map(compile, groups[1:]))
-    else:
-        with ThreadPoolExecutor(max_workers=len(groups)) as pool:
-            done = list(pool.map(compile, groups))
-    compiled_any = any(seconds > 0 for _, seconds in done)
-    return [program for program, _ in done], (time.perf_counter() - t0) if compiled_any else 0.0
+                    tables: dict, name: str = "") -> tuple[list[Future], float]:
+    """(a future of the compiled program of each device group, seconds the first one's compile
+    took). The first group's program is ready on return, so its device starts at once; the
+    others come on threads while it runs: loaded from the persistent cache after the first's
+    compile where the cache serves them (`_persistent_cache_shared`), else compiled beside it.
+    Each device takes chunks once its own program is in (`_Entries.program_pending`)."""
+    def compile(i: int) -> tuple:
+        t0 = time.perf_counter()
+        program, seconds = _compiled(env, cfg, groups[i], root, seeds, hyper, tables)
+        record({"event": "compile", "job": name, "group": i, "start": t0, "end": time.perf_counter(),
+                "compile_s": seconds, "groups": len(groups)})
+        return program, seconds
+
+    def later(i: int) -> Future:
+        return _in_background(lambda: compile(i)[0], f"jaxeac-compile-{i}")
+
+    shared = _persistent_cache_shared(groups[0][0].platform)
+    others = [] if shared else [later(i) for i in range(1, len(groups))]
+    program, seconds = compile(0)
+    if shared:
+        others = [later(i) for i in range(1, len(groups))]
+    first: Future = Future()
+    first.set_result(program)
+    return [first, *others], seconds
 
 
 def _plan(env: Env, cfg: RunConfig, n: int, chunk_size: int | None, devices) -> tuple[list, int]:
@@ -231,11 +251,9 @@ class _Entries:
         root = jax.random.key(root_key)
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
         _, seeds0, hyper0 = self.chunk_inputs(0)
-        t0 = time.perf_counter()
         tables = program_inputs(env)
-        self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0, tables)
-        record({"event": "compile", "job": name, "start": t0, "end": time.perf_counter(),
-                 "compile_s": self.compile_seconds, "groups": len(self.groups)})
+        self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0, tables,
+                                                              name)
         self.fixed = [_placed(g, root, tables) for g in self.groups]  # each group's root key and tables
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
         self.n_states = env.n_states  # a padded tabular layout's extra states are dropped (`collect`)
@@ -249,14 +267,25 @@ class _Entries:
     def starts(self) -> range:
         return range(0, self.n, self.piece)
 
+    def program_pending(self, group: int) -> Future | None:
+        """The future of group `group`'s program while it is still compiling or loading, else None."""
+        program = self.programs[group]
+        return None if program.done() else program
+
     def dispatch(self, start: int, group: int):
         """Start chunk `start` on device group `group`; returns (its size, its output on the device)."""
+        t0 = time.perf_counter()
         size, chunk_seeds, chunk_hyper = self.chunk_inputs(start)
+        t1 = time.perf_counter()
         chunk_seeds, chunk_hyper = _placed(self.groups[group], chunk_seeds, chunk_hyper)
+        t2 = time.perf_counter()
         root, tables = self.fixed[group]
-        out = self.programs[group](root, chunk_seeds, chunk_hyper, tables)
+        out = self.programs[group].result()(root, chunk_seeds, chunk_hyper, tables)
+        t3 = time.perf_counter()
         for leaf in jax.tree.leaves(out):
             leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
+        record({"event": "dispatch", "job": self.name, "start": start, "group": group, "inputs_s": t1 - t0,
+                "put_s": t2 - t1, "launch_s": t3 - t2, "copy_s": time.perf_counter() - t3})
         return size, out
 
     @staticmethod
@@ -268,9 +297,16 @@ class _Entries:
         """The chunk's output on the host, padding dropped."""
         return jax.tree.map(lambda x: np.asarray(x)[:size], out)
 
-    def collect(self, start: int, host: BatchOutput, pool: ThreadPoolExecutor) -> None:
+    def prepare(self, start: int, host: BatchOutput, pool: ThreadPoolExecutor) -> BatchOutput:
+        """The chunk's own rows (unpacked, measured: `Collector.prepare`), on its device's thread."""
         if host.policy.shape[1] != self.n_states:  # tables padded to a layout (`program_inputs`)
             host = host.replace(policy=host.policy[:, :self.n_states])
+        if (prepare := getattr(self.collector, "prepare", None)) is not None:
+            prepare(start, host, pool)
+        return host
+
+    def collect(self, start: int, host: BatchOutput, pool: ThreadPoolExecutor) -> None:
+        """The chunk to the collector in seed order (after `prepare`)."""
         self.collector.add(start, host, pool)
 
     @property

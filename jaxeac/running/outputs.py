@@ -143,10 +143,14 @@ def _row_blocks(size: int) -> list[slice]:
 
 
 class Collector(Protocol):
-    """Where a run's chunks go on the host, in seed order (`jaxeac.running.run_entries`).
+    """Where a run's chunks go on the host (`jaxeac.running.run_entries`).
 
-    `add` gets rows ``start …`` of the run as numpy `BatchOutput` (padding dropped) and
-    a thread pool for work that frees the GIL; `result` is what the run returns.
+    `prepare` (optional) gets rows ``start …`` of the run as numpy `BatchOutput` (padding
+    dropped) on the thread of the device that ran them, in any order and several chunks at
+    once: work on the chunk's own rows (unpacking, per-seed measures) runs there, beside the
+    other devices. `add` then gets every chunk once, in seed order, on the collecting thread
+    (a file writer's work), and a thread pool for work that frees the GIL; `result` is what
+    the run returns.
     """
 
     def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None: ...
@@ -154,17 +158,26 @@ class Collector(Protocol):
     def result(self): ...
 
 
+def _rows_in_parallel(work: Callable[[slice], None], size: int, pool: Executor) -> None:
+    """`work(rows)` for every `UNPACK_ROWS` block of a chunk's `size` rows, on `pool`."""
+    list(pool.map(work, _row_blocks(size)))
+
+
 class HostArrays:
-    """The default collector: every seed's G7 record in host arrays (`SeedResult`)."""
+    """The default collector: every seed's G7 record in host arrays (`SeedResult`), each chunk
+    unpacked into its rows on its device's thread (`prepare`)."""
 
     def __init__(self, n: int, n_trials: int, n_states: int):
         self.whole = empty_results(n, n_trials, n_states)
 
-    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+    def prepare(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
         def unpack_rows(rows: slice) -> None:  # numpy frees the GIL: rows in parallel
             unpack_output(jax.tree.map(lambda x: x[rows], chunk), self.whole, start + rows.start)
 
-        list(pool.map(unpack_rows, _row_blocks(chunk.log.shape[0])))
+        _rows_in_parallel(unpack_rows, chunk.log.shape[0], pool)
+
+    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+        """Nothing left to do in seed order: `prepare` wrote the chunk's rows."""
 
     def result(self) -> SeedResult:
         return self.whole
@@ -259,7 +272,8 @@ class CompactCollector:
         )
         self.on_chunk = on_chunk
 
-    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+    def prepare(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+        """The chunk's per-seed measures, into its own rows (any order, any thread)."""
         o = self.out
 
         def measures(rows: slice) -> None:
@@ -270,15 +284,18 @@ class CompactCollector:
             o.first_success[at], o.steps_total[at] = m["first_success"], m["steps_total"]
 
         m = chunk.log.shape[0]
-        list(pool.map(measures, _row_blocks(m)))
+        _rows_in_parallel(measures, m, pool)
         if chunk.finite is not None:
             o.finite[start:start + m] = chunk.finite
         keep = max(0, min(m, o.first_policies.shape[0] - start))
         o.first_policies[start:start + keep] = chunk.policy[:keep]
         keep = max(0, min(m, o.first_logs.shape[0] - start))
         o.first_logs[start:start + keep] = chunk.log[:keep]
+
+    def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
+        """The chunk, with its measures (`prepare`), to `on_chunk`, in seed order."""
         if self.on_chunk is not None:
-            at = slice(start, start + m)
+            o, at = self.out, slice(start, start + chunk.log.shape[0])
             self.on_chunk(start, chunk, {"bits": o.success.bits[at], "successes": o.successes[at],
                                          "first_success": o.first_success[at],
                                          "steps_total": o.steps_total[at], "finite": o.finite[at]})

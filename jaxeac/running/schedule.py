@@ -13,7 +13,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 
 import jax
 
@@ -74,14 +74,24 @@ class _Queue:
         self.taken = 0
         self.total: int | None = None  # chunks in all, once the last one is handed out
 
-    def blocks(self) -> bool:
-        """Whether taking the next chunk would wait for a compile."""
+    def blocks(self, group: int = 0) -> bool:
+        """Whether taking the next chunk would wait: for a compile, or for group `group`'s own
+        program of the next job (`_pending`)."""
         with self.lock:
-            return not self.starts and bool(self.jobs) and isinstance(self.jobs[0], Future) \
-                and not self.jobs[0].done()
+            if self.starts:
+                return _pending(self.done[-1], group) is not None
+            if not self.jobs:
+                return False
+            job = self.jobs[0]
+            if isinstance(job, Future):
+                if not job.done() or job.exception() is not None:
+                    return not job.done()
+                job = job.result()
+            return _pending(job, group) is not None
 
-    def take(self):
-        """(sequence number, job, start) of the next chunk, or None when none is left."""
+    def take(self, group: int = 0):
+        """(sequence number, job, start) of the next chunk; None when none is left; or the future
+        of group `group`'s program of the next job while it is not in yet (nothing is taken)."""
         with self.lock:
             while not self.starts:
                 if not self.jobs:
@@ -92,45 +102,66 @@ class _Queue:
                 self.jobs.popleft()
                 self.done.append(job)
                 self.starts.extend(job.starts())
+            job = self.done[-1]
+            if (pending := _pending(job, group)) is not None:
+                return pending
             self.taken += 1
-            return self.taken - 1, self.done[-1], self.starts.popleft()
+            return self.taken - 1, job, self.starts.popleft()
+
+
+def _pending(job, group: int) -> Future | None:
+    """The future of `job`'s program for device group `group` while it is still compiling or
+    loading (the first group's is in before the job's chunks start: the others join as theirs
+    come in), else None."""
+    pending = getattr(job, "program_pending", None)
+    return pending(group) if pending is not None else None
 
 
 class _Pipeline:
     """The device groups' workers and the collecting thread's hand-over (`run_chunks`)."""
 
-    def __init__(self, jobs: Sequence, n_groups: int):
+    def __init__(self, jobs: Sequence, n_groups: int, pool: Executor):
         self.queue = _Queue(jobs)
+        self.pool = pool  # threads for work that frees the GIL (`prepare`), shared by the workers
         self.cond = threading.Condition()
-        self.ready: dict[int, tuple] = {}  # sequence number -> (job, start, group, host output, times)
+        self.ready: dict[int, tuple] = {}  # sequence number -> (job, start, group, size, host output, times)
         self.error: BaseException | None = None
         self.stop = False
         self.room = [threading.Semaphore(CHUNKS_IN_FLIGHT + 1) for _ in range(n_groups)]
 
     def work(self, group: int) -> None:
         """Group `group`'s worker: take chunks, keep `CHUNKS_IN_FLIGHT` of them dispatched, and
-        hand each, copied to the host, to the collecting thread; at most `CHUNKS_IN_FLIGHT` + 1
-        dispatched and not yet collected (host memory stays bounded when the host is behind)."""
+        hand each, copied to the host and prepared (`prepare`: its own rows unpacked or measured,
+        here, beside the other devices' workers), to the collecting thread; at most
+        `CHUNKS_IN_FLIGHT` + 1 dispatched and not yet collected (host memory stays bounded when
+        the host is behind). A group whose program is still loading finishes its chunks in flight
+        and waits for it while the others take chunks."""
         flight: collections.deque = collections.deque()
         try:
             while not self.stop:
-                if flight and (len(flight) >= CHUNKS_IN_FLIGHT or self.queue.blocks()):
+                if flight and (len(flight) >= CHUNKS_IN_FLIGHT or self.queue.blocks(group)):
                     self.finish(flight.popleft())  # the device is busy; nothing waits on a compile
                     continue
                 if not self.room[group].acquire(blocking=False):  # the host is behind: hand over
                     while flight:  # everything held, so the collector can move on
                         self.finish(flight.popleft())
                     self.room[group].acquire()
-                item = self.queue.take()
+                item = self.queue.take(group)
                 if item is None:
                     self.room[group].release()
                     break
+                if isinstance(item, Future):  # this group's program is not in yet
+                    self.room[group].release()
+                    while flight:
+                        self.finish(flight.popleft())
+                    item.result()
+                    continue
                 seq, job, start = item
                 t = time.perf_counter()
                 size, out = job.dispatch(start, group)
                 if job.first_dispatch == 0.0 or t < job.first_dispatch:
                     job.first_dispatch = t
-                flight.append((seq, job, start, group, size, out, t))
+                flight.append((seq, job, start, group, size, out, {"dispatch": t, "launched": time.perf_counter()}))
             while flight and not self.stop:
                 self.finish(flight.popleft())
         except BaseException as e:  # noqa: BLE001 (re-raised on the collecting thread)
@@ -142,11 +173,14 @@ class _Pipeline:
                 self.cond.notify_all()
 
     def finish(self, item) -> None:
-        seq, job, start, group, size, out, dispatched = item
+        seq, job, start, group, size, out, times = item
         job.ready(out)
-        ready = time.perf_counter()
+        times["ready"] = time.perf_counter()
         host = job.fetch(size, out)
-        times = {"dispatch": dispatched, "ready": ready, "fetched": time.perf_counter()}
+        times["fetched"] = time.perf_counter()
+        if (prepare := getattr(job, "prepare", None)) is not None:
+            host = prepare(start, host, self.pool)
+        times["prepared"] = time.perf_counter()
         with self.cond:
             self.ready[seq] = (job, start, group, size, host, times)
             self.cond.notify_all()
@@ -170,31 +204,33 @@ def run_chunks(jobs: Sequence, progress) -> list:
     A job may be a future of one still compiling (`_prepare_all`): the jobs before it run
     meanwhile, and chunks in flight come back while it compiles. Returns the jobs."""
     first = next((j for j in jobs if not isinstance(j, Future)), None) or jobs[0].result()
-    pipe = _Pipeline(jobs, len(first.groups))
-    workers = [threading.Thread(target=pipe.work, args=(g,), daemon=True, name=f"jaxeac-device-{g}")
-               for g in range(len(first.groups))]
-    for w in workers:
-        w.start()
-    try:
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+    n_groups = len(first.groups)
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        pipe = _Pipeline(jobs, n_groups, pool)
+        workers = [threading.Thread(target=pipe.work, args=(g,), daemon=True, name=f"jaxeac-device-{g}")
+                   for g in range(n_groups)]
+        for w in workers:
+            w.start()
+        try:
             seq = 0
             while (got := pipe.next_ready(seq)) is not None:
                 job, start, group, size, host, times = got
                 times["collect"] = time.perf_counter()
                 job.collect(start, host, pool)
+                del host  # the chunk's host arrays go before the next one is waited for
                 job.last_collect = time.perf_counter()
                 pipe.room[group].release()
                 record({"event": "chunk", "job": job.name, "start": start, "size": size, "group": group,
-                         **times, "collected": job.last_collect})
+                        **times, "collected": job.last_collect})
                 if progress is not None:
                     progress(size)
                 seq += 1
-    finally:
-        pipe.stop = True
-        for room in pipe.room:  # a worker waiting for room stops
-            room.release()
-    for w in workers:
-        w.join()
+        finally:
+            pipe.stop = True
+            for room in pipe.room:  # a worker waiting for room stops
+                room.release()
+        for w in workers:
+            w.join()
     done = pipe.queue.done
     for before, job in zip(done[:-1], done[1:], strict=True):  # time starts where the last job ended
         job.started_after = before.last_collect
