@@ -21,6 +21,9 @@ class UsageError(ValueError):
 
 #: Counters the device holds as int32 (trials, chances, lanes).
 INT32_MAX = (1 << 31) - 1
+#: Root keys are 32-bit (R1): ``jax.random.key(k)`` keeps only k mod 2^32, so a larger key would
+#: silently give another key's results while the run records the larger one.
+KEY_LIMIT = 1 << 32
 #: float32's normal range: the runs compute in float32, where a smaller nonzero magnitude becomes 0
 #: (or a subnormal) and a larger one inf.
 F32_TINY, F32_MAX = float(np.finfo(np.float32).tiny), float(np.finfo(np.float32).max)

@@ -24,11 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxeac.errors import KEY_LIMIT
 from jaxeac.pytree import pytree_dataclass
 
-#: Root keys are 32-bit (R1): ``jax.random.key(k)`` keeps only k mod 2^32, so a larger (or a
-#: negative) integer would silently give another key's results; such keys are refused.
-KEY_LIMIT = 1 << 32
 KEY_IMPL = "threefry2x32"  # the PRNG whose two key words `seed_words` feeds to `step_uniform`
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from jaxeac.errors import UsageError
+from jaxeac.errors import KEY_LIMIT, UsageError
 
 #: Every command's help ends with this: where the SPEC ids in its lines are defined.
 SPEC_NOTE = ("SPEC ids in this help (G1, E7, B5, R1, ...) name the rules of docs/SPEC.md that the flag "
@@ -80,7 +80,6 @@ def int_at_least(minimum: int, what: str):
 positive_int = int_at_least(1, "positive")  # counts: rejects 1.5, 0, -3, 'ten'
 nonneg_int = int_at_least(0, "non-negative")  # process ids, caps
 
-KEY_LIMIT = 1 << 32  # = jaxeac.experiments.common.KEY_LIMIT
 
 
 def prng_key(text: str) -> int:

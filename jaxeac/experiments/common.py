@@ -16,7 +16,7 @@ import jax
 import numpy as np
 
 from jaxeac.algorithm.config import ALGORITHMS, algorithm
-from jaxeac.errors import UsageError
+from jaxeac.errors import KEY_LIMIT, UsageError, check_int
 from jaxeac.runtime import versions
 from jaxeac.stats.closed_form import t_interval, welch_interval
 
@@ -29,18 +29,12 @@ def check_positive_int(name: str, value) -> None:
         raise UsageError(f"{name} must be a positive integer (got {value!r})")
 
 
-#: Root keys are 32-bit: ``jax.random.key(k)`` keeps only k mod 2^32, so a larger key would
-#: silently give another key's results while summary.json records the larger one.
-KEY_LIMIT = 1 << 32
-
-
 def check_key(value) -> None:
-    """A root key: an integer in [0, 2^32) (not a bool); seed i is ``fold_in(PRNGKey(key), i)`` (R1)."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-        raise UsageError(f"key must be a non-negative integer (got {value!r})")
-    if value >= KEY_LIMIT:
-        raise UsageError(f"key must be below 2^32 = {KEY_LIMIT} (got {value}): larger keys would repeat "
-                         f"key {value % KEY_LIMIT}'s random numbers; pass a key in 0..{KEY_LIMIT - 1}")
+    """A root key (R1): an integer in 0..2^32−1 (`jaxeac.errors.KEY_LIMIT`; `jaxeac.rng.root_key_int`
+    also takes JAX keys); seed i is ``fold_in(key(k), i)``."""
+    check_int("key", value, low=0, high=KEY_LIMIT - 1,
+              fix=f"keys are 32-bit: pass one in 0..{KEY_LIMIT - 1} (a larger key would repeat key "
+                  "k mod 2^32's random numbers)")
 
 
 #: Step sizes and discount: the updates (2)-(4) keep finite tables for rates in [0, 1]; with α or β
