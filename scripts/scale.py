@@ -18,6 +18,7 @@ so an older build is timed too (its chunks spanning every device: ready times pe
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import tempfile
@@ -149,8 +150,23 @@ def summarize(chunks: list[dict]) -> dict:
     collects = {(c["job"], c["start"]): c for c in chunks}.values()  # one per chunk, whichever shard
     return {"wall_s": end - t0, "devices": groups,
             "copy_s": sum(c["fetched"] - c["ready"] for c in chunks),
+            "prepare_s": sum(c.get("prepared", c["fetched"]) - c["fetched"] for c in chunks),
             "collect_s": sum(c["collected"] - c["collect"] for c in collects),
             "tail_s": end - max(c["ready"] for c in chunks)}
+
+
+def dispatches(events: list[dict]) -> dict:
+    """Per device group, the host's seconds in each step of its dispatches (a build that records
+    them): chunk inputs, their copy to the device, the program's launch, the copies back queued."""
+    out: dict = {}
+    for e in events:
+        if e["event"] == "dispatch":
+            zero = {"chunks": 0, "inputs_s": 0.0, "put_s": 0.0, "launch_s": 0.0, "copy_s": 0.0}
+            mine = out.setdefault(str(e["group"]), zero)
+            mine["chunks"] += 1
+            for k in ("inputs_s", "put_s", "launch_s", "copy_s"):
+                mine[k] += e[k]
+    return out
 
 
 def _digest(r) -> str:
@@ -173,13 +189,20 @@ def timeline(args) -> dict:
     runs, digests = [], {}
 
     def record(mode: str, algo: str, go) -> None:
-        go()  # compiles, and captures the CUDA graphs: not timed
+        t = time.perf_counter()
+        with batch.record_timeline() if own else contextlib.nullcontext([]) as first:
+            go()  # compiles, and captures the CUDA graphs: not timed
+        first = {"first_call_s": time.perf_counter() - t,
+                 "first_compiles": [e for e in first if e["event"] == "compile"]}
         t = time.perf_counter()
         if own:
             with batch.record_timeline() as events:
                 got = go()
             chunks = [e for e in events if e["event"] == "chunk"]
+            extra = {"dispatch": dispatches(events),
+                     "compiles": [e for e in events if e["event"] == "compile"]}
         else:
+            extra = {}
             recorder.events.clear()
             got = go()
             chunks = _merged(recorder.events)
@@ -187,7 +210,8 @@ def timeline(args) -> dict:
         if mode == "kernel":
             digests[algo] = _digest(got)
         row = {"mode": mode, "algo": algo, "seeds": args.seeds, "devices": len(jax.local_devices()),
-               "call_s": wall, **summarize(chunks), "digest": digests.get(algo), "chunks": chunks}
+               "call_s": wall, **summarize(chunks), **extra, **first, "digest": digests.get(algo),
+               "chunks": chunks}
         print(json.dumps({k: v for k, v in row.items() if k != "chunks"}), flush=True)
         runs.append(row)
 

@@ -252,8 +252,8 @@ class _Entries:
         self.hyper = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n,)), hyper)
         _, seeds0, hyper0 = self.chunk_inputs(0)
         tables = program_inputs(env)
-        self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0, tables,
-                                                              name)
+        self.programs, self.compile_seconds = _compile_groups(env, cfg, self.groups, root, seeds0, hyper0,
+                                                              tables, name)
         self.fixed = [_placed(g, root, tables) for g in self.groups]  # each group's root key and tables
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
         self.n_states = env.n_states  # a padded tabular layout's extra states are dropped (`collect`)

@@ -161,7 +161,8 @@ class _Pipeline:
                 size, out = job.dispatch(start, group)
                 if job.first_dispatch == 0.0 or t < job.first_dispatch:
                     job.first_dispatch = t
-                flight.append((seq, job, start, group, size, out, {"dispatch": t, "launched": time.perf_counter()}))
+                times = {"dispatch": t, "launched": time.perf_counter()}
+                flight.append((seq, job, start, group, size, out, times))
             while flight and not self.stop:
                 self.finish(flight.popleft())
         except BaseException as e:  # noqa: BLE001 (re-raised on the collecting thread)
