@@ -142,27 +142,30 @@ def _run_to_folder(env, cfgs: dict, *, seeds: int, key, chunk_size, out) -> dict
     scheduled = [f"{n}.{r}" for n, c in cfgs.items() for r in ("alpha", "beta") if callable(getattr(c, r))]
     if scheduled:
         raise ValueError(f"out= writes a folder the command line can read, which states constant rates; "
-                         f"{', '.join(scheduled)} is a schedule: run without out= to keep the results in memory")
+                         f"{', '.join(scheduled)} is a schedule: run without out= to keep the results "
+                         "in memory")
     if any(name != _name(cfg) for name, cfg in cfgs.items()):
         raise ValueError("out= needs each config under its algorithm's name (the folder's 'algo' column)")
     from jaxeac.rng import root_key_int
 
     settings = GridSettings(env=env, algos=tuple(cfgs), seeds=seeds, key=root_key_int(key, "key"),
-                            chunk_size=chunk_size, trials=first.trials, alpha=first.alpha, beta=first.beta, gamma=first.gamma,
+                            chunk_size=chunk_size, trials=first.trials, alpha=first.alpha, beta=first.beta,
+                            gamma=first.gamma,
                             temperature=first.temperature, epsilon=first.epsilon, lanes=first.lanes,
                             memory=first.agent.memory, capacity=first.agent.capacity)
     settings = settings.resolved()
     for name, cfg in cfgs.items():
         stated = settings.run_config(name)
         if stated != cfg:
-            differ = [f.name for f in dataclasses.fields(cfg) if getattr(cfg, f.name) != getattr(stated, f.name)]
-            raise ValueError(f"out= writes a folder the command line can read, and {name}'s config differs from "
-                             f"what its flags state in {', '.join(differ)}; run without out= to keep the results "
-                             "in memory")
+            differ = [f.name for f in dataclasses.fields(cfg)
+                      if getattr(cfg, f.name) != getattr(stated, f.name)]
+            raise ValueError(f"out= writes a folder the command line can read, and {name}'s config "
+                             f"differs from what its flags state in {', '.join(differ)}; run without "
+                             "out= to keep the results in memory")
     runtime.configure()
     environment = settings.make_env()
-    runs = run_algorithms(environment, [settings.run_config(a) for a in settings.algos], root_key=settings.key,
-                          n_seeds=seeds, chunk_size=chunk_size)
+    runs = run_algorithms(environment, [settings.run_config(a) for a in settings.algos],
+                          root_key=settings.key, n_seeds=seeds, chunk_size=chunk_size)
     results = dict(zip(settings.algos, runs, strict=True))
     write_grid_outputs(GridRun(settings, settings.grid_map(), results), out)
     return results
@@ -204,15 +207,18 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
     """
     _check_count("resamples", resamples)
     if isinstance(level, bool) or not isinstance(level, numbers.Real) or not 0.5 <= level < 1:
-        raise ValueError(f"level is the confidence level, in [0.5, 1) (got {level!r}); e.g. 0.95 for 95 % intervals")
+        raise ValueError(f"level is the confidence level, in [0.5, 1) (got {level!r}); "
+                         "e.g. 0.95 for 95 % intervals")
     runtime.configure()
     from jaxeac.stats.engine import compare as engine_compare
 
     b, t = names
     if treatment is None:
         if not isinstance(baseline, str | os.PathLike):
-            raise TypeError("compare(folder) takes a run folder's path; to compare arrays give two: compare(a, b)")
-        return engine_compare(baseline, baseline=b, treatment=t, resamples=resamples, level=float(level), key=key)
+            raise TypeError("compare(folder) takes a run folder's path; "
+                            "to compare arrays give two: compare(a, b)")
+        return engine_compare(baseline, baseline=b, treatment=t, resamples=resamples, level=float(level),
+                              key=key)
     if paired not in ("auto", True, False):
         raise ValueError(f"paired must be 'auto', True or False (got {paired!r})")
     xb, xt = _values(baseline, "baseline"), _values(treatment, "treatment")
@@ -236,8 +242,8 @@ def _values(x, name: str):
                         "algorithms call jaxeac.stats.engine.compare({task: {algo: values}})")
     arr = np.asarray(x)
     if arr.ndim != 1 or arr.size < 2 or not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"{name} must be per-seed numbers, a 1-D array of at least 2 (got shape {arr.shape}, "
-                         f"dtype {arr.dtype})")
+        raise ValueError(f"{name} must be per-seed numbers, a 1-D array of at least 2 "
+                         f"(got shape {arr.shape}, dtype {arr.dtype})")
     return arr.astype(float)
 
 
@@ -281,7 +287,8 @@ def load(folder) -> Run:
 
         loaded = load_grid_results(path, algos, trials)
         fields = ("seeds", "successes", "first_success", "steps_total", "finite", "trial_steps", "policy")
-        per_seed = {a: {f: getattr(r, f) for f in fields if getattr(r, f) is not None} for a, r in loaded.items()}
+        per_seed = {a: {f: getattr(r, f) for f in fields if getattr(r, f) is not None}
+                    for a, r in loaded.items()}
         success = {a: r.success for a, r in loaded.items()}
         return Run(path, summary.get("experiment", "grid"), algos, trials, summary, per_seed, success)
     from jaxeac.stats.rundir import load_run_dir

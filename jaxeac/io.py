@@ -145,7 +145,8 @@ def check_folder_kind(path: str | os.PathLike, kind: str, *, reads: bool = False
     if found is not None and found[0] != kind:
         fix = (f"pass a folder holding {FOLDER_KINDS[kind]}" if reads
                else "choose another --out (a new or empty folder)")
-        raise UsageError(f"{path} holds {FOLDER_KINDS[found[0]]} ({found[1]}), not {FOLDER_KINDS[kind]}; {fix}")
+        raise UsageError(f"{path} holds {FOLDER_KINDS[found[0]]} ({found[1]}), "
+                         f"not {FOLDER_KINDS[kind]}; {fix}")
 
 
 _STAGES: dict[str, int] = {}  # real path of an output folder -> stages of this process open in it

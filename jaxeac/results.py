@@ -266,8 +266,8 @@ def _load_parquet(path: Path, algos, trials: int, compact: bool = False) -> dict
     if written is not None and written != str(trials).encode():
         shown = written.decode(errors="replace")
         shown = shown if len(shown) <= 20 and shown.isprintable() else repr(shown[:20])
-        raise UsageError(f"{path} holds runs of {shown} trials but summary.json says {trials}; the files come "
-                         "from different runs: re-run the experiment")
+        raise UsageError(f"{path} holds runs of {shown} trials but summary.json says {trials}; "
+                         "the files come from different runs: re-run the experiment")
     out = {}
     try:
         algo_column = table.column("algo").cast(pa.string())

@@ -61,7 +61,8 @@ class AgentState:
     log: jax.Array  # int32 [T], per finished trial: chances used, negated if it failed; 0 = not yet
     rtilde: jax.Array  # float [C], the latest r̃ per chance index: trial t−1's until trial t writes it
     prev_length: jax.Array  # int32 [], chances used in the previous trial (0 before trial 2)
-    next_action: jax.Array | None = None  # int32 [], SARSA (X3): the action chosen for the next chance; −1: none
+    next_action: jax.Array | None = None  # int32 [], SARSA (X3): the action chosen for the next chance;
+    #                                       −1: none
 
     @property
     def preferences(self) -> jax.Array:
@@ -166,7 +167,8 @@ class StepRoute:
     learns: jax.Array  # bool: E2, the step updates p and V
 
 
-def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, active=None, route: bool = False):
+def select_action(cfg: AgentConfig, agent: AgentState, state, u, hyper: Hyper, active=None,
+                  route: bool = False):
     """E1: choose an action at `state` with the uniform `u`; returns (action, learns), where
     `learns` follows E2 (and is False where the step is not `active`). With `route` (static),
     returns (action, learns, `StepRoute`): which branch of E1 chose (E8's counters).
@@ -226,8 +228,8 @@ def learn_step(agent: AgentState, state, action, reward, next_state, terminated,
     return agent.replace(tables=agent.tables.learn(state, action, delta, alpha, beta, learn))
 
 
-def value_learn_step(cfg: AgentConfig, agent: AgentState, state, action, reward, next_state, terminated, learn,
-                     alpha, gamma, epsilon, next_uniform=None) -> AgentState:
+def value_learn_step(cfg: AgentConfig, agent: AgentState, state, action, reward, next_state, terminated,
+                     learn, alpha, gamma, epsilon, next_uniform=None) -> AgentState:
     """X3, applied when `learn`: Q(s, a) ← Q(s, a) + α·δ with δ = r + γ·Q(s', a') − Q(s, a)
     (0 for Q(s', a') at a terminal s'): a' greedy for Q-learning (Watkins 1989), for SARSA
     (Rummery & Niranjan 1994) ε-greedy with `next_uniform`, kept as the next chance's action.
@@ -242,7 +244,8 @@ def value_learn_step(cfg: AgentConfig, agent: AgentState, state, action, reward,
         bootstrap = q_next[chosen]
         next_action = jnp.where(learn, chosen, next_action)
     delta = td_error(reward, q, bootstrap, gamma, terminated)
-    return agent.replace(tables=agent.tables.learn(state, action, delta, 0.0, alpha, learn), next_action=next_action)
+    return agent.replace(tables=agent.tables.learn(state, action, delta, 0.0, alpha, learn),
+                         next_action=next_action)
 
 
 def failure_slot(rule: FailureRule, chance, n_chances: int):
@@ -271,7 +274,8 @@ def failure_condition(cfg: AgentConfig, agent: AgentState, rtilde, before=None) 
     return failure_met(cfg.failure_rule, c, agent.prev_length, rtilde, before)
 
 
-def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active, before=None) -> AgentState:
+def record_step(cfg: AgentConfig, agent: AgentState, state, action, rtilde, active,
+                before=None) -> AgentState:
     """After each chance: keep r̃ (E5) and what the memories need (E4, E6); count the chance.
     `before`: the r̃ E6 compares with, when not the one in its slot (`failure_condition`)."""
     c = agent.chance

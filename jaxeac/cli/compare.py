@@ -137,7 +137,8 @@ def read_reference(path) -> dict:
     frame.columns = [str(c).strip() for c in frame.columns]
     for col in ("task", "low", "high"):
         if col not in frame.columns:
-            raise UsageError(f"--reference-scores {path}: no column {col!r}; give a CSV with columns task,low,high")
+            raise UsageError(f"--reference-scores {path}: no column {col!r}; "
+                             "give a CSV with columns task,low,high")
     tasks = _labels(frame, "task", str(path))
     low, high = _numeric(frame, "low", str(path)), _numeric(frame, "high", str(path))
     return {t: (lo, hi) for t, lo, hi in zip(tasks, low, high, strict=True)}
@@ -164,7 +165,8 @@ def compare_table_command(args: argparse.Namespace, alpha: float) -> int:
     out = Path(args.out) if args.out is not None else default_out(args.table)
     stem = table_stem(args.baseline, args.treatment)
     with staged_dir(out) as stage:
-        (stage / f"stats_{stem}.json").write_text(json.dumps(result.to_dict(), indent=2, allow_nan=True) + "\n")
+        (stage / f"stats_{stem}.json").write_text(
+            json.dumps(result.to_dict(), indent=2, allow_nan=True) + "\n")
         (stage / f"report_{stem}.md").write_text(result.markdown())
     for line in result.lines():
         print(line)

@@ -93,5 +93,6 @@ def make(name: str, **options) -> Any:
     known = list(inspect.signature(build).parameters)
     unknown = sorted(set(options) - set(known))
     if unknown:
-        raise UsageError(f"environment {name!r} has no option {unknown[0]!r}; its options are {', '.join(known)}")
+        raise UsageError(f"environment {name!r} has no option {unknown[0]!r}; "
+                         f"its options are {', '.join(known)}")
     return build(**options)

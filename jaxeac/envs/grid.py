@@ -123,9 +123,9 @@ def parse_map(text: str, *, source: str = "map") -> GridMap:
             f"{source} has unknown characters {shown!r}; use only '.', '#' and 'G'"
         )
     if len(rows) * len(rows[0]) > MAX_CELLS:
-        raise UsageError(f"{source} has {len(rows) * len(rows[0]):,} cells, more than the {MAX_CELLS:,} a run "
-                         "can hold as per-seed tables (beyond, even two seeds take many minutes to set up); "
-                         "use a smaller map")
+        raise UsageError(f"{source} has {len(rows) * len(rows[0]):,} cells, more than the {MAX_CELLS:,} "
+                         "a run can hold as per-seed tables (beyond, even two seeds take many minutes to "
+                         "set up); use a smaller map")
     cells = np.frombuffer("".join(rows).encode("ascii"), np.uint8).reshape(len(rows), len(rows[0]))
     goal_ys, goal_xs = np.nonzero(cells == ord("G"))
     if goal_ys.size != 1:

@@ -17,7 +17,8 @@ down when tilted > 45 degrees or off the deck; fallen pins are parked out of
 play, standing ones stay where they came to rest, the ball returns.
 
 Backends (B7): ``backend="c"`` (MuJoCo C engine batched over threads with
-worker threads, pins at rest asleep, each throw ended once settled; the fast choice on CPU), ``backend="mjx"`` (MJX in JAX, jit +
+worker threads, pins at rest asleep, each throw ended once settled; the fast
+choice on CPU), ``backend="mjx"`` (MJX in JAX, jit +
 vmap; ``make_mjx_throw(cfg)`` gives the pure per-throw function for use inside a
 jit-compiled learning run) and ``backend="warp"`` (MJX with its Warp
 implementation, NVIDIA GPUs, needs warp-lang; ``backend_mjx.make_batch_throw(cfg,

@@ -130,7 +130,8 @@ def settled(data: mujoco.MjData, in_play: np.ndarray, reach_m: float) -> bool:
 class CEngine:
     """A loaded model and nthread worker threads with one MjData each: runs batches of throws."""
 
-    def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER, scene: Scene = DEFAULT_SCENE):
+    def __init__(self, nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER,
+                 scene: Scene = DEFAULT_SCENE):
         """Load the model and start nthread worker threads (0: one per CPU core)."""
         self.model = load_model(solver, scene)
         self.reach = reach(scene)
@@ -170,7 +171,8 @@ class CEngine:
             return None
         # the ball rolls straight at about its start speed: with a margin, where it can be meanwhile
         travel = 2.0 * float(np.linalg.norm(data.qvel[:3])) * rack.time + 0.1
-        gap = np.sqrt(np.min(np.sum((data.qpos[7:NQ].reshape(N_PINS, 7)[:, :3] - data.qpos[:3]) ** 2, axis=1)))
+        gap = np.sqrt(np.min(np.sum((data.qpos[7:NQ].reshape(N_PINS, 7)[:, :3] - data.qpos[:3]) ** 2,
+                                    axis=1)))
         return rack if gap - travel > self.reach else None
 
     def _throw(self, data: mujoco.MjData, qpos, qvel, n_steps: int, stride: int, traj, stop: bool) -> int:
@@ -238,7 +240,8 @@ class CEngine:
 
 
 @functools.lru_cache(maxsize=4)
-def engine(nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER, scene: Scene = DEFAULT_SCENE) -> CEngine:
+def engine(nthread: int = 0, solver: SolverSettings = DEFAULT_SOLVER,
+           scene: Scene = DEFAULT_SCENE) -> CEngine:
     """A cached CEngine for nthread threads, these solver settings and this scene."""
     return CEngine(nthread, solver, scene)
 

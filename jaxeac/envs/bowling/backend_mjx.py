@@ -66,7 +66,8 @@ def _engine_model(solver: SolverSettings, scene: Scene):
     return load_model(dataclasses.replace(solver, sleep=False), scene)
 
 
-def mjx_model(solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax", scene: Scene = DEFAULT_SCENE) -> mjx.Model:
+def mjx_model(solver: SolverSettings = DEFAULT_SOLVER, impl: str = "jax",
+              scene: Scene = DEFAULT_SCENE) -> mjx.Model:
     """The bowling model (these solver settings, this scene) on the JAX device, in MJX implementation impl."""
     return _put_model(solver, check_impl(impl), scene)
 

@@ -123,9 +123,10 @@ class SolverSettings:
     the accurate setting. ``sleep`` (the C engine's default) lets MuJoCo put bodies at rest to
     sleep, so standing pins cost nothing until something touches them, and ends a throw as soon
     as nothing can move a pin any more (``backend_c.settled``): 2-3x faster at the same accuracy
-    (BENCHMARKS.md, *Bowling on the CPU*); ``sleep=False`` is the engine before it, step for step. CG with enough iterations is faster under MJX on GPUs at the
-    same accuracy; fewer iterations or a lower contact cap trade accuracy for speed
-    (measured in BENCHMARKS.md with scripts/bench_bowling.py --accuracy).
+    (BENCHMARKS.md, *Bowling on the CPU*); ``sleep=False`` is the engine before it, step for step.
+    CG with enough iterations is faster under MJX on GPUs at the same accuracy; fewer iterations
+    or a lower contact cap trade accuracy for speed (measured in BENCHMARKS.md with
+    scripts/bench_bowling.py --accuracy).
     """
 
     method: str = "newton"  # one of SOLVERS
@@ -133,7 +134,8 @@ class SolverSettings:
     ls_iterations: int = 8
     contact_cap: int = 32  # MJX only: candidate contacts kept per condim group (max_contact_points)
     pair_cap: int = 0  # MJX only: closest geom pairs tested per collision group (max_geom_pairs; 0 = all)
-    sleep: bool = True  # C engine only: bodies at rest sleep (MuJoCo's island sleeping), and a throw ends early
+    sleep: bool = True  # C engine only: bodies at rest sleep (MuJoCo's island sleeping), and a throw
+    #                     ends early
 
     def __post_init__(self) -> None:
         """Check every field; raise UsageError naming the problem and the fix."""

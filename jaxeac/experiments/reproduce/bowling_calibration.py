@@ -153,9 +153,11 @@ def step_bowling_calibration(folder: Path, sizes, key: int, progress: bool, bar)
             seeds[i] = m
             ac, eac = m["ac"]["total"], m["eac"]["total"]
             lo, hi = _diff_ci(ac, eac)
-            rows.append({"point": i, **{k: point.get(k) for k in ("beta", "theta_max", "alpha", "angles", "noise")},
-                         "ac": float(ac.mean()), "eac": float(eac.mean()), "diff": float(eac.mean() - ac.mean()),
-                         "diff_ci95": [lo, hi], "ac_explain": _explain(m["ac"]), "eac_explain": _explain(m["eac"])})
+            rows.append({"point": i,
+                         **{k: point.get(k) for k in ("beta", "theta_max", "alpha", "angles", "noise")},
+                         "ac": float(ac.mean()), "eac": float(eac.mean()),
+                         "diff": float(eac.mean() - ac.mean()), "diff_ci95": [lo, hi],
+                         "ac_explain": _explain(m["ac"]), "eac_explain": _explain(m["eac"])})
     target_ac, target_eac = paper.BOWLING_PINS["ac"], paper.BOWLING_PINS["eac"]
     best = min(rows, key=lambda r: (abs(r["ac"] - target_ac), r["point"]))
     near = [r for r in rows if abs(r["ac"] - target_ac) <= BOWLING_TOLERANCE]
@@ -170,7 +172,8 @@ def step_bowling_calibration(folder: Path, sizes, key: int, progress: bool, bar)
                                  algos=tuple(sizes.bowling_ablation_algos))
     ablations = []
     if sizes.bowling_ablation_algos:
-        with bar(progress, n * len(sizes.bowling_ablation_algos), "bowling ablations at the calibrated point") as update:
+        with bar(progress, n * len(sizes.bowling_ablation_algos),
+                 "bowling ablations at the calibrated point") as update:
             variants = _run_measures(folder / "ablations" / f"point_{best['point']}.npz", settings_at, update)
         for a in sizes.bowling_ablation_algos:
             c = contrast(m["ac"]["total"], variants[a]["total"], sub_key(key, f"bowling_calibration/{a}"),
@@ -188,10 +191,12 @@ def step_bowling_calibration(folder: Path, sizes, key: int, progress: bool, bar)
         plots.calibration_landscape(heat, stage / "heatmap.png", facet=("alpha", "angles"), axes=(ka, kb),
                                     target=target_ac, tolerance=BOWLING_TOLERANCE, unit="pins")
     return {
-        "seeds_per_point": n, "grid": [[k, list(v)] for k, v in grid], "lines": [[k, list(v)] for k, v in lines],
+        "seeds_per_point": n, "grid": [[k, list(v)] for k, v in grid],
+        "lines": [[k, list(v)] for k, v in lines],
         "tolerance": BOWLING_TOLERANCE, "points": rows, "calibrated": calibrated,
         "near": {"count": len(near), "points": [r["point"] for r in near],
-                 "diff_range": [min(r["diff"] for r in near), max(r["diff"] for r in near)] if near else None},
+                 "diff_range": [min(r["diff"] for r in near), max(r["diff"] for r in near)]
+                 if near else None},
         "eac_minus_ac_range": [min(r["diff"] for r in rows), max(r["diff"] for r in rows)],
         "points_eac_better": [r["point"] for r in rows if r["diff_ci95"][0] > 0],
         "points_eac_worse": [r["point"] for r in rows if r["diff_ci95"][1] < 0],
@@ -242,26 +247,29 @@ def bowling_calibration_section(bc: dict) -> list[str]:
          + f" (noise × s scales both B3 noise levels). The calibrated point is the one whose AC mean lies "
          f"closest to {ac}; points within ±{bc['tolerance']:g} pins of it count as near.", "",
          f"- **Calibrated point:** {_where(c)}: AC {number(c['ac'])}, EAC {number(c['eac'])}; "
-         f"EAC − AC {number(c['diff'], 2, sign=True)} {interval(c['diff_ci95'], 2, sign=True)} (Welch 95 % CI, "
-         f"as in the table), g {number(k['hedges_g'], 3)}, A12 {number(k['a12'], 3)}, p (Welch, Holm over this "
-         "family) "
+         f"EAC − AC {number(c['diff'], 2, sign=True)} {interval(c['diff_ci95'], 2, sign=True)} "
+         f"(Welch 95 % CI, as in the table), g {number(k['hedges_g'], 3)}, A12 {number(k['a12'], 3)}, "
+         "p (Welch, Holm over this family) "
          f"{p_value(k['p_holm'])}. The paper's EAC total {eac} lies at percentile "
          f"{c['eac_paper_position']['percentile']:.1f} of our EAC seeds there "
          f"({'inside' if c['eac_paper_position']['within_5_95'] else 'outside'} their 5–95 % range), "
          f"its AC total {ac} at percentile {c['ac_paper_position']['percentile']:.1f} of our AC seeds.",
          f"- Points with AC within ±{bc['tolerance']:g} of {ac}: {near['count']}"
-         + (f"; EAC − AC there ranges over {interval(near['diff_range'], 2, sign=True)}." if near["count"] else "."),
+         + (f"; EAC − AC there ranges over {interval(near['diff_range'], 2, sign=True)}."
+            if near["count"] else "."),
          f"- Over the sweep EAC − AC ranges over {interval(bc['eac_minus_ac_range'], 2, sign=True)}: EAC is "
-         f"reliably better (Welch CI above 0) at {len(bc['points_eac_better'])} of {len(bc['points'])} points "
-         f"and reliably worse at {len(bc['points_eac_worse'])}.", "",
+         f"reliably better (Welch CI above 0) at {len(bc['points_eac_better'])} of {len(bc['points'])} "
+         f"points and reliably worse at {len(bc['points_eac_worse'])}.", "",
          "![bowling calibration heatmap](bowling_calibration/heatmap.png)", "",
-         "| point | AC | EAC | EAC − AC [Welch 95 % CI] | successes per seed (AC / EAC) | E6 condition met (EAC) |",
+         "| point | AC | EAC | EAC − AC [Welch 95 % CI] | "
+         "successes per seed (AC / EAC) | E6 condition met (EAC) |",
          "|---|---|---|---|---|---|"]
     for r in bc["points"]:
         e = r["eac_explain"]
         fires = "–" if e["rule_fires_share"] is None else f"{100 * e['rule_fires_share']:.0f} %"
         L.append(f"| {_where(r).removesuffix(' (the rest at their defaults)')} | {number(r['ac'])} | "
-                 f"{number(r['eac'])} | {number(r['diff'], 2, sign=True)} {interval(r['diff_ci95'], 2, sign=True)} | "
+                 f"{number(r['eac'])} | {number(r['diff'], 2, sign=True)} "
+                 f"{interval(r['diff_ci95'], 2, sign=True)} | "
                  f"{r['ac_explain']['successes_per_seed']:.2f} / {e['successes_per_seed']:.2f} | {fires} |")
     L += ["", "Why, at the calibrated point (per seed over its 10 trials; a success is all ten pins down; "
           "*E6 condition met* is the share of chances of failed trials t ≥ 2, reached in t and t − 1, where "
@@ -272,7 +280,8 @@ def bowling_calibration_section(bc: dict) -> list[str]:
     for v in bc["ablations"]:
         L.append(_explain_line(v["algo"], v["explain"]))
     if bc["ablations"]:
-        L += ["", "Ablations at the calibrated point, each minus AC (same seeds; Holm over EAC and these):", "",
+        L += ["",
+              "Ablations at the calibrated point, each minus AC (same seeds; Holm over EAC and these):", "",
               "| variant | mean pins | − AC [95 % CI] | Hedges' g | p (Holm) |", "|---|---|---|---|---|"]
         for v in bc["ablations"]:
             L.append(f"| {v['algo']} | {number(v['mean_treatment'])} | {number(v['diff'], 2, sign=True)} "
@@ -290,7 +299,7 @@ def bowling_calibration_answer(bc: dict) -> str:
             f"{_where(c).removesuffix(' (the rest at their defaults)')}, AC {number(c['ac'])}), EAC − AC is "
             f"{number(c['diff'], 2, sign=True)} {interval(c['diff_ci95'], 2, sign=True)} pins")
     if near["count"] > 1:
-        text += (f", and over the {near['count']} settings with AC within ±{bc['tolerance']:g} it ranges over "
-                 f"{interval(near['diff_range'], 2, sign=True)}")
+        text += (f", and over the {near['count']} settings with AC within ±{bc['tolerance']:g} "
+                 f"it ranges over {interval(near['diff_range'], 2, sign=True)}")
     return (text + f"; over the whole bowling sweep EAC is reliably better at {len(bc['points_eac_better'])} "
             f"and reliably worse at {len(bc['points_eac_worse'])} of {len(bc['points'])} settings.")

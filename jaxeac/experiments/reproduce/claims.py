@@ -259,7 +259,7 @@ def _aim_claim(aim: dict) -> dict:
         f"as EAC. BOWL-5 asks what Fig. 5 shows in a form symmetry does not decide: per seed, over trials "
         f"{lo}–{hi}, the share of its chance-2 throws whose angle has the sign of the side where the pins "
         f"standing after chance 1 lie (their mean lateral position at least {aim['side_min_m']:g} m off the "
-        "centre line; θ₂ = 0 and centred racks count for no side). It **holds** when EAC's mean share is above "
-        "½ (one-sample t on share − ½, supported) and above AC's (supported); it **partly holds** when one of "
-        "the two is supported; it **does not hold** otherwise.")
+        "centre line; θ₂ = 0 and centred racks count for no side). It **holds** when EAC's mean share "
+        "is above ½ (one-sample t on share − ½, supported) and above AC's (supported); it **partly holds** "
+        "when one of the two is supported; it **does not hold** otherwise.")
     return c

@@ -240,7 +240,8 @@ def split_summary(knocked: dict, key: int, resamples: int) -> dict:
 AIM_SIDE_MIN = 0.05
 
 
-def toward_standing(standing: np.ndarray, angle: np.ndarray, pin_xy: np.ndarray, first_trial: int) -> np.ndarray:
+def toward_standing(standing: np.ndarray, angle: np.ndarray, pin_xy: np.ndarray,
+                    first_trial: int) -> np.ndarray:
     """Per seed, from trial `first_trial` (1-based) on: the share of its chance-2 throws that aim
     at the side where the pins standing after chance 1 lie (BOWL-5; `AIM_SIDE_MIN`), NaN for a seed
     without such a throw. standing int [N, T, 2]: masks after each chance (bit i: pin i+1, −1: not

@@ -78,7 +78,8 @@ def render_report(rec: dict, out: Path) -> str:
     L += ["", f"{counts['holds']} hold, {counts['partly holds']} partly hold, "
           f"{counts['does not hold']} do not hold.",
           "", VERDICT_RULES, "", "## In plain words", "", rec["plain"]
-          + ("" if "bowling_calibration" not in rec else " " + bowling_calibration_answer(rec["bowling_calibration"])),
+          + ("" if "bowling_calibration" not in rec
+             else " " + bowling_calibration_answer(rec["bowling_calibration"])),
           ""]
 
     # ---- grid
@@ -245,7 +246,8 @@ def render_report(rec: dict, out: Path) -> str:
     L += ["", "- Versions: " + ", ".join(f"{k} {v}" for k, v in rec["versions"].items()) + ".",
           f"- Devices: {', '.join(rec['devices'])}.",
           "- Every number here is in `reproduce.json`, `grid/stats.json`, `bowling/stats.json`, "
-          "`calibration/reproduce.json`, `bowling_calibration/reproduce.json` and `ablations/reproduce.json`; per-comparison reports are "
+          "`calibration/reproduce.json`, `bowling_calibration/reproduce.json` and "
+          "`ablations/reproduce.json`; per-comparison reports are "
           "`grid/report.md` and `bowling/report.md`.", ""]
     return "\n".join(L)
 
@@ -349,7 +351,8 @@ def _table1_scene_section(rec: dict, default: dict) -> list[str]:
              f"rules; {t['seeds']} seeds per method. AC {number(r['ac']['mean'])} "
              f"{interval(r['ac']['ci95'])}, EAC {number(r['eac']['mean'])} {interval(r['eac']['ci95'])} pins "
              f"of {paper.BOWLING_MAX_PINS}; the paper's 67 and 81 lie at percentiles "
-             f"{t['paper_position']['ac']['percentile']:.1f} (AC) and {t['paper_position']['eac']['percentile']:.1f}"
+             f"{t['paper_position']['ac']['percentile']:.1f} (AC) and "
+             f"{t['paper_position']['eac']['percentile']:.1f}"
              " (EAC) of our seeds there.", "",
              "| # | claim | default scene: we find | verdict | table1 scene: we find | verdict |",
              "|---|---|---|---|---|---|"]
@@ -419,8 +422,8 @@ def headline(c: dict) -> str:
                 f"g {number(s['hedges_g'], 2)}")
     if c["id"] == "BOWL-5":
         return (f"chance-2 throws aimed at the standing pins' side: EAC {100 * s['mean_treatment']:.1f} %, "
-                f"AC {100 * s['mean_baseline']:.1f} %; EAC − AC {number(100 * s['diff'], 1, sign=True)} points "
-                f"{interval([100 * x for x in s['diff_ci95']], 1, sign=True)}")
+                f"AC {100 * s['mean_baseline']:.1f} %; EAC − AC {number(100 * s['diff'], 1, sign=True)} "
+                f"points {interval([100 * x for x in s['diff_ci95']], 1, sign=True)}")
     if c["id"] == "BOWL-2":
         e1, e2 = s["eac"]["theta1"], s["eac"]["theta2"]
         return (f"EAC θ₁ {number(e1['mean'], 4, sign=True)} {interval(e1['ci95'], 4, sign=True)}, "

@@ -111,7 +111,8 @@ FULL = Sizes(grid_seeds=10_000, bowling_seeds=1_000, calibration_seeds=200, cali
              ablation_grid_seeds=10_000, ablation_bowling_seeds=200)
 QUICK = Sizes(grid_seeds=2_000, bowling_seeds=150, calibration_seeds=64, calibration_sets=CALIBRATION_SETS,
               ablation_grid_seeds=1_000, ablation_bowling_seeds=40, resamples=2_000, band_resamples=1_000,
-              bowling_calibration_seeds=24, bowling_calibration_grid=(("beta", (0.03, 0.3)), ("theta_max", (0.1, 0.3))),
+              bowling_calibration_seeds=24,
+              bowling_calibration_grid=(("beta", (0.03, 0.3)), ("theta_max", (0.1, 0.3))),
               bowling_calibration_lines=())
 
 
@@ -309,7 +310,8 @@ def step_bowling(folder: Path, sizes: Sizes, key: int, progress: bool, scene: st
     return {
         "scene": scene,
         "aim": aim_summary(standing, angles, pin_xy, late_from, sub_key(key, "bowling/aim"), sizes.resamples),
-        "seeds": settings.seeds, "trials": settings.trials, "settings": plain_json(dataclasses.asdict(settings)),
+        "seeds": settings.seeds, "trials": settings.trials,
+        "settings": plain_json(dataclasses.asdict(settings)),
         "returns": {a: mean_ci(x) for a, x in totals.items()},
         "paper_position": {a: paper_position(totals[a], paper.BOWLING_PINS[a]) for a in ("ac", "eac")},
         "paper_diff": paper.BOWLING_PINS["eac"] - paper.BOWLING_PINS["ac"],
