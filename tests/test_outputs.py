@@ -110,6 +110,81 @@ def test_streamed_run_folder_equals_the_in_memory_one(tmp_path, monkeypatch):
     assert summary["eac_minus_ac"] == memory["eac_minus_ac"]
 
 
+def test_chunks_behind_keep_their_order_and_report_a_failed_write():
+    """`ChunksBehind`: calls on one thread of their own, in the order handed over (across the
+    algorithms that share it), each chunk keeping only the parts asked for; `finish` raises a
+    failed call's error, and a later hand-over stops at it."""
+    import threading
+    import time
+
+    from jaxeac.running.outputs import BatchOutput, ChunksBehind
+
+    seen, threads = [], set()
+
+    def writer(name):
+        def on_chunk(start, chunk, measures):
+            time.sleep(0.002 * ((start + 1) % 3))
+            threads.add(threading.current_thread().name)
+            seen.append((name, start, chunk.log is None, chunk.policy is None, int(measures["bits"].sum())))
+        return on_chunk
+
+    chunk = BatchOutput(np.ones((2, 3), np.int8), np.zeros((2, 4), np.int8))
+    with ChunksBehind(keep_log=False, keep_policy=True) as behind:
+        calls = {name: behind.of(writer(name)) for name in ("ac", "eac")}
+        order = [("ac", s) for s in range(5)] + [("eac", s) for s in range(5)]
+        for name, start in order:
+            calls[name](start, chunk, {"bits": np.full(2, start)})
+        behind.finish()
+    assert [(n, s) for n, s, *_ in seen] == order
+    assert all(no_log and not no_policy for _, _, no_log, no_policy, _ in seen)
+    assert threads == {t for t in threads if t.startswith("jaxeac-writer")} and len(threads) == 1
+
+    def failing(start, chunk, measures):
+        raise OSError("disk full")
+
+    with ChunksBehind(keep_log=True, keep_policy=True) as behind:
+        call = behind.of(failing)
+        call(0, chunk, {"bits": np.zeros(2)})
+        time.sleep(0.05)
+        with pytest.raises(OSError, match="disk full"):
+            call(2, chunk, {"bits": np.zeros(2)})
+        with pytest.raises(OSError, match="disk full"):
+            behind.finish()
+
+
+def test_streamed_run_folder_appears_once_its_file_is_written(tmp_path, monkeypatch):
+    """results.parquet is written behind the run; the folder appears with the whole file, and a
+    write that fails leaves no folder."""
+    import jaxeac.results as results
+    from jaxeac.experiments.grid import GridSettings, run_grid_to_folder
+
+    settings = GridSettings(seeds=9, trials=9, chances=12, chunk_size=3).resolved()
+    monkeypatch.setattr(results, "ROW_GROUP", 2)
+    writes = []
+    original = results.ResultsWriter.write
+
+    def slow_write(self, algo, seeds, *a, **kw):
+        import time
+
+        time.sleep(0.02)
+        writes.append((algo, int(seeds[0])))
+        return original(self, algo, seeds, *a, **kw)
+
+    monkeypatch.setattr(results.ResultsWriter, "write", slow_write)
+    run_grid_to_folder(settings, tmp_path / "ok", figures=False)
+    assert writes == sorted(writes) and {a for a, _ in writes} == {"ac", "eac"} and len(writes) > 2, writes
+    table = pq.read_table(tmp_path / "ok" / RESULTS_FILE)
+    assert table.column("seed").to_pylist() == list(range(9)) * 2
+
+    def failing(self, *a, **kw):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(results.ResultsWriter, "write", failing)
+    with pytest.raises(OSError, match="disk full"):
+        run_grid_to_folder(settings, tmp_path / "failed", figures=False)
+    assert not (tmp_path / "failed" / RESULTS_FILE).exists()
+
+
 @pytest.mark.parametrize("dtype", [np.int8, np.int16, np.int32, np.int64, np.uint8, bool])
 def test_arrow_arrays_built_on_numpy_buffers_equal_pyarrows_own(rng, dtype):
     """The writer builds its columns on the arrays' buffers (`_from_numpy`, `_strings`; pyarrow's

@@ -55,7 +55,7 @@ from jaxeac.results import (
 )
 from jaxeac.running.batch import run_algorithms, run_seeds
 from jaxeac.running.config import RunConfig
-from jaxeac.running.outputs import CompactCollector, CompactSeeds, SeedsResult, as_bool
+from jaxeac.running.outputs import ChunksBehind, CompactCollector, CompactSeeds, SeedsResult, as_bool
 
 
 @dataclasses.dataclass(frozen=True)
@@ -464,20 +464,27 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
               seeds: np.ndarray, early, on_results) -> tuple[GridRun, dict]:
     """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None."""
-    with staged_dir(out, replaces=RUN_FOLDER_FILES) as stage:
-        with ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer:
-            algos = settings.algos
-            collectors = [CompactCollector(seeds, settings.trials, env.n_states, n_chances=env.n_chances,
-                                           on_chunk=writer.chunk_writer(algo, seeds)) for algo in algos]
-            runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
-                                  n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
-                                  collectors=collectors)
+    with (staged_dir(out, replaces=RUN_FOLDER_FILES) as stage,
+          ResultsWriter(stage / RESULTS_FILE, settings.trials, env.n_states, options) as writer,
+          ChunksBehind(keep_log=options.trial_steps, keep_policy=options.policies) as behind):
+        # results.parquet is written on a thread of its own, behind the run (`ChunksBehind`): the
+        # results are in memory once the last chunk is measured, and the figures, summary and
+        # statistics start while the file is still being written.
+        algos = settings.algos
+        collectors = [CompactCollector(seeds, settings.trials, env.n_states, n_chances=env.n_chances,
+                                       on_chunk=behind.of(writer.chunk_writer(algo, seeds)))
+                      for algo in algos]
+        runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
+                              n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,
+                              collectors=collectors)
         results = dict(zip(settings.algos, runs, strict=True))
         run = GridRun(settings, grid_map, results)
         if on_results is not None:
             on_results(run)
-        return run, _finish_folder(run, stage, summarize(run), options, figures,
-                                   diagnosed=early.result() if early is not None else None)
+        summary = _finish_folder(run, stage, summarize(run), options, figures,
+                                 diagnosed=early.result() if early is not None else None)
+        behind.finish()  # the whole file before the folder appears
+        return run, summary
 
 
 

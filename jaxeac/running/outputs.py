@@ -11,8 +11,10 @@ hands each chunk on (to a file writer, say), so host memory stays bounded at 10^
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 from collections.abc import Callable
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from typing import Protocol
 
 import jax
@@ -20,6 +22,7 @@ import numpy as np
 
 from jaxeac.bits import SuccessBits, as_bool, measures_of  # noqa: F401 (their home before jaxeac.bits)
 from jaxeac.pytree import pytree_dataclass
+from jaxeac.running.schedule import record
 
 
 @pytree_dataclass
@@ -302,3 +305,65 @@ class CompactCollector:
 
     def result(self) -> CompactSeeds:
         return self.out
+
+
+class ChunksBehind:
+    """`CompactCollector` ``on_chunk`` calls (a results file's writer, say) on a thread of their
+    own, in the order the chunks come, while the run goes on: the run's results are in memory
+    as soon as its last chunk is measured, and the file is written behind it (beside the
+    figures and statistics). One `ChunksBehind` serves every algorithm of a run, so their rows
+    reach the file in the run's order.
+
+    A chunk handed over keeps only what the writer reads: its trial logs where `keep_log`, its
+    policies where `keep_policy` (then at most `AT_MOST` chunks wait, so host memory stays
+    bounded); the measures are rows of the collector's own arrays. `finish` waits for every
+    chunk and raises the first error; leaving a ``with`` block on an error drops the chunks not
+    yet started and waits for the one being written.
+    """
+
+    AT_MOST = 4  # chunks handed over and not yet written, where they keep their logs or policies
+
+    def __init__(self, *, keep_log: bool, keep_policy: bool):
+        self.keep_log, self.keep_policy = keep_log, keep_policy
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxeac-writer")
+        self.room = threading.Semaphore(self.AT_MOST) if keep_log or keep_policy else None
+        self.futures: list[Future] = []
+        self.seconds = 0.0  # spent in the calls, on the writer's thread
+
+    def of(self, on_chunk: Callable[[int, BatchOutput, dict], None]) -> Callable:
+        """`on_chunk`, called behind the run."""
+        def handed(start: int, chunk: BatchOutput, measures: dict) -> None:
+            for done in self.futures[-2:]:  # a failed write stops the run at the next chunk
+                if done.done() and done.exception() is not None:
+                    raise done.exception()
+            chunk = chunk.replace(log=chunk.log if self.keep_log else None,
+                                  policy=chunk.policy if self.keep_policy else None)
+            if self.room is not None:
+                self.room.acquire()
+            self.futures.append(self.pool.submit(self._call, on_chunk, start, chunk, measures))
+        return handed
+
+    def _call(self, on_chunk, start: int, chunk: BatchOutput, measures: dict) -> None:
+        try:
+            t0 = time.perf_counter()
+            on_chunk(start, chunk, measures)
+            t1 = time.perf_counter()
+            self.seconds += t1 - t0
+            record({"event": "write", "start": start, "size": len(measures["bits"]), "begin": t0, "end": t1})
+        finally:
+            if self.room is not None:
+                self.room.release()
+
+    def finish(self) -> None:
+        """Wait for every chunk handed over; raises the first error of their calls."""
+        try:
+            for future in self.futures:
+                future.result()
+        finally:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> ChunksBehind:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
