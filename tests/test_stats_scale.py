@@ -164,6 +164,7 @@ def test_api_10k_identical_to_pinned():
 from scipy import stats as sps  # noqa: E402
 
 from jaxeac.stats import closed_form as cf  # noqa: E402
+from jaxeac.stats import events as ev  # noqa: E402
 from jaxeac.stats import large  # noqa: E402
 from jaxeac.stats.curves import curve_results, curve_results_large  # noqa: E402
 from jaxeac.stats.measure_large import measure_large  # noqa: E402
@@ -270,7 +271,7 @@ def test_per_value_permutation_is_the_label_permutation():
 
 def test_ranks_and_logrank_at_scale_match_scipy_and_statsmodels():
     sb, st = synthetic(BIG, trials=100, seed=4)
-    from jaxeac.stats.rundir import per_seed_measures
+    from jaxeac.stats.measures import per_seed_measures
 
     mb, mt = per_seed_measures(sb), per_seed_measures(st)
     for name in ("successes", "auc_cumulative"):
@@ -287,7 +288,7 @@ def test_ranks_and_logrank_at_scale_match_scipy_and_statsmodels():
         assert float(cf.brunner_munzel_counts(t2.kb, t2.kt)[0][0]) == pytest.approx(brute, rel=1e-12)
     sm_surv = pytest.importorskip("statsmodels.duration.survfunc")
     sub = slice(0, 20_000)
-    lr = cf.logrank(mb["_time"][sub], mb["_event"][sub], mt["_time"][sub], mt["_event"][sub])
+    lr = ev.logrank(mb["_time"][sub], mb["_event"][sub], mt["_time"][sub], mt["_event"][sub])
     chi2, p = sm_surv.survdiff(
         np.r_[mb["_time"][sub], mt["_time"][sub]],
         np.r_[mb["_event"][sub], mt["_event"][sub]].astype(int),
@@ -517,7 +518,9 @@ def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
     made a measure at a time, means a block of seeds at a time, measures in turn within the host
     budget) give the very results of the float64 arrays they stand for: analyses, calibration,
     log-rank and the figures' tables, at a threshold lowered so a small case takes the large path."""
-    from jaxeac.stats import compare, rundir
+    from jaxeac.stats import calibration as cal_mod
+    from jaxeac.stats import compare
+    from jaxeac.stats import measures as rundir
 
     monkeypatch.setattr(large, "LARGE_N", 400)
     monkeypatch.setattr(large, "MAX_DISTINCT", 100)  # the area measure takes the ABC / normal-limit path
@@ -549,14 +552,14 @@ def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
     assert methods["successes"]["bootstrap"].startswith("exact")
 
     def calibration(m):
-        return compare.calibrate({k: m[k] for k in names}, None, 4, splits=40, resamples=50,
+        return cal_mod.calibrate({k: m[k] for k in names}, None, 4, splits=40, resamples=50,
                                  time_event=(m["_time"], m["_event"]))
 
     same(calibration(codes[0]), calibration(floats[0]))
-    lr = cf.logrank_tables(*(rundir.event_counts(c["_time"], c["_event"]) for c in codes))
+    lr = ev.logrank_tables(*(rundir.event_counts(c["_time"], c["_event"]) for c in codes))
     (fb, ft) = floats
     mask = np.r_[np.zeros(fb["_time"].size, bool), np.ones(ft["_time"].size, bool)][None]
-    chi2, p, _, _ = cf.logrank_masks(np.r_[fb["_time"], ft["_time"]].astype(float),
+    chi2, p, _, _ = ev.logrank_masks(np.r_[fb["_time"], ft["_time"]].astype(float),
                                      np.r_[fb["_event"], ft["_event"]], mask)
     assert (lr.statistic, lr.pvalue) == (chi2[0], p[0])
     for cols in ([codes[0][k] for k in names], [floats[0][k] for k in names], [codes[0]["successes"]]):
@@ -583,7 +586,7 @@ def test_measures_from_packed_bits_are_those_of_the_unpacked_rows(trials):
     """`per_seed_codes` reads `SuccessBits` byte by byte (set bits and their positions per byte);
     every code equals the unpacked bool path's, dtype included, on empty, full and random rows,
     and bits past the last trial (a damaged pad) change nothing."""
-    from jaxeac.stats.rundir import per_seed_codes
+    from jaxeac.stats.measures import per_seed_codes
 
     rng = np.random.default_rng(trials)
     success = rng.random((40_000, trials)) < rng.choice([0.0, 0.02, 0.5, 0.98, 1.0], size=(40_000, 1))

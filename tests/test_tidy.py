@@ -11,7 +11,8 @@ from scipy import stats
 
 from jaxeac.cli import main
 from jaxeac.stats import a12, holm, iqm
-from jaxeac.stats.inputs import read_npz, read_sb3, read_tidy
+from jaxeac.stats.inputs import read_npz, read_tidy
+from jaxeac.stats.sb3 import read_sb3
 from jaxeac.stats.tasks import prob_improvement
 from jaxeac.stats.tidy import compare_samples
 

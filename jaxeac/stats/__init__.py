@@ -9,6 +9,7 @@ outputs; which methods, and why they are equivalent at that N: `jaxeac.stats.lar
 """
 
 from jaxeac.stats.bootstrap import bca_ci, bca_interval, iqm, iqm_ci
+from jaxeac.stats.calibration import calibrate
 from jaxeac.stats.closed_form import (
     Estimate,
     TestResult,
@@ -16,18 +17,16 @@ from jaxeac.stats.closed_form import (
     brunner_munzel,
     hedges_g,
     holm,
-    logrank,
-    newcombe_diff,
     power_ttest,
-    risk_ratio_ci,
     seeds_for_power,
     welch_t,
-    wilson_ci,
 )
-from jaxeac.stats.compare import calibrate, compare_measures, permutation_test
+from jaxeac.stats.compare import compare_measures, permutation_test
 from jaxeac.stats.curves import curve_bands
+from jaxeac.stats.events import logrank, newcombe_diff, risk_ratio_ci, wilson_ci
+from jaxeac.stats.measures import per_seed_measures
 from jaxeac.stats.run import compare_experiment, compare_run_dir
-from jaxeac.stats.rundir import load_run_dir, per_seed_measures
+from jaxeac.stats.rundir import load_run_dir
 
 __all__ = [
     "Estimate",

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 
 _ROT = ((13, 15, 26, 6), (17, 29, 16, 24))
@@ -129,3 +130,33 @@ def random_subsets(key: jax.Array, n: int, k: int, reps: int, dtype=jnp.bool_) -
 
     _, takes = lax.scan(body, jnp.full((reps,), k, jnp.uint32), (words, remaining))
     return takes
+
+
+def host_rng(key) -> np.random.Generator:
+    """A NumPy generator seeded from the words of a JAX key (the same on every device)."""
+    words = np.asarray(jax.random.key_data(key), np.uint32).reshape(-1)
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(w) for w in words])))
+
+
+def multinomial_counts(rng: np.random.Generator, counts: np.ndarray, resamples: int) -> np.ndarray:
+    """Bootstrap resamples as counts per value: Mult(n, counts/n), [R, D] float64."""
+    counts = np.asarray(counts, np.int64)
+    n = int(counts.sum())
+    return rng.multinomial(n, counts / n, size=resamples).astype(np.float64)
+
+
+def hypergeometric_counts(rng: np.random.Generator, counts: np.ndarray, n_take: int, reps: int):
+    """Counts per value of `reps` uniform n_take-subsets of the units: [reps, D] float64."""
+    counts = np.asarray(counts, np.int64)
+    return rng.multivariate_hypergeometric(counts, int(n_take), size=reps, method="marginals").astype(
+        np.float64
+    )
+
+
+def key_record(key) -> dict:
+    """stats.json's record of the comparison's key: the int seed (if one) and the key's words."""
+    k = as_key(key)
+    return {
+        "seed": key if isinstance(key, int) else None,
+        "key_data": np.asarray(jax.random.key_data(k)).tolist(),
+    }

@@ -55,16 +55,18 @@ def bca_ci(
 
 
 def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int = 1000) -> Estimate:
-    """IQM of one method's per-seed values with a BCa bootstrap CI."""
+    """IQM of one method's per-seed values with a BCa bootstrap CI, on the path
+    `large.resampling_path` gives (raw draws on the device, counts per value, or the normal limit)."""
     x = check_sample(x)
     est = iqm(x)
-    if large.is_large(x.size):  # per-value bootstrap, or the normal limit (`jaxeac.stats.large`)
+    path = large.resampling_path(x.size, np.unique(x).size if large.is_large(x.size) else 0)
+    if path == large.ASYMPTOTIC:
+        lo, hi = large.normal_bca(est, jackknife_iqm(x), alpha)
+        return Estimate(est, lo, hi, 1 - alpha)
+    if path == large.PER_VALUE:
         table = large.ValueTable(x, x[:0])
-        if not table.exact:
-            lo, hi = large.normal_bca(est, jackknife_iqm(x), alpha)
-            return Estimate(est, lo, hi, 1 - alpha)
-        cnt = large.multinomial_counts(large.host_rng(as_key(key)), table.kb, resamples)
-        q = large.iqm_from_counts(cnt, table.values)
+        q = large.iqm_from_counts(large.multinomial_counts(large.host_rng(as_key(key)), table.kb, resamples),
+                                  table.values)
     else:
         _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
     lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)

@@ -7,21 +7,16 @@ the difference of means with a BCa CI (Efron 1987), Welch's t-test (Welch
 1947) checked by a studentised permutation test (Janssen 1997), Brunner–Munzel
 (Brunner & Munzel 2000), Hedges' g with a BCa CI, A12 with the Brunner–Munzel
 CI, and the seeds needed for 80 % power. Holm (1979) adjusts the declared
-family of measures. An AC-versus-AC calibration checks each test's false-positive
-rate on random disjoint splits of the baseline seeds.
+family of measures. The AC-versus-AC calibration is `jaxeac.stats.calibration`.
 
-Above `large.LARGE_N` seeds per method the same results come from the large-N path
-(`_analyse_large`, `_calibrate_large`): resampling per distinct value, exact, where a
-measure takes few values, and named asymptotically exact methods elsewhere; see
-`jaxeac.stats.large` for which, why and the references.
-
-(Over 400 lines on purpose: each analysis and its large-N form sit side by side, so
-the place where a result switches path, and what it keeps equal, is visible in one file.)
+Which path a measure's resampling takes is `large.resampling_path`'s one rule: above
+`large.LARGE_N` seeds per method the same results come from `_analyse_large`: resampling per
+distinct value, exact, where a measure takes few values, and named asymptotically exact
+methods elsewhere; see `jaxeac.stats.large` for which, why and the references.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -29,7 +24,6 @@ from concurrent.futures import ThreadPoolExecutor
 import jax
 import numpy as np
 
-from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
@@ -38,8 +32,8 @@ from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
 from jaxeac.stats.measure_large import measure_large, perm_p
-from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, dispatch_subsets, permutation_sums
-from jaxeac.stats.rundir import Coded, as_values, event_counts, fill_values, value_counts
+from jaxeac.stats.measures import as_values, fill_values
+from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums
 
 POWER_DS = (0.2, 0.5, 0.8)
 
@@ -212,8 +206,8 @@ def _analyse(
         out[name]["p_permutation"] = float(perm_p(t_obs, t_star[:, None])[0])
     # IQM per method of the first (primary) measure
     first = names[0]
-    for side, x, q, n_ in (("baseline", xb[:, 0], iqm_b, nb), ("treatment", xt[:, 0], iqm_t, nt)):
-        est = float(np.mean(np.sort(x)[n_ // 4 : n_ - n_ // 4]))
+    for side, x, q in (("baseline", xb[:, 0], iqm_b), ("treatment", xt[:, 0], iqm_t)):
+        est = cf.iqm_sorted(np.sort(x))
         lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
         out[first][f"iqm_{side}"] = est + centre[0]
         out[first][f"iqm_{side}_ci95"] = [lo + centre[0], hi + centre[0]]
@@ -351,225 +345,3 @@ def compare_measures(
     return cf.level_keys(res["measures"], round(1 - alpha, 12))
 
 
-def _rate(p, alpha):
-    k = int((np.asarray(p) <= alpha).sum())
-    n = int(np.asarray(p).size)
-    lo, hi = cf.wilson_ci(k, n, alpha) if n else (math.nan, math.nan)
-    return {"rate": k / n if n else math.nan, "ci95": [lo, hi], "rejections": k, "splits": n}
-
-
-def dispatch_calibration(key, n: int, splits: int, resamples: int):
-    """Start drawing the calibration's random halves of n seeds: `splits` splits, then
-    `resamples` reference relabellings, all uniform k-of-N subsets with N = 2·(n // 2)."""
-    h = n // 2
-    if h < 2 or large.is_large(n):  # the large-N calibration draws per value (see `calibrate`)
-        return lambda: None
-    return dispatch_subsets(as_key(key), 2 * h, h, splits + resamples)
-
-
-def calibrate(
-    measures: dict,
-    curves: np.ndarray | None,
-    key,
-    *,
-    splits: int = 200,
-    resamples: int = 200,
-    alpha: float = 0.05,
-    time_event=None,
-    labels=None,
-    moments=None,
-) -> dict:
-    """False-positive rates of each test on random disjoint halves of one method's seeds.
-
-    measures: {name: [n] or `Coded`} of a single method; curves [n, T] or None; time_event:
-    (time, event) for the log-rank test (time: integers or `Coded`). Each split is a uniform random half; the
-    permutation reference set (`resamples` relabellings) is shared by all splits.
-    labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
-    already started (the draws then overlap other work). Above `large.LARGE_N` seeds
-    the halves are drawn per distinct value (measures) and per block of seeds (curves),
-    see `_calibrate_large`; moments: the curves' `large.curve_moments` (the dict, or the function
-    that waits for it), if at hand.
-    """
-    names = list(measures)
-    n = measures[names[0]].size
-    h = n // 2
-    if h < 2:
-        return {"skipped": f"needs at least 4 baseline seeds, got {n}"}
-    if large.is_large(n):
-        return _calibrate_large(
-            measures,
-            curves,
-            key,
-            splits=splits,
-            resamples=resamples,
-            alpha=alpha,
-            time_event=time_event,
-            moments=moments,
-        )
-    N = 2 * h
-    measures = {k: as_values(v) for k, v in measures.items()}
-    x = np.stack([measures[k][:N] for k in names], 1)
-    x = x - x.mean(0)
-    M = len(names)
-    z = [x, x**2]
-    binary = True
-    if curves is not None:
-        c = np.asarray(curves[:N], np.float64)
-        binary = is_binary(c)
-        z.append(curve_columns(c, binary))
-    z = np.concatenate(z, 1)
-    if labels is None:
-        labels = dispatch_calibration(key, n, splits, resamples)
-    drawn = labels()  # [S + R, N]: the first S rows are the splits, the rest the reference
-    masks = drawn[:splits]  # True = pseudo-treatment
-    sums = drawn.astype(np.float64) @ z
-    split_sums, ref_sums = sums[:splits], sums[splits:]
-    tot = z.sum(0)
-
-    def tstats(sums, cols, sq):
-        ss_t = None if sq is None else sums[:, sq]
-        ss_b = None if sq is None else tot[sq] - sums[:, sq]
-        return welch_t_stat(h, tot[cols] - sums[:, cols], ss_b, h, sums[:, cols], ss_t)
-
-    rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
-    for j, name in enumerate(names):
-        cols, sq = slice(j, j + 1), slice(M + j, M + j + 1)
-        _, _, p_w = cf.welch_from_moments(
-            h,
-            tot[j] - split_sums[:, j],
-            tot[M + j] - split_sums[:, M + j],
-            h,
-            split_sums[:, j],
-            split_sums[:, M + j],
-        )
-        p_perm = perm_p(tstats(split_sums, cols, sq)[:, 0], tstats(ref_sums, cols, sq))
-        p_bm = cf.brunner_munzel_masks(x[:, j], masks, alpha)[3]
-        rates["welch"][name] = _rate(p_w, alpha)
-        rates["permutation"][name] = _rate(p_perm, alpha)
-        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
-    if time_event is not None:
-        tm, ev = time_event
-        tm = tm.codes.astype(np.int64) if isinstance(tm, Coded) else tm
-        rates["logrank"] = {"first_success": _rate(cf.logrank_masks(tm[:N], ev[:N], masks)[1], alpha)}
-    if curves is not None:
-        T = curves.shape[1]
-        cols = slice(2 * M, 2 * M + T)
-        sq = None if binary else slice(2 * M + T, 2 * M + 2 * T)
-        max_ref = np.abs(tstats(ref_sums, cols, sq)).max(1)
-        max_split = np.abs(tstats(split_sums, cols, sq)).max(1)
-        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
-    return _calibration_record(splits, resamples, h, alpha, rates)
-
-
-def _max_t_p(max_ref, max_split):
-    """Per split, the max-T p-value of its largest |t| against the reference maxima."""
-    return (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
-
-
-def _calibration_record(splits, resamples, h, alpha, rates, **extra) -> dict:
-    return {
-        "description": "baseline against itself: random disjoint halves; the rate is the share of splits "
-        "a test calls significant (expected: alpha)",
-        "splits": splits,
-        "resamples": resamples,
-        "group_size": h,
-        "alpha": alpha,
-        "false_positive_rate": rates,
-        **extra,
-    }
-
-
-def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_event, moments) -> dict:
-    """`calibrate` above `large.LARGE_N` seeds.
-
-    Measure j: each random half is a multivariate hypergeometric count per distinct value
-    under fold_in(key, j) (exact); the permutation reference is `resamples` more such halves
-    where the main comparison resamples that measure exactly, else the test's normal limit.
-    Log-rank: counts per (time, event) under fold_in(key, M). Curves: exact random halves of
-    the seeds drawn on the device under fold_in(key, CURVE_STREAM); the max-T reference is
-    the Gaussian limit used by the main comparison (draws under fold_in(key, CURVE_STREAM + 1)).
-    """
-    key = as_key(key)
-    names = list(measures)
-    n = measures[names[0]].size
-    h = n // 2
-    N = 2 * h
-    M = len(names)
-    means = large.stacked_means([measures[k] for k in names], N)  # the first N seeds' means
-    wait_curve = None
-    if curves is not None:
-        packed = isinstance(curves, SuccessBits)
-        c = SuccessBits(curves.bits[:N], curves.trials) if packed else np.asarray(curves)[:N]
-        binary = is_binary(c)
-        cols = c if binary else np.concatenate([c, c * c], 1)
-        wait_curve = large.dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
-    rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
-    methods: dict = {}
-
-    def one(j: int):  # a measure's halves and tests (on a host thread; its own key)
-        raw, counts = value_counts(measures[names[j]], N)
-        vals, inv = np.unique(raw - means[j], return_inverse=True)  # the centred values of the seeds
-        K = np.bincount(inv.reshape(-1), weights=counts, minlength=vals.size).astype(np.int64)
-        exact = large.few_values(vals.size)
-        rng = large.host_rng(jax.random.fold_in(key, j))
-        H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
-        s1, s2 = large.moment_sums(H, vals)
-        tot1, tot2 = K @ vals, K @ (vals * vals)
-        a1, a2 = s1[:splits], s2[:splits]
-        _, _, p_w = cf.welch_from_moments(h, tot1 - a1, tot2 - a2, h, a1, a2)
-        t_split = welch_t_stat(h, tot1 - a1, tot2 - a2, h, a1, a2)
-        if exact:
-            r1, r2 = s1[splits:], s2[splits:]
-            p_perm = perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
-        else:
-            p_perm = large.normal_permutation_p(t_split)
-        p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
-        return p_w, p_perm, p_bm, {
-            "distinct_values": int(vals.size),
-            "permutation": large.REFERENCES["permutation_per_value" if exact else "normal_permutation"],
-        }
-
-    with ThreadPoolExecutor(max_workers=M) as pool:
-        done = list(pool.map(one, range(M)))
-    for name, (p_w, p_perm, p_bm, method) in zip(names, done, strict=True):
-        rates["welch"][name] = _rate(p_w, alpha)
-        rates["permutation"][name] = _rate(p_perm, alpha)
-        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
-        methods[name] = method
-    if time_event is not None:
-        times, K = event_counts(*time_event, N)
-        H = large.hypergeometric_counts(large.host_rng(jax.random.fold_in(key, M)), K, h, splits)
-        p_lr = cf.logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), K, H)[1]
-        rates["logrank"] = {"first_success": _rate(p_lr, alpha)}
-    if curves is not None:
-        T = c.shape[1]
-        treat = wait_curve()
-        tot = cols.column_sums() if packed else cols.sum(0, dtype=np.float64)
-        sq = None if binary else slice(T, 2 * T)
-
-        def part(a, s):
-            return None if s is None else a[..., s]
-
-        base = tot - treat
-        t_split = welch_t_stat(h, base[:, :T], part(base, sq), h, treat[:, :T], part(treat, sq))
-        max_split = np.abs(t_split).max(1)
-        mom = moments() if callable(moments) else moments
-        if mom is None or mom["n"] != N:
-            if mom is not None and mom["n"] == N + 1:  # drop the odd seed out
-                last = (curves.rows(N, N + 1)[0] if packed else np.asarray(curves)[N]).astype(np.float64)
-                mom = {"n": N, "s": mom["s"] - last, "G": mom["G"] - np.outer(last, last)}
-            else:
-                mom = large.curve_moments(c)()
-        rng = large.host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
-        max_ref = large.gaussian_max_abs(rng, large.covariance(mom), resamples)
-        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
-        methods["curve_maxT"] = large.REFERENCES["max_t_gaussian"]
-    return _calibration_record(
-        splits, resamples, h, alpha, rates,
-        large_n={
-            "threshold": large.LARGE_N,
-            "halves": "measures: multivariate hypergeometric counts per distinct value; curves: exact "
-            "random halves of the seeds (selection sampling on the device)",
-            "methods": methods,
-        },
-    )

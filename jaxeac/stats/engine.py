@@ -32,10 +32,11 @@ from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.groups import Group, pair_row, paired_row
-from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, read_any
+from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, read_npz, read_tidy
 from jaxeac.stats.large import PATH_RULE, resampling_path
 from jaxeac.stats.resample import boot_counts
 from jaxeac.stats.result import Comparison
+from jaxeac.stats.sb3 import read_sb3
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
 PAIRED_STREAM = 1 << 20
@@ -73,6 +74,20 @@ def check_level(level) -> float:
 
 
 # ---------------------------------------------------------------- inputs
+def read_any(path, *, value: str = "value", aggregate: str = "sum") -> PerSeed:
+    """A tidy table, an SB3 folder or an rliable .npz."""
+    path = Path(path)
+    if not path.exists():
+        raise UsageError(
+            f"--table {path} does not exist; pass a CSV or Parquet table, an .npz or an SB3 folder"
+        )
+    if path.is_dir():
+        return read_sb3(path)
+    if path.suffix.lower() == ".npz":
+        return read_npz(path)
+    return read_tidy(path, value=value, aggregate=aggregate)
+
+
 def as_per_seed(data, *, value: str = "value", aggregate: str = "sum") -> PerSeed:
     if isinstance(data, PerSeed):
         return data

@@ -18,7 +18,7 @@ from jaxeac.stats import large
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
 from jaxeac.stats.large import resampling_path
 from jaxeac.stats.resample import boot_counts, cumulative
-from jaxeac.stats.tasks import wins_replicates
+from jaxeac.stats.tasks import below_half, wins_replicates
 
 
 class Group:
@@ -57,7 +57,7 @@ class Group:
         return self._sums
 
     def iqm(self, alpha: float) -> list[float]:
-        est = float(np.mean(self.x[self.n // 4 : self.n - self.n // 4]))
+        est = cf.iqm_sorted(self.x)
         if self.CT is None:
             return [est, *large.normal_bca(est, jackknife_iqm(self.x), alpha)]
         jk = (
@@ -72,12 +72,8 @@ class Group:
 
 def wins(gx: Group, gy: Group):
     """P(X > Y) + ½ P(X = Y): the estimate, its replicates (or None) and the jackknife per sample."""
-    lo, hi = np.searchsorted(gy.values, gx.values, "left"), np.searchsorted(gy.values, gx.values, "right")
-    ky = np.concatenate([[0], np.cumsum(gy.k)])
-    s = ky[lo] + 0.5 * (ky[hi] - ky[lo])  # per x value: y units below it, ties half
-    lo2, hi2 = np.searchsorted(gx.values, gy.values, "left"), np.searchsorted(gx.values, gy.values, "right")
-    kx = np.concatenate([[0], np.cumsum(gx.k)])
-    t = (gx.n - kx[hi2]) + 0.5 * (kx[hi2] - kx[lo2])  # per y value: x units above it, ties half
+    s = below_half(gy.values, np.r_[0, np.cumsum(gy.k)], gx.values)  # per x value: y units below it
+    t = gx.n - below_half(gx.values, np.r_[0, np.cumsum(gx.k)], gy.values)  # per y value: x units above
     nx, ny = gx.n, gy.n
     est = float(gx.k @ s / (nx * ny))
     star = None
@@ -131,8 +127,10 @@ def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
 
 
 def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples: int = 10_000) -> dict:
-    """The paired comparison: per-seed differences d (X − Y of the same seed id), C the task's shared
-    draw over its seeds (raw path), else `jaxeac.stats.paired.paired_analysis`."""
+    """The paired comparison: per-seed differences d (X − Y of the same seed id). The interval takes
+    the path `resampling_path(n, distinct, paired=True)` gives (recorded as ``path``): raw draws
+    from C, the task's shared draw over its seeds, else `jaxeac.stats.paired.paired_analysis`,
+    the run folders' paired analysis, which follows the same rule."""
     n = d.size
     t = cf.paired_t(d)
     out = {
@@ -144,12 +142,13 @@ def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples
         "p_paired_t": t.pvalue,
         "d_z": cf.d_z(d),
     }
-    if C is not None:  # C: the shared draw, units first [n, R]
+    out["path"] = resampling_path(n, np.unique(d).size, paired=True)  # the one rule, as paired.py
+    if C is not None and out["path"] == large.RAW:  # C: the shared draw, units first [n, R]
         star = d @ C.astype(np.float64) / n
         out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
         return out
     from jaxeac.stats.paired import paired_analysis
 
     res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha)
-    out["mean_diff_ci"] = res["mean_diff_ci"]
+    out["mean_diff_ci"] = res["mean_diff_ci95"]
     return out

@@ -20,14 +20,12 @@ and algorithm, never silently; text that is no number and infinite values are er
 Malformed input raises `UsageError` (a `ValueError`) naming the row, column, file or
 algorithm, quoting at most a short printable excerpt, before anything is written.
 
-(Over 400 lines on purpose: one reader per input format (tidy tables, SB3 monitors, rliable
-arrays) with the checks that refuse bad input before any compute.)
+SB3 monitor folders are read by `jaxeac.stats.sb3`; `jaxeac.stats.engine.read_any` picks the
+reader of a path.
 """
 
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,8 +34,6 @@ import numpy as np
 from jaxeac.errors import UsageError
 
 AGGREGATES = ("sum", "mean", "last")
-#: Share of the last episodes whose mean reward is the per-seed value of an SB3 run.
-SB3_LAST_SHARE = 0.10
 #: The largest |value| the statistics take (float32 sums of squares), and the smallest spread.
 MAX_VALUE = 1e15
 MIN_SPREAD = 1e-15
@@ -276,68 +272,6 @@ def _per_seed(seed, trial, vals, has_trial, aggregate, path, task, algo):
     return ids, out
 
 
-def _read_monitor(path: Path) -> float:
-    import pandas as pd
-
-    _check_file(path, "SB3 monitor file")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            skip = 1 if fh.readline().startswith("#") else 0
-        frame = pd.read_csv(path, skiprows=skip)
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        raise UsageError(
-            f"cannot read the SB3 monitor file {path}: {excerpt(str(exc).splitlines()[0], 80)}"
-        ) from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    if "r" not in frame.columns:
-        raise UsageError(
-            f"{path}: no column 'r' (episode reward); an SB3 monitor file has a #{{...}} line, "
-            "then columns r,l,t"
-        )
-    r = _numeric(frame, "r", str(path), rows="episode")
-    r = r[~np.isnan(r)]
-    if r.size == 0:
-        return math.nan  # no episode: a failed seed
-    k = max(1, math.ceil(SB3_LAST_SHARE * r.size))
-    return float(r[-k:].mean())
-
-
-def read_sb3(folder) -> PerSeed:
-    """SB3 monitor files: ``ALGO/SEED/monitor.csv`` or ``ALGO_SEED.monitor.csv``."""
-    folder = Path(folder)
-    runs: dict[str, dict[str, float]] = {}
-    for path in sorted(folder.rglob("*monitor.csv")):
-        rel = path.relative_to(folder)
-        if path.name == "monitor.csv":
-            if len(rel.parts) < 3:
-                raise UsageError(f"{path}: a monitor.csv must lie in ALGO/SEED/monitor.csv under {folder}")
-            algo, seed = rel.parts[-3], rel.parts[-2]
-        else:
-            m = re.fullmatch(r"(.+)_([^_]+)\.monitor\.csv", path.name)
-            if not m:
-                raise UsageError(
-                    f"{path}: an SB3 monitor file is named ALGO_SEED.monitor.csv "
-                    "(or lies in ALGO/SEED/monitor.csv)"
-                )
-            algo, seed = m.group(1), m.group(2)
-        runs.setdefault(algo, {})[seed] = _read_monitor(path)
-    if not runs:
-        raise UsageError(f"{folder}: no SB3 monitor files (ALGO/SEED/monitor.csv or ALGO_SEED.monitor.csv)")
-    values, seeds, excluded = {ONE_TASK: {}}, {ONE_TASK: {}}, {}
-    for a, per in runs.items():
-        ids = np.array(sorted(per))
-        v = np.array([per[s] for s in ids])
-        ok = ~np.isnan(v)
-        values[ONE_TASK][a], seeds[ONE_TASK][a] = v[ok], ids[ok]
-        if not ok.all():
-            excluded.setdefault(ONE_TASK, {})[a] = int((~ok).sum())
-    what = (
-        f"per-seed value: mean episode reward over the last {SB3_LAST_SHARE:.0%} of episodes (at least one) "
-        "of each SB3 monitor file, whatever its number of episodes"
-    )
-    return PerSeed(values, seeds, what, "sb3", str(folder), excluded)
-
-
 def from_arrays(arrays, *, source: str = "arrays", fmt: str = "arrays") -> PerSeed:
     """``{algo: 1-D}``, ``{algo: [runs, tasks]}`` (rliable) or ``{task: {algo: 1-D}}``; NaN runs excluded."""
     if not hasattr(arrays, "items") or not arrays:
@@ -409,20 +343,6 @@ def read_npz(path) -> PerSeed:
             "array per algorithm, at least two (np.savez(path, algo_a=..., algo_b=...))"
         )
     return from_arrays(arrays, source=str(path), fmt="rliable")
-
-
-def read_any(path, *, value: str = "value", aggregate: str = "sum") -> PerSeed:
-    """A tidy table, an SB3 folder or an rliable .npz."""
-    path = Path(path)
-    if not path.exists():
-        raise UsageError(
-            f"--table {path} does not exist; pass a CSV or Parquet table, an .npz or an SB3 folder"
-        )
-    if path.is_dir():
-        return read_sb3(path)
-    if path.suffix.lower() == ".npz":
-        return read_npz(path)
-    return read_tidy(path, value=value, aggregate=aggregate)
 
 
 def default_out(path) -> Path:

@@ -13,7 +13,7 @@ import numpy as np
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
-from jaxeac.stats.closed_form import welch_t_stat
+from jaxeac.stats.closed_form import iqm_sorted, welch_t_stat
 
 
 def perm_p(t_obs, t_star):
@@ -94,8 +94,7 @@ def measure_large(
     if iqm:
         out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
         for side, z in (("baseline", xc), ("treatment", yc)):
-            n_ = z.size
-            est = float(np.mean(np.sort(z)[n_ // 4 : n_ - n_ // 4]))
+            est = iqm_sorted(np.sort(z))
             lo, hi = large.normal_bca(est, jackknife_iqm(z), alpha)
             out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
     return out

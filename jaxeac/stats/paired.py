@@ -6,11 +6,11 @@ the per-seed differences d_i = x_EAC,i − x_AC,i carry less noise than two inde
 samples. The paired analysis of a measure (Student 1908; Efron & Tibshirani 1993) gives:
 
 * the mean difference with a **paired BCa bootstrap** interval: seeds (pairs) resampled
-  together (Efron 1987). A difference with at most `large.MAX_DISTINCT` distinct values
-  is resampled as multinomial counts per distinct value, the same law as drawing pairs
-  one by one (Efron 1979), so the interval is exact for any N; with more distinct values
-  pairs are drawn one by one up to `large.LARGE_N` seeds, and above that the bootstrap's
-  normal limit is used (`large.normal_bca`, jackknife SE and acceleration);
+  together (Efron 1987), by the path `large.resampling_path(n, distinct, paired=True)` picks
+  (recorded as ``path``): counts per distinct difference where there are at most
+  `large.MAX_DISTINCT` (the same law as drawing pairs one by one, Efron 1979, so exact at any
+  N), else pairs one by one up to `large.LARGE_N` seeds, else the bootstrap's normal limit
+  (`large.normal_bca`, jackknife SE and acceleration);
 * the **paired t test** (n − 1 degrees of freedom) and a **sign-flip permutation test**
   (under no difference each d_i is as likely to be −d_i; Fisher 1935): the flips of the
   seeds sharing a value |d| are a binomial count per value, exact for any N; with more
@@ -26,14 +26,16 @@ Resampling draws come from NumPy's exact samplers seeded from the JAX key
 from __future__ import annotations
 
 import math
+from dataclasses import astuple
 
 import jax
 import numpy as np
 from scipy import special
 
+from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.bootstrap import bca_interval
+from jaxeac.stats.bca import bca_interval
 
 #: Random draws per block when resampling pairs or flipping signs seed by seed.
 DRAWS = 1 << 22
@@ -78,15 +80,16 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     mean = float(d.mean())
     sd = float(d.std(ddof=1))
     se = sd / math.sqrt(n)
-    t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
-    p_t = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
+    t, p_t, _ = astuple(cf.paired_t(d))
     dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
     k_boot, k_flip = jax.random.split(as_key(key))
     values, counts = np.unique(d, return_counts=True)
     out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
            "p_paired_t": p_t, "d_z": dz, "correlation": r, "distinct_differences": int(values.size)}
     rng = large.host_rng(k_boot)
-    if large.few_values(values.size):  # exact: counts per distinct difference
+    path = large.resampling_path(n, values.size, paired=True)  # the one rule
+    out["path"] = path
+    if path == large.PER_VALUE:  # exact: counts per distinct difference
         c = large.multinomial_counts(rng, counts, resamples)
         s1, s2 = large.moment_sums(c, values)
         boot_mean, boot_sq = s1 / n, s2 / n
@@ -96,7 +99,7 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
         jk = [(jk_mean, counts)]
         jk_dz = [(_dz(jk_mean, jk_sq, n - 1), counts)]
         out["bootstrap"] = "exact: multinomial counts per distinct difference (Efron 1979)"
-    elif not large.is_large(n):  # pairs one by one
+    elif path == large.RAW:  # pairs one by one
         boot_mean, boot_sq = np.empty(resamples), np.empty(resamples)
         step = max(1, DRAWS // n)  # resamples per block
         for i in range(0, resamples, step):
@@ -137,11 +140,12 @@ def sign_flip_p(d: np.ndarray, values: np.ndarray, counts: np.ndarray, key, resa
     keep = mags > 0
     mags, per_mag = mags[keep], per_mag[keep]
     tol = 1e-9 * max(1.0, observed)
-    if large.few_values(mags.size):  # exact: the number of + signs per magnitude is binomial
+    path = large.resampling_path(d.size, mags.size, paired=True)  # the one rule
+    if path == large.PER_VALUE:  # exact: the number of + signs per magnitude is binomial
         plus = rng.binomial(per_mag[None, :], 0.5, size=(resamples, mags.size))
         s = (2 * plus - per_mag[None, :]) @ mags
         method = "exact: binomial sign counts per distinct |difference| (Fisher 1935)"
-    elif not large.is_large(d.size):
+    elif path == large.RAW:
         s = np.empty(resamples)
         step = max(1, DRAWS // d.size)
         for i in range(0, resamples, step):

@@ -1,8 +1,11 @@
-"""report.md for `jaxeac compare` (SPEC §6); the figures are drawn in `jaxeac.stats.figures`."""
+"""report.md for `jaxeac compare` (SPEC §6), its file names and progress bar; the figures are drawn
+in `jaxeac.stats.figures`."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 from jaxeac.fmt import compact, compact_interval, p_is, p_sig, size_word
 from jaxeac.stats.figures import FIGURES  # noqa: F401 (the figures' file names, also here)
@@ -334,3 +337,24 @@ def render_markdown(stats: dict) -> str:
         "",
     ]
     return "\n".join(out)
+
+
+def output_suffix(run_dir, baseline: str, treatment: str) -> str:
+    """"" where the folder holds no comparison yet or one of the same two methods (it is redone),
+    else ``_<baseline>_vs_<treatment>``: a second comparison of a folder never replaces the first."""
+    try:
+        first = json.loads((Path(run_dir) / "stats.json").read_text(encoding="utf-8"))
+        pair = (first["baseline"], first["treatment"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    return "" if pair == (baseline, treatment) else f"_{baseline}_vs_{treatment}"
+
+
+def progress_bar(progress: bool, baseline: str, treatment: str):
+    """The comparison's two-step bar (statistics, report), on a terminal only; None if not `progress`."""
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False,
+                disable=None)  # not into a log or a pipe: only on a terminal

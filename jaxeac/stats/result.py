@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from jaxeac.fmt import compact, compact_interval, p_sig, percent
+from jaxeac.stats.large import PATH_RULE
 
 SCHEMA = "jaxeac.compare/2"
 
@@ -76,7 +77,7 @@ class Comparison:
             },
             tasks=[stats["experiment"]],
             rows=rows,
-            resampling={"path": scale["path"]},
+            resampling={"rule": PATH_RULE, "path": scale["path"]},
             stats=stats,
         )
 

@@ -2,9 +2,6 @@
 
 Writes `stats.json`, `report.md` and the figures together (or none of them)
 through `jaxeac.io.staged_dir`.
-
-(Over 400 lines: the run-folder comparison's sections (measures, paired analysis, curves,
-calibration, run side by side) until they are built on `jaxeac.stats.engine`.)
 """
 
 from __future__ import annotations
@@ -23,25 +20,27 @@ from jaxeac.errors import UsageError
 from jaxeac.io import staged_dir, to_jsonable
 from jaxeac.runtime import start_device, trim_host_memory, versions
 from jaxeac.stats import closed_form as cf
+from jaxeac.stats import events as ev
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key
-from jaxeac.stats.compare import _analyse, calibrate, dispatch_calibration
+from jaxeac.stats._rng import as_key, key_record
+from jaxeac.stats.calibration import calibrate, dispatch_calibration
+from jaxeac.stats.compare import _analyse
 from jaxeac.stats.figures import FIGURES, write_figures
-from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
-from jaxeac.stats.paired import paired_analysis
-from jaxeac.stats.report import render_markdown
-from jaxeac.stats.rundir import (
+from jaxeac.stats.measures import (
     MEASURES,
-    RunData,
     as_values,
     check_measure,
     describe,
     event_counts,
-    load_run_dir,
+    last_trial,
     per_seed_codes,
     per_seed_measures,
     value_counts,
 )
+from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
+from jaxeac.stats.paired import paired_analysis
+from jaxeac.stats.report import output_suffix, progress_bar, render_markdown
+from jaxeac.stats.rundir import RunData, load_run_dir
 
 SCHEMA = "jaxeac.stats/1"
 #: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).
@@ -63,14 +62,6 @@ def _beside(*calls) -> list[Future]:
     return futures
 
 
-def _key_record(key) -> dict:
-    k = as_key(key)
-    return {
-        "seed": key if isinstance(key, int) else None,
-        "key_data": np.asarray(jax.random.key_data(k)).tolist(),
-    }
-
-
 def _check_settings(resamples, alpha, calibration_splits, calibration_resamples):
     if not isinstance(resamples, int | np.integer) or resamples < 100:
         raise UsageError(f"--resamples {resamples} is too small; use at least 100 (10000 recommended)")
@@ -78,40 +69,6 @@ def _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
         raise UsageError(f"--alpha {alpha} must be between 0 and 0.5, e.g. 0.05")
     if calibration_splits < 0 or calibration_resamples < 1:
         raise UsageError("calibration splits must be >= 0 and calibration resamples >= 1")
-
-
-def _scale_record(res: dict, nb: int, nt: int, calibration_splits: int) -> dict:
-    """Which path the statistics took, and above `large.LARGE_N` which method each piece used."""
-    out = {
-        "large_n_threshold": large.LARGE_N,
-        "max_distinct_values_exact": large.MAX_DISTINCT,
-        "path": "large-N" if large.is_large(nb, nt) else "seed resampling",
-    }
-    if out["path"] == "large-N":
-        out["measures"] = res["scale"]
-        if res["curves"] is not None:
-            out["curves"] = {
-                "bands": res["curves"]["band_method"],
-                "trials_differ": res["curves"]["test_method"],
-            }
-        out["calibration"] = (
-            "per-value halves (measures), exact halves of the seeds (curves)"
-            if large.is_large(nb) and calibration_splits > 0
-            else "seed halves as below the threshold"
-        )
-        out["note"] = (
-            f"above {large.LARGE_N} seeds per method: resampling per distinct value (exact) for measures "
-            f"with at most {large.MAX_DISTINCT} distinct values; asymptotically exact methods otherwise "
-            "and for the curves (see jaxeac.stats.large)"
-        )
-    return out
-
-
-def _last_trial(success) -> np.ndarray:
-    """bool [N]: success in the final trial."""
-    if isinstance(success, SuccessBits):
-        return success.column(success.trials - 1)
-    return np.asarray(success)[:, -1].astype(bool)
 
 
 def compare_experiment(
@@ -216,7 +173,7 @@ def compare_experiment(
     for k in names:
         measures[k]["description"] = describe(k, T)
     t_lr = time.perf_counter()
-    lr = cf.logrank_tables(event_counts(mb["_time"], mb["_event"]), event_counts(mt["_time"], mt["_event"]))
+    lr = ev.logrank_tables(event_counts(mb["_time"], mb["_event"]), event_counts(mt["_time"], mt["_event"]))
     measures["first_success"]["logrank"] = {"chi2": lr.statistic, "p": lr.pvalue}
     tests = {k: DECLARED_TESTS.get(k, "Welch t") for k in names}
     p_raw = [lr.pvalue if tests[k] == "log-rank" else measures[k]["p_welch"] for k in names]
@@ -225,26 +182,10 @@ def compare_experiment(
     for k, pa, pp in zip(names, p_adj, p_perm_adj, strict=True):
         measures[k]["p_holm"] = float(pa)
         measures[k]["p_permutation_holm"] = float(pp)
-    proportions = {}
-    for name, ob, ot in (
+    proportions = {name: ev.proportions(ob, ot, alpha) for name, ob, ot in (
         ("any_success", mb["_event"], mt["_event"]),
-        ("final_trial_success", _last_trial(sb), _last_trial(st)),
-    ):
-        cb_, ct_ = int(ob.sum()), int(ot.sum())
-        rd = cf.newcombe_diff(cb_, ob.size, ct_, ot.size, alpha)
-        rr = cf.risk_ratio_ci(cb_, ob.size, ct_, ot.size, alpha)
-        proportions[name] = {
-            "count_baseline": cb_,
-            "n_baseline": int(ob.size),
-            "count_treatment": ct_,
-            "n_treatment": int(ot.size),
-            "risk_difference": rd.estimate,
-            "risk_difference_ci95": [rd.low, rd.high],
-            "risk_difference_method": "Newcombe (1998) hybrid score, method 10",
-            "risk_ratio": rr.estimate,
-            "risk_ratio_ci95": [rr.low, rr.high],
-            "risk_ratio_method": "Miettinen-Nurminen (1985) score",
-        }
+        ("final_trial_success", last_trial(sb), last_trial(st)),
+    )}
     t_lr = time.perf_counter() - t_lr
     t_cal_wait = time.perf_counter()
     cal, t_cal = (calibration.result() if calibration is not None
@@ -277,7 +218,7 @@ def compare_experiment(
         "calibration": cal,
         "settings": {
             "key": key if isinstance(key, int) else None,
-            "key_record": _key_record(key),
+            "key_record": key_record(key),
             "key_derivation": "main, calibration = split(key); bootstrap baseline, bootstrap treatment, "
             "permutation = split(main); chunk c uses fold_in(subkey, c); calibration splits and "
             "reference relabellings are the first and remaining columns of one subset draw under the "
@@ -290,7 +231,7 @@ def compare_experiment(
             "calibration_splits": calibration_splits,
             "calibration_resamples": calibration_resamples,
             "bootstrap": "BCa (Efron 1987), methods resampled independently",
-            "scale": _scale_record(res, sb.shape[0], st.shape[0], calibration_splits),
+            "scale": large.path_record(res, sb.shape[0], st.shape[0], calibration_splits),
         },
         "versions": versions(STATS_PACKAGES, optional=()),
         "timing": {
@@ -415,7 +356,7 @@ def compare_run_dir(
             data = load_run_dir(run_dir, baseline, treatment)
             trim_host_memory()  # what reading the file freed
         t_load = time.perf_counter() - t_load if analysed is None else 0.0
-        bar = _progress_bar(progress, baseline, treatment)
+        bar = progress_bar(progress, baseline, treatment)
         stats, plot = analyse_run_data(data, **settings) if analysed is None else analysed.result()
     except BaseException:
         if bar is not None:
@@ -450,22 +391,3 @@ def compare_run_dir(
     return clean
 
 
-def output_suffix(run_dir, baseline: str, treatment: str) -> str:
-    """"" where the folder holds no comparison yet or one of the same two methods (it is redone),
-    else ``_<baseline>_vs_<treatment>``: a second comparison of a folder never replaces the first."""
-    try:
-        first = json.loads((Path(run_dir) / "stats.json").read_text(encoding="utf-8"))
-        pair = (first["baseline"], first["treatment"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return ""
-    return "" if pair == (baseline, treatment) else f"_{baseline}_vs_{treatment}"
-
-
-def _progress_bar(progress: bool, baseline: str, treatment: str):
-    """The comparison's two-step bar (statistics, report), on a terminal only; None if not `progress`."""
-    if not progress:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=2, desc=f"compare {treatment} vs {baseline}: statistics", leave=False,
-                disable=None)  # not into a log or a pipe: only on a terminal

@@ -96,13 +96,13 @@ def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict
 def point_estimates(per_task: list) -> dict:
     """rliable's aggregates of scores on one scale, a list of per-task arrays: the mean and the
     median of the per-task means, the IQM and the optimality gap of all runs pooled."""
-    from scipy import stats
+    from jaxeac.stats.closed_form import iqm_sorted
 
     means, x = [float(s.mean()) for s in per_task], np.concatenate(per_task)
     return {
         "mean": float(np.mean(means)),
         "median": float(np.median(means)),
-        "iqm": float(stats.trim_mean(x, 0.25)),
+        "iqm": iqm_sorted(np.sort(x)),
         "optimality_gap": float(GAMMA - np.minimum(x, GAMMA).mean()),
     }
 
@@ -139,11 +139,18 @@ def wins_replicates(vx, ctx, vy, cum_y, nx: int, ny: int) -> np.ndarray:
     return np.einsum("ir,ir->r", ctx, s, **wide).astype(np.float64) / (nx * ny)
 
 
+def below_half(v: np.ndarray, cum: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Per value of `at`: a sample's units below it plus half of those equal to it, from the
+    sample's ascending values v and cumulative counts cum with a leading 0 (the one definition of
+    the pairs counted by P(X > Y) + ½ P(X = Y); `wins_replicates` is its form per resample)."""
+    lo, hi = np.searchsorted(v, at, "left"), np.searchsorted(v, at, "right")
+    return cum[lo] + 0.5 * (cum[hi] - cum[lo])
+
+
 def prob_improvement(x, y) -> float:
-    """P(X > Y) + ½ P(X = Y) over all pairs of values (Mann–Whitney U / (n m))."""
+    """P(X > Y) + ½ P(X = Y) over all pairs of values (Mann–Whitney U / (n m); Agarwal et al. 2021)."""
     x, y = np.sort(np.asarray(x, np.float64)), np.sort(np.asarray(y, np.float64))
-    lo, hi = np.searchsorted(y, x, "left"), np.searchsorted(y, x, "right")
-    return float((lo + 0.5 * (hi - lo)).sum() / (x.size * y.size))
+    return float(below_half(y, np.arange(y.size + 1), x).sum() / (x.size * y.size))
 
 
 def aggregate_across_tasks(
