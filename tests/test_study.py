@@ -48,7 +48,23 @@ def test_study_rerun_reuses_the_task_folders(study):
     stamp = (out / "tasks" / "FrozenLake-4x4-v1" / "results.parquet").stat().st_mtime_ns
     again = run_study(settings, out, progress=False)
     assert (out / "tasks" / "FrozenLake-4x4-v1" / "results.parquet").stat().st_mtime_ns == stamp
-    assert json.dumps(again, sort_keys=True) == json.dumps(result, sort_keys=True)
+    assert again["timeline"]["tasks_summed"].get("run", 0.0) == 0.0  # nothing run again
+    same = [{k: v for k, v in r.items() if k != "timeline"} for r in (again, result)]
+    assert json.dumps(same[0], sort_keys=True) == json.dumps(same[1], sort_keys=True)
+
+
+def test_study_keeps_a_timeline_per_task_and_phase(study):
+    out, settings, result = study
+    assert "timeline" in json.loads((out / "study.json").read_text())
+    tl = result["timeline"]
+    assert list(tl["tasks"]) == list(settings.tasks)
+    for phases in tl["tasks"].values():
+        assert {"run", "compile", "device_run", "statistics"} <= set(phases)
+    assert {"aggregate", "figure"} <= set(tl["study"]) and tl["total_s"] > 0
+    from jaxeac.experiments.study import timeline_text
+
+    text = timeline_text(tl)
+    assert "all tasks" in text and "FrozenLake-4x4-v1" in text
 
 
 def test_parse_task():
@@ -79,8 +95,9 @@ def test_study_summary_across_tasks(study):
 
 def test_study_command_shows_progress_within_a_task_and_a_summary(tmp_path, capsys):
     assert main(["study", "--tasks", "FrozenLake-4x4-v1", "--algos", "ac", "eac", "--seeds", "16", "--trials",
-                 "10", "--resamples", "400", "--out", str(tmp_path / "s")]) == 0
+                 "10", "--resamples", "400", "--timeline", "--out", str(tmp_path / "s")]) == 0
     captured = capsys.readouterr()
+    assert "study: timeline FrozenLake-4x4-v1: run" in captured.err and "timeline (wall s;" in captured.out
     assert "study: task 1/1 FrozenLake-4x4-v1 (2 algorithms)" in captured.err and "32/32" in captured.err
     assert "mean successes per seed (10 trials)" in captured.out and "FrozenLake-4x4-v1" in captured.out
 

@@ -38,6 +38,8 @@ def add_parser(sub) -> None:
     st.add_argument("--out", type=folder_name, default="runs/study", metavar="DIR",
                     help="study folder (default runs/study)")
     st.add_argument("--quiet", action="store_true", help="no progress lines")
+    st.add_argument("--timeline", action="store_true",
+                    help="print where the time went, per task and phase (always kept in study.json's timeline)")
 
 
 def cmd_study(args: argparse.Namespace) -> int:
@@ -57,17 +59,22 @@ def cmd_study(args: argparse.Namespace) -> int:
         if not args.tune:
             raise UsageError("--tune-seeds and --tune-key need a grid: give at least one --tune KEY=V1,V2,...")
         tuning = Tuning.build(args.tune, algos=settings.algos, seeds=args.tune_seeds or 200, key=args.tune_key,
-                              eval_key=settings.key, trials=settings.task_settings(settings.tasks[0]).trials)
+                              eval_key=settings.key, trials=settings.task_settings(settings.tasks[0]).trials,
+                              out=args.out)  # a folder tuned with another setup is refused here
     for task in settings.tasks:  # sizes that cannot fit or finish fail here, for every task
         grid = settings.task_settings(task)
         check_grid_resources(grid, grid.make_env())
     _claim_out(args, args.out, kind="study")
-    result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning)
+    result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning, timeline=args.timeline)
     print(summary_table(result))
     if tuning is not None:
         from jaxeac.experiments.tune import tuned_summary
 
         print(tuned_summary(result["tuning"]))
+    if args.timeline:
+        from jaxeac.experiments.study import timeline_text
+
+        print(timeline_text(result["timeline"]))
     print(f"{len(settings.tasks)} tasks x {len(settings.algos)} algorithms x {settings.seeds:,} seeds; "
           f"{result['comparisons_in_family']} comparisons with ac; report in {args.out}/report.md")
     return 0

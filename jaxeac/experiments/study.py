@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -164,8 +166,55 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
     return envs
 
 
+class Timeline:
+    """Wall seconds of a study's phases (study.json's ``timeline``): per task its run (compile, device
+    run and E8 diagnostics inside, from the run folder's summary), loading, curves and statistics;
+    then the study's own (Holm, aggregate, tuning, figure, writing)."""
+
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+        self.tasks: dict[str, dict[str, float]] = {}
+        self.study: dict[str, float] = {}
+
+    @contextmanager
+    def phase(self, name: str, task: str | None = None):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            where = self.study if task is None else self.tasks.setdefault(task, {})
+            where[name] = where.get(name, 0.0) + time.perf_counter() - t0
+
+    def note(self, task: str, **seconds: float) -> None:
+        self.tasks.setdefault(task, {}).update(seconds)
+
+    def record(self) -> dict:
+        total = time.perf_counter() - self.t0
+        r = {k: round(v, 3) for k, v in self.study.items()}
+        per = {t: {k: round(v, 3) for k, v in p.items()} for t, p in self.tasks.items()}
+        sums = {}
+        for p in per.values():
+            for k, v in p.items():
+                sums[k] = round(sums.get(k, 0.0) + v, 3)
+        return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per}
+
+
+def timeline_text(tl: dict) -> str:
+    """study.json's ``timeline`` as lines for a terminal (`jaxeac study --timeline`)."""
+    keys = list(tl["tasks_summed"])
+    width = max([len("all tasks"), *(len(t) for t in tl["tasks"])])
+    cells = [max(7, len(k)) for k in keys]
+    lines = [f"timeline (wall s; {tl['total_s']:.1f} s in all)",
+             "  ".join(["task".ljust(width), *(k.rjust(c) for k, c in zip(keys, cells, strict=True))])]
+    for task, p in [*tl["tasks"].items(), ("all tasks", tl["tasks_summed"])]:
+        lines.append("  ".join([task.ljust(width), *(f"{p.get(k, 0.0):.2f}".rjust(c)
+                                                     for k, c in zip(keys, cells, strict=True))]))
+    lines.append("study: " + ", ".join(f"{k} {v:.2f}" for k, v in tl["study"].items()))
+    return "\n".join(lines)
+
+
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
-              on_task: Callable[[str, dict], None] | None = None, tuning=None) -> dict:
+              on_task: Callable[[str, dict], None] | None = None, tuning=None, timeline: bool = False) -> dict:
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``)."""
     from jaxeac.experiments.grid import run_grid_to_folder
@@ -180,8 +229,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     out = Path(out)
     from tqdm import tqdm
 
-    grids = {task: settings.task_settings(task) for task in settings.tasks}
-    envs = task_envs(grids)
+    tl = Timeline()
+    with tl.phase("setup"):
+        grids = {task: settings.task_settings(task) for task in settings.tasks}
+        envs = task_envs(grids)
     rows, per_task, curves, kept = [], {}, {}, {}
     n = len(settings.tasks)
     for i, task in enumerate(settings.tasks):
@@ -193,25 +244,36 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                       flush=True)
         else:
             with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
-                      desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
-                run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds), figures=False,
-                                   progress=bar.update)
+                      desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar, \
+                    tl.phase("run", task):
+                _, summary = run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds),
+                                                figures=False, progress=bar.update)
+            tl.note(task, compile=summary["compile_seconds"], device_run=summary["run_seconds"],
+                    diagnostics=summary.get("diagnostics_seconds", 0.0))
         # One task's curves in memory at a time: its statistics and the figure's counts ([T, T + 1]).
-        success = _successes(folder, grid)
-        curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
+        with tl.phase("load", task):
+            success = _successes(folder, grid)
+        with tl.phase("curves", task):
+            curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
         samples = {a: success[a].sum(axis=1) for a in grid.algos}
         del success
         kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # for the aggregate across tasks
-        stats = compare_samples(samples, baseline="ac", resamples=settings.resamples, key=settings.key + i)
+        with tl.phase("statistics", task):
+            stats = compare_samples(samples, baseline="ac", resamples=settings.resamples, key=settings.key + i)
         per_task[task] = {"env": grid.env, "slip": grid.slip, "chances": grid.chances, "trials": grid.trials,
                           "algorithms": stats["algorithms"]}
         for row in stats["comparisons"]:
             rows.append({"task": task, **{k: v for k, v in row.items() if k != "p_holm"}})
         if on_task is not None:
             on_task(task, per_task[task])
+        if timeline:  # as each task ends: a study stopped midway still shows where its time went
+            print(f"study: timeline {task}: " + ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items()),
+                  file=sys.stderr, flush=True)
     for row, p in zip(rows, holm([r["p_welch"] for r in rows]) if rows else [], strict=True):
         row["p_holm"] = float(p)
     first = grids[settings.tasks[0]]
+    with tl.phase("aggregate"):
+        aggregate = across_tasks(kept, first.trials, resamples=settings.resamples, key=settings.key)
     result = {
         "family": "every algorithm but ac against ac, on every task; Holm across all of them",
         "comparisons_in_family": len(rows), "seeds": settings.seeds, "key": settings.key,
@@ -219,13 +281,16 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         "rates": {"alpha": first.alpha, "beta": first.beta, "gamma": first.gamma,
                   "temperature": first.temperature, "epsilon": first.epsilon, "trials": first.trials},
         "tasks": per_task, "comparisons": rows,
-        "aggregate": across_tasks(kept, first.trials, resamples=settings.resamples, key=settings.key),
+        "aggregate": aggregate,
     }
     if tuning is not None:
-        result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress)
+        with tl.phase("tuning"):
+            result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
-        study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
+        with tl.phase("figure"):
+            study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
         result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
+        result["timeline"] = tl.record()  # writing study.json itself is the one phase left out
         atomic_write_json(stage / "study.json", result)
         atomic_write_text(stage / "report.md", report_markdown(result))
     return result
