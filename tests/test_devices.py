@@ -114,6 +114,12 @@ APART = textwrap.dedent("""
     assert seen == list(range(0, 40, 2)), seen  # chunks of 6: 2 seeds a device
     np.testing.assert_array_equal(compact.successes, one_eac := run_seeds(
         env, configs[1], root_key=1, n_seeds=40, devices=jax.devices()[:1]).successes)
+    # measured on each device (`device_measures`): the same bits and measures
+    measured = run_seeds(env, configs[1], root_key=1, n_seeds=40, chunk_size=6, collector=CompactCollector(
+        np.arange(40), 30, env.n_states, whole_chunks=False))
+    for field in ("successes", "first_success", "steps_total", "finite", "first_policies", "first_logs"):
+        np.testing.assert_array_equal(getattr(measured, field), getattr(compact, field))
+    np.testing.assert_array_equal(measured.success.bits, compact.success.bits)
     # one compile per device, side by side without a persistent cache
     assert batch._persistent_cache_shared("cpu") is False
     print("identical on 1 and 3 devices apart")

@@ -92,19 +92,26 @@ def test_chunks_unpacked_in_row_blocks_equal_whole_chunks(monkeypatch):
         np.testing.assert_array_equal(getattr(whole, field), getattr(blocks, field))
 
 
-def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monkeypatch):
-    """`CompactCollector` (streamed runs): success bits, per-seed measures and the first
-    policies equal the full host arrays', and every chunk reaches `on_chunk` once, in order."""
+@pytest.mark.parametrize("whole_chunks", [True, False])  # measured on the host, or on the device
+def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monkeypatch, whole_chunks):
+    """`CompactCollector` (streamed runs): success bits, per-seed measures, the first policies
+    and logs equal the full host arrays', and every chunk reaches `on_chunk` once, in order; measured
+    on the device (`device_measures`), only the chunks that keep rows bring their logs back."""
     import jaxeac.running.outputs as outputs
 
     cfg = RunConfig(trials=13, agent=algorithm("eac"))
     full = run_seeds(ENV, cfg, root_key=4, n_seeds=21, chunk_size=8)
     monkeypatch.setattr(outputs, "UNPACK_ROWS", 3)
     monkeypatch.setattr(outputs, "KEEP_POLICIES", 10)
-    seen = []
+    monkeypatch.setattr(outputs, "KEEP_LOGS", 9)
+    seen, logs_back = [], []
+
+    def on_chunk(start, chunk, m):
+        seen.append((start, m["successes"].copy()))
+        logs_back.append(chunk.log is not None)
+
     seeds = np.arange(21)
-    collector = outputs.CompactCollector(
-        seeds, 13, ENV.n_states, on_chunk=lambda start, chunk, m: seen.append((start, m["successes"].copy())))
+    collector = outputs.CompactCollector(seeds, 13, ENV.n_states, on_chunk=on_chunk, whole_chunks=whole_chunks)
     compact = run_seeds(ENV, cfg, root_key=4, n_seeds=21, chunk_size=8, collector=collector)
     assert isinstance(compact, outputs.CompactSeeds) and compact.settings["chunk_size"] == 7  # 21 = 3 × 7
     np.testing.assert_array_equal(compact.success.unpack(), full.success)
@@ -116,7 +123,9 @@ def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monk
     np.testing.assert_array_equal(compact.finite, full.finite)
     assert compact.agent_steps == full.agent_steps
     np.testing.assert_array_equal(compact.first_policies, full.policy[:10])
+    np.testing.assert_array_equal(compact.first_logs, full.logs_of_first(9))
     assert [s for s, _ in seen] == [0, 7, 14]
+    assert logs_back == [True, True, True] if whole_chunks else [True, True, False]
     np.testing.assert_array_equal(np.concatenate([m for _, m in seen]), full.successes)
 
 

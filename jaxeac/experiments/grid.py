@@ -472,7 +472,8 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
         # statistics start while the file is still being written.
         algos = settings.algos
         collectors = [CompactCollector(seeds, settings.trials, env.n_states, n_chances=env.n_chances,
-                                       on_chunk=behind.of(writer.chunk_writer(algo, seeds)))
+                                       on_chunk=behind.of(writer.chunk_writer(algo, seeds)),
+                                       whole_chunks=options.trial_steps or options.policies)
                       for algo in algos]
         runs = run_algorithms(env, [settings.run_config(a) for a in algos], root_key=settings.key,
                               n_seeds=settings.seeds, chunk_size=settings.chunk_size, progress=progress,

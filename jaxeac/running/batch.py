@@ -36,7 +36,15 @@ from jaxeac.running.loops import (
     program_key,
     trials_batch,
 )
-from jaxeac.running.outputs import BatchOutput, Collector, CompactSeeds, HostArrays, SeedResult, SeedsResult
+from jaxeac.running.outputs import (
+    BatchOutput,
+    Collector,
+    CompactSeeds,
+    HostArrays,
+    SeedResult,
+    SeedsResult,
+    device_measures,
+)
 from jaxeac.running.schedule import (  # noqa: F401  (record_timeline, DEVICES_APART: scripts, tests)
     DEVICES_APART,
     device_groups,
@@ -105,6 +113,8 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
     even = -(-n // n_chunks)
     return -(-even // n_devices) * n_devices
 
+
+_measure = jax.jit(device_measures)  # on the device of its input, compiled once per device and shape
 
 _COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
 _COMPILED_LOCK = threading.Lock()
@@ -256,6 +266,7 @@ class _Entries:
                                                               tables, name)
         self.fixed = [_placed(g, root, tables) for g in self.groups]  # each group's root key and tables
         self.collector = collector if collector is not None else HostArrays(n, cfg.trials, env.n_states)
+        self.measured = getattr(self.collector, "measures_on_device", False)  # `device_measures`
         self.n_states = env.n_states  # a padded tabular layout's extra states are dropped (`collect`)
         self.first_dispatch = self.last_collect = self.started_after = 0.0
 
@@ -281,6 +292,10 @@ class _Entries:
         t2 = time.perf_counter()
         root, tables = self.fixed[group]
         out = self.programs[group].result()(root, chunk_seeds, chunk_hyper, tables)
+        if self.measured:  # the measures, not the logs, come back (but where rows of them are kept)
+            whole = self.collector.keeps_rows(start)
+            out = out.replace(log=out.log if whole else None, policy=out.policy if whole else None,
+                              measures=_measure(out.log))
         t3 = time.perf_counter()
         for leaf in jax.tree.leaves(out):
             leaf.copy_to_host_async()  # the copy back starts as soon as the chunk is done
@@ -299,7 +314,7 @@ class _Entries:
 
     def prepare(self, start: int, host: BatchOutput, pool: ThreadPoolExecutor) -> BatchOutput:
         """The chunk's own rows (unpacked, measured: `Collector.prepare`), on its device's thread."""
-        if host.policy.shape[1] != self.n_states:  # tables padded to a layout (`program_inputs`)
+        if host.policy is not None and host.policy.shape[1] != self.n_states:  # padded (`program_inputs`)
             host = host.replace(policy=host.policy[:, :self.n_states])
         if (prepare := getattr(self.collector, "prepare", None)) is not None:
             prepare(start, host, pool)

@@ -18,6 +18,7 @@ from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from typing import Protocol
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.bits import SuccessBits, as_bool, measures_of  # noqa: F401 (their home before jaxeac.bits)
@@ -45,9 +46,16 @@ class BatchOutput:
     on GPUs, 4–5× smaller; `unpack_output` restores `SeedResult` on the host.
     """
 
-    log: jax.Array  # int8/16/32 [M, T]
-    policy: jax.Array  # int8/16/32 [M, S]
+    log: jax.Array | None  # int8/16/32 [M, T]
+    policy: jax.Array | None  # int8/16/32 [M, S]
     finite: jax.Array | None = None  # bool [M]: the seed's tables stayed finite
+    #: `device_measures` of the log, where the collector takes them from the device (the log and
+    #: policy then come back only for the chunks that keep rows of them: `measures_on_device`)
+    measures: dict | None = None
+
+    @property
+    def rows(self) -> int:
+        return (self.log if self.log is not None else self.measures["bits"]).shape[0]
 
 
 def narrow_int(largest: int) -> np.dtype:
@@ -62,6 +70,20 @@ def pack_output(env, log: jax.Array, policy: jax.Array, finite: jax.Array | None
     """A chunk's logs and policies in `narrow_int` types (exact: |log| ≤ C, policy < A)."""
     return BatchOutput(log.astype(narrow_int(env.n_chances)), policy.astype(narrow_int(env.n_actions)),
                        finite)
+
+
+def device_measures(log: jax.Array) -> dict:
+    """A chunk's per-seed measures (`jaxeac.bits.measures_of`'s, exactly) from its trial logs
+    [M, T], on the device that ran it: ~30 bytes a seed come back instead of the T-byte log, and
+    the host only copies them into place."""
+    success = log > 0
+    m, t = success.shape
+    padded = jnp.pad(success, ((0, 0), (0, -t % 8))).reshape(m, -1, 8).astype(jnp.uint8)
+    bits = (padded << jnp.arange(8, dtype=jnp.uint8)).sum(axis=2, dtype=jnp.uint8)  # low bit first
+    return {"bits": bits, "successes": success.sum(axis=1, dtype=jnp.int32),
+            "first_success": jnp.where(success.any(axis=1),
+                                       jnp.argmax(success, axis=1).astype(jnp.int32) + 1, -1),
+            "steps_total": jnp.abs(log.astype(jnp.int32)).sum(axis=1)}
 
 
 def empty_results(n: int, n_trials: int, n_states: int) -> SeedResult:
@@ -261,7 +283,7 @@ class CompactCollector:
 
     def __init__(self, seeds: np.ndarray, n_trials: int, n_states: int,
                  on_chunk: Callable[[int, BatchOutput, dict], None] | None = None, *,
-                 n_chances: int | None = None):
+                 n_chances: int | None = None, whole_chunks: bool = True):
         n = seeds.shape[0]
         counts = narrow_int(n_trials)
         self.out = CompactSeeds(
@@ -274,6 +296,14 @@ class CompactCollector:
                                 np.int32 if n_chances is None else narrow_int(n_chances)),
         )
         self.on_chunk = on_chunk
+        #: Whether the measures are taken on the device (`device_measures`): where `on_chunk`
+        #: reads no chunk's logs or policies (`whole_chunks` False), only the chunks that keep
+        #: rows of them (`keeps_rows`) bring them back.
+        self.measures_on_device = not whole_chunks
+
+    def keeps_rows(self, start: int) -> bool:
+        """Whether the chunk from row `start` has rows whose logs or policies are kept."""
+        return start < max(self.out.first_policies.shape[0], self.out.first_logs.shape[0])
 
     def prepare(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
         """The chunk's per-seed measures, into its own rows (any order, any thread)."""
@@ -286,19 +316,27 @@ class CompactCollector:
             o.success.bits[at], o.successes[at] = m["bits"], m["successes"]
             o.first_success[at], o.steps_total[at] = m["first_success"], m["steps_total"]
 
-        m = chunk.log.shape[0]
-        _rows_in_parallel(measures, m, pool)
+        m = chunk.rows
+        if chunk.measures is not None:  # measured on the device: into place
+            at = slice(start, start + m)
+            for name in ("successes", "first_success", "steps_total"):
+                getattr(o, name)[at] = chunk.measures[name]
+            o.success.bits[at] = chunk.measures["bits"]
+        else:
+            _rows_in_parallel(measures, m, pool)
         if chunk.finite is not None:
             o.finite[start:start + m] = chunk.finite
-        keep = max(0, min(m, o.first_policies.shape[0] - start))
-        o.first_policies[start:start + keep] = chunk.policy[:keep]
-        keep = max(0, min(m, o.first_logs.shape[0] - start))
-        o.first_logs[start:start + keep] = chunk.log[:keep]
+        if chunk.policy is not None:
+            keep = max(0, min(m, o.first_policies.shape[0] - start))
+            o.first_policies[start:start + keep] = chunk.policy[:keep]
+        if chunk.log is not None:
+            keep = max(0, min(m, o.first_logs.shape[0] - start))
+            o.first_logs[start:start + keep] = chunk.log[:keep]
 
     def add(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
         """The chunk, with its measures (`prepare`), to `on_chunk`, in seed order."""
         if self.on_chunk is not None:
-            o, at = self.out, slice(start, start + chunk.log.shape[0])
+            o, at = self.out, slice(start, start + chunk.rows)
             self.on_chunk(start, chunk, {"bits": o.success.bits[at], "successes": o.successes[at],
                                          "first_success": o.first_success[at],
                                          "steps_total": o.steps_total[at], "finite": o.finite[at]})
