@@ -26,6 +26,7 @@ def tuned(tmp_path_factory):
         key=None,
         eval_key=0,
         trials=20,
+        out=out,
     )
     return out, settings, tuning, run_study(settings, out, progress=False, tuning=tuning)
 
@@ -128,6 +129,18 @@ def test_tuned_report_and_json(tuned):
         (["--tune-seeds", "10"], "--tune"),
         (["--tune", "alpha=0.1", "--tune-key", "3", "--key", "3"], "--tune-key 3"),
         (["--tune", "alpha=0.1,0.2", "--tune", "beta=0.1,0.2", "--tune-seeds", "100000000"], "--tune"),
+        (["--tune", "epsilon=0.1,1.5"], "--tune epsilon"),
+        (["--tune", "temperature=0,1"], "--tune temperature"),
+        (["--tune", "gamma=0.9,1.2"], "--tune gamma"),
+        (["--tune", "alpha=nan"], "--tune alpha"),
+        (["--tune", "lr=0.1"], "'lr'"),
+        (["--tune", "alpha"], "--tune 'alpha'"),
+        (["--tune", "alpha=0.1,,0.2"], "--tune alpha"),
+        (["--tune", "alpha=0.1,0.1"], "--tune alpha"),
+        (["--tune", "alpha=0.1", "--tune", "alpha=0.2"], "--tune alpha"),
+        (["--tune", "q_learning.alpha=0.1", "--algos", "ac", "eac"], "--tune q_learning.alpha"),
+        (["--tune", "alpha=0.1", "--tune-seeds", "1"], "--tune-seeds 1"),
+        (["--tune", "alpha=0.1", "--tune-key", "0"], "--tune-key 0"),  # --key 0: the same seeds
     ],
 )
 def test_bad_tuning_input_is_one_error_line_before_any_compute(tmp_path, capsys, flags, names):
@@ -136,3 +149,109 @@ def test_bad_tuning_input_is_one_error_line_before_any_compute(tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and names in err[0]
     assert not out.exists()
+
+
+def test_sensitivity_curves_bands_figure_and_claim(tuned):
+    out, settings, tuning, result = tuned
+    tu = result["tuning"]
+    for a, s in tu["algorithms"].items():
+        for t in TASKS:
+            chosen = s["points"][s["per_task"][t]]
+            assert set(s["curves"][t]) == set(dict(tuning.grids[a]))  # every key with two values
+            for k, c in s["curves"][t].items():
+                assert c["chosen"] == chosen[k] and c["values"] == sorted(c["values"])
+                for v, m, (lo, hi) in zip(c["values"], c["mean"], c["ci95"], strict=True):
+                    i = s["points"].index({**chosen, k: v})  # the other keys at the task's selection
+                    assert m == pytest.approx(s["tuning_means"][t][i]) and lo <= m <= hi
+    sens = tu["sensitivity"]["algorithms"]
+    for a, s in tu["algorithms"].items():
+        assert sens[a]["estimate"] == pytest.approx(s["sensitivity"])
+        lo, hi = sens[a]["ci95"]
+        assert lo <= hi and 0 <= hi <= 1
+        for t in TASKS:
+            assert sens[a]["per_task"][t]["estimate"] == pytest.approx(s["sensitivity_per_task"][t])
+    m, claim = sens["eac"]["minus_ac"], tu["sensitivity"]["claim"]
+    assert m["estimate"] == pytest.approx(sens["eac"]["estimate"] - sens["ac"]["estimate"])
+    assert claim["verdict"] == ("holds" if m["ci95"][1] < 0 else "refuted: EAC is more sensitive"
+                                if m["ci95"][0] > 0 else "not shown: the interval includes 0")
+    assert (out / tu["figure"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    report = (out / "report.md").read_text()
+    assert "### Sensitivity to the rates" in report and f"]({tu['figure']})" in report
+    assert '"EAC is less sensitive to its rates than AC": **' + claim["verdict"] + "**" in report
+
+
+def test_head_to_head_per_task_and_over_tasks(tuned):
+    out, settings, tuning, result = tuned
+    h2h, conds = result["tuning"]["head_to_head"], result["tuning"]["conditions"]
+    assert set(h2h["per_task"]["rivals"]) == {"ac", "sarsa"}  # q_learning is not in this study
+    for c in ("preset", "per_task", "cross_task"):
+        for r, row in h2h[c]["rivals"].items():
+            for t in TASKS:
+                cell = row["per_task"][t]
+                assert cell["diff"] == pytest.approx(conds[c]["means"][t]["eac"] - conds[c]["means"][t][r])
+                assert cell["ci95"][0] < cell["diff"] < cell["ci95"][1]
+            mean = np.mean([row["per_task"][t]["diff"] for t in TASKS]) / 20
+            assert row["over_tasks"]["diff"] == pytest.approx(mean)
+        for t in TASKS:
+            assert h2h[c]["leaders"][t] == max(ALGOS, key=lambda a, t=t: conds[c]["means"][t][a])
+    report = (out / "report.md").read_text()
+    assert "### Does EAC still beat AC, Q-learning and SARSA when each is at its best?" in report
+    assert "Leader after per-task tuning:" in report
+
+
+def test_a_tuned_study_killed_midway_resumes_where_it_stopped(tuned, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from jaxeac.experiments import tune
+
+    out, settings, tuning, result = tuned
+    folder = tmp_path / "again"
+    shutil.copytree(out, folder)
+    # A run killed midway: the files written so far are whole (atomic), the rest absent.
+    (folder / "tune" / "grid-paper7-v0-slip0.2" / "sarsa.tuning.npz").unlink()
+    (folder / "tune" / "grid-paper7-v0-slip0.2" / "eac.evaluation.npz").unlink()
+    calls = []
+    real = tune._run
+
+    def counting(env, grid, algo, points, **kw):
+        calls.append((grid.env, algo, kw["key"]))
+        return real(env, grid, algo, points, **kw)
+
+    monkeypatch.setattr(tune, "_run", counting)
+    again = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
+                         key=None, eval_key=0, trials=20, out=folder)
+    redone = run_study(settings, folder, progress=True, tuning=again)
+    assert sorted(calls) == [("grid-paper7-v0", "eac", 0), ("grid-paper7-v0", "sarsa", 1)]
+    assert capsys.readouterr().err.count("(done earlier, reusing") == 2 * len(TASKS) * len(ALGOS) - 2
+    for k in ("algorithms", "optimism", "sensitivity", "head_to_head"):
+        assert json.dumps(redone["tuning"][k], sort_keys=True) == json.dumps(result["tuning"][k],
+                                                                                sort_keys=True)
+
+
+def test_a_kept_result_is_reused_only_with_the_same_settings(tmp_path):
+    from jaxeac.experiments.tune import _cached
+
+    path = tmp_path / "t" / "ac.tuning.npz"
+    x, reused = _cached(path, {"trials": 20}, lambda: np.arange(6, dtype=np.int32).reshape(2, 3))
+    assert not reused and path.is_file() and not list(path.parent.glob(".*.tmp"))
+    y, reused = _cached(path, {"trials": 20}, lambda: pytest.fail("computed again"))
+    assert reused and np.array_equal(x, y)
+    z, reused = _cached(path, {"trials": 10}, lambda: np.zeros((2, 3), np.int32))  # other settings: run again
+    assert not reused and not z.any() and not _cached(path, {"trials": 10}, lambda: None)[0].any()
+    path.write_bytes(b"damaged")
+    assert not _cached(path, {"trials": 10}, lambda: np.ones((1, 1), np.int32))[1]
+
+
+def test_a_folder_tuned_with_another_setup_is_refused_before_any_compute(tuned, tmp_path, capsys):
+    import shutil
+
+    out, settings, tuning, result = tuned
+    folder = tmp_path / "other"
+    shutil.copytree(out, folder)
+    before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
+    code = main(["study", "--tasks", *TASKS, "--algos", *ALGOS, "--seeds", "30", "--trials", "20", "--quiet",
+                 "--out", str(folder), "--tune", "alpha=0.1,0.2", "--tune-seeds", "16"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: --tune: ")
+    assert "another setup" in err[0] and "grids" in err[0] and "another --out" in err[0]
+    assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before

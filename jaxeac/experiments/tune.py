@@ -18,21 +18,38 @@ selection optimism (the chosen setting's tuning mean against its evaluation mean
 interval) and sensitivity (best − median of an algorithm's cross-task scores over its grid).
 `across_tasks`, the study's aggregate across tasks, is here too: the study and the selection
 share its scale.
+
+Sensitivity (`sensitivity`): per algorithm, task and key, mean successes against the key's values
+with the other keys at the task's selection and a 95 % t band over the tuning seeds (drawn by
+`jaxeac.experiments.tune_figures`); best − median with a 95 % interval from resampling the tuning
+seeds within each task (the same draws for every algorithm: paired, as every algorithm ran the same
+seeds), and each algorithm's difference from AC. Head to head (`head_to_head`): EAC − AC,
+Q-learning and SARSA per task (Welch 95 %) and over tasks, preset and per-task tuned.
+
+Resume: each algorithm × task's tuning and evaluation successes are written atomically under
+``tune/`` of the study folder (`Tuning.folder`) and reused by a rerun with the same settings; a
+folder whose ``tune/setup.json`` records another grid, seeds or key is refused before any compute.
+The report's sections are `jaxeac.experiments.tune_report`'s.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import itertools
+import json
 import math
 import sys
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.algorithm.config import Hyper, algorithm
 from jaxeac.errors import UsageError
-from jaxeac.experiments.common import check_key, check_positive_int, check_rate, welch_diff_ci95
+from jaxeac.experiments.common import check_key, check_positive_int, check_rate, plain_json, welch_diff_ci95
+from jaxeac.experiments.tune_measures import claim, curves, head_to_head, sensitivity
+from jaxeac.experiments.tune_report import CONDITIONS, tuned_markdown, tuned_summary
 from jaxeac.rng import KEY_LIMIT
 
 RATES = ("alpha", "beta", "gamma", "temperature", "epsilon")
@@ -40,7 +57,8 @@ KEYS_OF = {"actor_critic": ("alpha", "beta", "gamma", "temperature"),
            "q_learning": ("alpha", "gamma", "epsilon"), "sarsa": ("alpha", "gamma", "epsilon")}
 #: Host bytes the tuning results of one algorithm and task may take (success and steps per trial).
 MAX_TUNE_BYTES = 2 << 30
-CONDITIONS = ("preset", "per_task", "cross_task")
+#: Seed resamples of the sensitivity's interval.
+SENSITIVITY_RESAMPLES = 2000
 
 
 def keys_of(algo: str) -> tuple[str, ...]:
@@ -94,9 +112,10 @@ class Tuning:
     grids: dict  # {algo: ((key, values), ...)}, only keys the algorithm reads
     seeds: int
     key: int
+    folder: Path | None = dataclasses.field(default=None, compare=False)  # the study's: resume under tune/
 
     @staticmethod
-    def build(texts, *, algos, seeds: int, key: int | None, eval_key: int, trials: int) -> Tuning:
+    def build(texts, *, algos, seeds: int, key: int | None, eval_key: int, trials: int, out=None) -> Tuning:
         if not texts:
             raise UsageError("--tune-seeds needs a grid: give at least one --tune KEY=V1,V2,...")
         check_positive_int("--tune-seeds", seeds)
@@ -125,7 +144,22 @@ class Tuning:
                 raise UsageError(f"--tune: {a}'s {size} settings x {seeds:,} tuning seeds x {trials} trials need "
                                  f"more than {MAX_TUNE_BYTES >> 30} GiB of host memory per task; give fewer "
                                  "values or fewer --tune-seeds")
-        return Tuning(grids, seeds, key)
+        tuning = Tuning(grids, seeds, key, None if out is None else Path(out))
+        tuning.check_folder()
+        return tuning
+
+    def check_folder(self) -> None:
+        """Refuse a study folder whose ``tune/setup.json`` records another tuning (resuming it would mix two)."""
+        if self.folder is None or not (path := self.folder / "tune" / "setup.json").is_file():
+            return
+        from jaxeac.io import read_json_object
+
+        saved, now = read_json_object(path), plain_json(self.record())
+        if saved != now:
+            diff = ", ".join(f"{k} {json.dumps(saved.get(k))} there, {json.dumps(now[k])} now"
+                             for k in now if saved.get(k) != now[k])
+            raise UsageError(f"--tune: {self.folder} holds a tuning with another setup ({diff}); give another "
+                             f"--out, or remove {self.folder / 'tune'} to tune afresh")
 
     def points(self, algo: str) -> list[dict]:
         keys = [k for k, _ in self.grids[algo]]
@@ -151,6 +185,35 @@ def _run(env, grid, algo: str, points: list[dict], *, key: int, seeds: int, chun
     res, _, _ = run_entries(env, grid.run_config(algo), root_key=key, seeds=ids,
                             hyper=_hyper(grid, points, algo, seeds), chunk_size=chunk_size)
     return np.asarray(res.success, bool).sum(axis=1).astype(np.int32).reshape(len(points), seeds)
+
+
+def _cached(path: Path | None, config: dict, compute) -> tuple[np.ndarray, bool]:
+    """`compute()` or, where `path` holds an array computed with the same `config`, that array;
+    (array, reused). Written atomically (npz: the array and its config), so a killed run leaves
+    either the whole file or none."""
+    config = plain_json(config)
+    if path is not None and path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if json.loads(str(z["config"])) == config:
+                    return z["successes"], True
+        except (OSError, ValueError, KeyError):
+            pass  # damaged: computed again and replaced
+    x = compute()
+    if path is not None:
+        from jaxeac.io import atomic_write_bytes
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        np.savez(buf, successes=x, config=np.array(json.dumps(config)))
+        atomic_write_bytes(path, buf.getvalue())
+    return x, False
+
+
+def _task_config(grid) -> dict:
+    """What a task's runs depend on, beside the algorithm, the settings, the key and the seeds."""
+    skip = {"algos", "seeds", "key", "chunk_size", "lanes"}
+    return {f.name: getattr(grid, f.name) for f in dataclasses.fields(grid) if f.name not in skip}
 
 
 def across_tasks(
@@ -206,17 +269,36 @@ def run_tuning(
     settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True
 ) -> dict:
     """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
-    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json."""
+    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
+    `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun."""
+    from jaxeac.experiments.study import folder_name
+
     tasks, algos = list(grids), list(settings.algos)
     trials = grids[tasks[0]].trials
+    store = None if tuning.folder is None else tuning.folder / "tune"
+    if store is not None:
+        from jaxeac.io import atomic_write_json
+
+        tuning.check_folder()
+        store.mkdir(parents=True, exist_ok=True)
+        if not (store / "setup.json").is_file():
+            atomic_write_json(store / "setup.json", tuning.record())
+
+    def runs(t, a, pts, key, seeds, what, name):
+        path = None if store is None else store / folder_name(t) / f"{a}.{name}.npz"
+        config = {"task": _task_config(grids[t]), "algo": a, "points": pts, "key": key, "seeds": seeds}
+        x, reused = _cached(path, config, lambda: _run(envs[t], grids[t], a, pts, key=key, seeds=seeds,
+                                                       chunk_size=settings.chunk_size))
+        if progress:
+            print(f"tune: {t}, {a}: {what}" + (f" (done earlier, reusing {path})" if reused else ""),
+                  file=sys.stderr, flush=True)
+        return x
+
     scores: dict = {a: {} for a in algos}  # {algo: {task: [points, tuning seeds]}}
     for t in tasks:
         for a in algos:
-            if progress:
-                print(f"tune: {t}, {a}: {len(tuning.points(a))} settings x {tuning.seeds:,} seeds",
-                      file=sys.stderr, flush=True)
-            scores[a][t] = _run(envs[t], grids[t], a, tuning.points(a), key=tuning.key, seeds=tuning.seeds,
-                                chunk_size=settings.chunk_size)
+            scores[a][t] = runs(t, a, tuning.points(a), tuning.key, tuning.seeds,
+                                f"{len(tuning.points(a))} settings x {tuning.seeds:,} tuning seeds", "tuning")
     per_algo = {}
     for a in algos:
         means = np.stack([scores[a][t].mean(axis=1) for t in tasks])  # [tasks, points]
@@ -231,16 +313,15 @@ def run_tuning(
             "cross_task": best,
             "sensitivity": float(cross.max() - np.median(cross)),
             "sensitivity_per_task": {t: float((m.max() - np.median(m)) / trials) for t, m in zip(tasks, means, strict=True)},
+            "curves": {t: curves(tuning.points(a), per_task[t], scores[a][t]) for t in tasks},
         }
     samples = {c: {t: {} for t in tasks} for c in CONDITIONS[1:]}
     n = settings.seeds
     for t in tasks:
         for a in algos:
-            if progress:
-                print(f"tune: evaluating {t}, {a} at its selections on {n:,} seeds", file=sys.stderr, flush=True)
             sel = per_algo[a]
             pts = [sel["points"][sel["per_task"][t]], sel["points"][sel["cross_task"]]]
-            both = _run(envs[t], grids[t], a, pts, key=settings.key, seeds=n, chunk_size=settings.chunk_size)
+            both = runs(t, a, pts, settings.key, n, f"evaluating at its selections on {n:,} seeds", "evaluation")
             samples["per_task"][t][a], samples["cross_task"][t][a] = both[0], both[1]
     optimism = {a: {} for a in algos}
     for a in algos:
@@ -253,86 +334,21 @@ def run_tuning(
                              "comparisons": result["comparisons"], "aggregate": result.get("aggregate")}}
     for c in CONDITIONS[1:]:
         conditions[c] = _verdicts(samples[c], settings)
-    return {**tuning.record(), "evaluation_key": settings.key, "evaluation_seeds": n,
-            "selection": "per task: most mean successes on the task; across tasks: highest mean over tasks of "
-                         "successes / T (min–max on (0, T)); ties: the first setting in grid order",
-            "algorithms": per_algo, "optimism": optimism, "conditions": conditions}
+    sens = sensitivity(scores, tasks, trials, resamples=SENSITIVITY_RESAMPLES, key=settings.key,
+                       same_keys=lambda a: keys_of(a) == keys_of("ac"))
+    out = {**tuning.record(), "evaluation_key": settings.key, "evaluation_seeds": n,
+           "selection": "per task: most mean successes on the task; across tasks: highest mean over tasks of "
+                        "successes / T (min–max on (0, T)); ties: the first setting in grid order",
+           "algorithms": per_algo, "optimism": optimism, "conditions": conditions,
+           "sensitivity": {**sens, "claim": claim(sens)},
+           "head_to_head": head_to_head({"preset": preset, **samples}, trials)}
+    if tuning.folder is not None:
+        from jaxeac.experiments.tune_figures import SENSITIVITY_FIGURE, sensitivity_figure
+
+        sensitivity_figure(out, trials, tuning.folder / SENSITIVITY_FIGURE)
+        out["figure"] = SENSITIVITY_FIGURE
+    return out
 
 
-def _mark(rows: list[dict], task: str, algo: str, level: float) -> str:
-    """+ / − where `algo` is better / worse than AC on `task` at Holm p ≤ `level`, else ''."""
-    row = next((r for r in rows if r["task"] == task and r["x"] == algo), None)
-    return "" if row is None or row["p_holm"] > level else "+" if row["diff"] > 0 else "−"
-
-
-def _setting(point: dict) -> str:
-    return ", ".join(f"{SYMBOL[k]} = {v:g}" for k, v in point.items()) or "preset"
-
-
-SYMBOL = {"alpha": "α", "beta": "β", "gamma": "γ", "temperature": "τ", "epsilon": "ε"}
-
-
-def tuned_markdown(tu: dict, *, level: float = 0.05) -> list[str]:
-    """The report's sections on the tuned study: selections, verdicts side by side, sensitivity."""
-    algos, conds = tu["algorithms"], tu["conditions"]
-    tasks = list(conds["per_task"]["means"])
-    lines = ["## Tuned: every algorithm at its best setting", "",
-             f"Tuning: {tu['seeds']:,} seeds of key {tu['key']}; evaluation: {tu['evaluation_seeds']:,} "
-             f"seeds of key {tu['evaluation_key']} (disjoint). Selection — {tu['selection']}. Each condition "
-             "is compared with AC as the preset is (Holm over its own family); + / −: better / worse than AC "
-             f"at Holm p ≤ {level:g}.", "",
-             "| algorithm | grid | cross-task setting | its score (tuning) | sensitivity (best − median) |",
-             "|---|---|---|---|---|"]
-    for a, s in algos.items():
-        grid = "; ".join(f"{SYMBOL[k]} ∈ {{{', '.join(f'{v:g}' for v in vals)}}}"
-                         for k, vals in tu["grids"][a].items())
-        lines.append(f"| {a} | {grid or 'preset only'} | {_setting(s['points'][s['cross_task']])} | "
-                     f"{s['cross_task_scores'][s['cross_task']]:.3f} | {s['sensitivity']:.3f} |")
-    for t in tasks:
-        lines += ["", f"### {t}", "", "| algorithm | preset | per-task tuned (setting) | cross-task tuned "
-                  "| optimism, per-task (tuning − evaluation) [95% CI] |", "|---|---|---|---|---|"]
-        for a in algos:
-            cells = []
-            for c in CONDITIONS:
-                mark = _mark(conds[c]["comparisons"], t, a, level)
-                cells.append(f"{conds[c]['means'][t][a]:.2f}{mark}")
-            cells[1] += f" ({_setting(algos[a]['points'][algos[a]['per_task'][t]])})"
-            o = tu["optimism"][a][t]
-            lines.append(f"| {a} | {' | '.join(cells)} | {o['optimism']:+.2f} [{o['ci95'][0]:+.2f}, "
-                         f"{o['ci95'][1]:+.2f}] |")
-        best = [max(algos, key=lambda a, c=c: conds[c]["means"][t][a]) for c in CONDITIONS]
-        lines += ["", f"Highest mean: {' / '.join(best)} (preset / per-task / cross-task; the leaders are not "
-                  "tested against each other, only against AC)."]
-    lines += ["", "### Across tasks, per condition", "",
-              "| algorithm | " + " | ".join(f"IQM {c} [95% CI] | P(> ac) {c}" for c in CONDITIONS) + " |",
-              "|---|" + "---|---|" * len(CONDITIONS)]
-    for a in algos:
-        cells = []
-        for c in CONDITIONS:
-            agg = conds[c]["aggregate"]
-            if agg is None:
-                cells += ["", ""]
-                continue
-            m = agg["algorithms"][a]["iqm"]
-            pi = next((r["estimate"] for r in agg["pairs"] if r["x"] == a), None)
-            cells += [f"{m['estimate']:.3f} [{m['ci'][0]:.3f}, {m['ci'][1]:.3f}]", "" if pi is None else f"{pi:.3f}"]
-        lines.append(f"| {a} | " + " | ".join(cells) + " |")
-    return [*lines, ""]
-
-
-def tuned_summary(tu: dict, *, level: float = 0.05) -> str:
-    """For a terminal: per task and algorithm, mean successes under the preset, per-task-tuned and
-    cross-task-tuned settings (+ / −: better / worse than AC at Holm p ≤ `level`)."""
-    conds = tu["conditions"]
-    lines = [f"tuned ({tu['seeds']:,} tuning seeds, key {tu['key']}): mean successes preset / per-task tuned / "
-             f"cross-task tuned; + / −: vs ac, Holm p ≤ {level:g}"]
-    for t in conds["per_task"]["means"]:
-        cells = []
-        for a in tu["algorithms"]:
-            vals = []
-            for c in CONDITIONS:
-                mark = _mark(conds[c]["comparisons"], t, a, level)
-                vals.append(f"{conds[c]['means'][t][a]:.1f}{mark}")
-            cells.append(f"{a} {'/'.join(vals)}")
-        lines.append(f"  {t}: " + "; ".join(cells))
-    return "\n".join(lines)
+__all__ = ["CONDITIONS", "KEYS_OF", "RATES", "Tuning", "across_tasks", "keys_of", "parse_tune", "run_tuning",
+           "tuned_markdown", "tuned_summary"]  # the report's sections, where study and the command line look
