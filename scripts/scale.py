@@ -13,6 +13,14 @@ so an older build is timed too (its chunks spanning every device: ready times pe
 
     python scripts/scale.py --seeds 1000000 --chunk 1000000 --subset 100000 --out scale.json
     python scripts/scale.py --timeline --seeds 4194304 --mode kernel command --out timeline.json
+
+``--commands`` times the `jaxeac grid` command itself, each run in a fresh process, for source
+trees taking turns and sets of visible GPUs: wall seconds, its summary's compile and run seconds,
+the report's, and a digest of its results.parquet (equal digests: the same per-seed results);
+``--cold N`` runs each first with an empty compilation cache, then warm.
+
+    python scripts/scale.py --commands --builds OLD NEW --visible 0 0,1 --seeds-list 4194304 8388608
+    python scripts/scale.py --commands --cold 1000000 --report on --visible 0
 """
 
 from __future__ import annotations
@@ -232,6 +240,75 @@ def timeline(args) -> dict:
     return {"rows": runs, "build": "record_timeline" if own else "wrapped"}
 
 
+def _file_digest(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        while block := f.read(1 << 24):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _command(build: Path | None, visible: str, n: int, report: bool, cache: str, tmp: Path) -> dict:
+    """One `jaxeac grid` command in a fresh process (see `command_runs`)."""
+    import os
+    import shutil
+    import subprocess
+
+    name = build.name if build else "installed"
+    env = dict(os.environ, CUDA_VISIBLE_DEVICES=visible)
+    if build:
+        paths = [str(build.resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]
+        env["PYTHONPATH"] = os.pathsep.join(paths)
+    if cache != "shared":
+        env["JAXEAC_COMPILATION_CACHE"] = str(tmp / f"cache-{name}-{visible}")
+    out = tmp / "run"
+    argv = [sys.executable, "-P", "-m", "jaxeac", "grid", "--preset", "paper", "--seeds", str(n), "--quiet",
+            "--out", str(out), *([] if report else ["--no-compare"])]
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+    row = {"build": name, "visible": visible, "seeds": n, "report": report, "cache": cache,
+           "wall_s": time.perf_counter() - t0, "rc": proc.returncode}
+    if proc.returncode != 0:
+        return row | {"stderr": proc.stderr[-2000:]}
+    summary = json.loads((out / "summary.json").read_text())
+    per_algo = {a: {"compile_s": v["compile_seconds"], "run_s": v["run_seconds"], "settings": v.get("run")}
+                for a, v in summary["per_algo"].items()}
+    row |= {"compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"], "per_algo": per_algo,
+            "results_digest": _file_digest(out / "results.parquet")}
+    if (out / "stats.json").is_file():
+        row["report_timing"] = json.loads((out / "stats.json").read_text()).get("timing")
+    shutil.rmtree(out, ignore_errors=True)
+    return row
+
+
+def command_runs(args) -> dict:
+    """`--commands`: the `jaxeac grid` command as a user runs it, in a fresh process each time, for
+    every build (`--builds`, source trees put first on PYTHONPATH), set of visible GPUs
+    (`--visible`, as CUDA_VISIBLE_DEVICES), seed count and with or without the report (`--report`),
+    the builds taking turns; per run its wall seconds, what its summary.json and stats.json say of
+    compile, run and report seconds (per algorithm too), and a digest of its results.parquet.
+    `--cold` first runs each build and GPU set once with an empty compilation cache of its own
+    (what a first run pays), then once more with it warm."""
+    record: dict = {"runs": []}
+    if args.cold:
+        plan = [(n, report, cache) for n in args.cold for report in args.report for cache in ("cold", "warm")]
+    else:
+        plan = [(n, report, "shared") for n in args.seeds for report in args.report]
+    with tempfile.TemporaryDirectory() as tmp:
+        for rnd in range(args.rounds):
+            for n, report, cache in plan:
+                for visible in args.visible:
+                    for build in args.builds or [None]:
+                        row = {"round": rnd, **_command(build, visible, n, report, cache, Path(tmp))}
+                        print(json.dumps({k: v for k, v in row.items() if k != "per_algo"}), flush=True)
+                        record["runs"].append(row)
+                        if args.out:
+                            args.out.write_text(json.dumps(record, indent=2) + "\n")
+    return record
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=1_000_000)
@@ -245,8 +322,31 @@ def main() -> None:
     p.add_argument("--mode", nargs="+", choices=["kernel", "command"], default=["kernel"],
                    help="--timeline: the kernel with host arrays (as bench.py), the command's run phase, "
                         "or both")
+    p.add_argument("--commands", action="store_true",
+                   help="time the `jaxeac grid` command in fresh processes (see `command_runs`)")
+    p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
+                   help="--commands: source trees to compare")
+    p.add_argument("--visible", nargs="+", default=["0"], metavar="IDS",
+                   help="--commands: CUDA_VISIBLE_DEVICES of each run, e.g. 0 0,1")
+    p.add_argument("--seeds-list", dest="seeds_list", type=int, nargs="+", metavar="N",
+                   help="--commands: seed counts (default --seeds)")
+    p.add_argument("--report", type=lambda v: v == "on", nargs="+", default=[False], metavar="on|off",
+                   help="--commands: with the statistics report (on) or --no-compare (off)")
+    p.add_argument("--cold", type=int, nargs="+", metavar="N",
+                   help="--commands: instead, each seed count with an empty compilation cache, then warm")
+    p.add_argument("--rounds", type=int, default=1, help="--commands: rounds of the builds taking turns")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
+    if args.commands:
+        args.seeds = args.seeds_list or [args.seeds]
+        rec = command_runs(args)
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench import command_line
+
+        rec |= {"command": command_line()}
+        if args.out:
+            args.out.write_text(json.dumps(rec, indent=2) + "\n")
+        return
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench import command_line, environment
