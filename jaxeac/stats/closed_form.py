@@ -73,6 +73,12 @@ def welch_t_stat(nb, sb, ssb, nt, st, sst):
         return np.where(se > 0, gap / np.where(se > 0, se, 1), np.where(gap == 0, 0.0, np.sign(gap) * np.inf))
 
 
+def satterthwaite(a, b, n1, n2):
+    """Welch's degrees of freedom from the squared standard errors a = v1/n1, b = v2/n2
+    (Satterthwaite 1946), their one definition."""
+    return (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1))
+
+
 def welch_from_moments(n1, s1, ss1, n2, s2, ss2):
     """Welch t (group 2 minus group 1), df and p from sums and centred sums of squares.
 
@@ -84,7 +90,7 @@ def welch_from_moments(n1, s1, ss1, n2, s2, ss2):
     pos = np.sqrt(a + b) > 0
     gap = m2 - m1
     with np.errstate(divide="ignore", invalid="ignore"):  # zero variances: p = 0 where the means differ
-        df = np.where(pos, (a + b) ** 2 / (a**2 / (n1 - 1) + b**2 / (n2 - 1)), np.nan)
+        df = np.where(pos, satterthwaite(a, b, n1, n2), np.nan)
     p = np.where(pos, 2 * stats.t.sf(np.abs(t), np.where(pos, df, 1.0)), np.where(gap == 0, 1.0, 0.0))
     return t, df, p
 
@@ -108,7 +114,7 @@ def welch_interval(x_baseline, x_treatment, level: float = 0.95) -> Estimate:
     se = math.sqrt(va + vb)
     if se == 0:
         return Estimate(diff, diff, diff, level)
-    df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    df = satterthwaite(va, vb, a.size, b.size)
     half = float(special.stdtrit(df, 0.5 + level / 2)) * se
     return Estimate(diff, diff - half, diff + half, level)
 
@@ -132,25 +138,6 @@ def t_interval(x, level: float = 0.95, axis=None):
     if axis is None:
         return float(mean), float(sd), float(mean - half), float(mean + half)
     return mean, sd, mean - half, mean + half
-
-
-def paired_t(d) -> TestResult:
-    """The paired t test of per-seed differences d (Student 1908): t, two-sided p, n − 1 df; no
-    spread gives t = ±inf (p = 0) or 0 (p = 1)."""
-    d = np.asarray(d, np.float64)
-    n = d.size
-    mean = float(d.mean())
-    se = float(d.std(ddof=1)) / math.sqrt(n)
-    t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
-    p = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
-    return TestResult(t, p, n - 1)
-
-
-def d_z(d) -> float:
-    """Cohen's d_z = mean / sd of paired differences (±inf or 0 without spread)."""
-    d = np.asarray(d, np.float64)
-    mean, sd = float(d.mean()), float(d.std(ddof=1))
-    return mean / sd if sd > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
 
 
 def iqm_sorted(xs) -> float:

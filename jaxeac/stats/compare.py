@@ -31,7 +31,7 @@ from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
-from jaxeac.stats.measure_large import measure_large, perm_p
+from jaxeac.stats.measure_large import measure_large, permutation_welch_p
 from jaxeac.stats.measures import as_values, fill_values
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums
 
@@ -73,8 +73,8 @@ def permutation_test(
     pt = permutation_sums(as_key(key), z, y.size, resamples, chunk=chunk)
     tot = z.sum(0)
     t_obs = welch_t_stat(x.size, x.sum(), (x**2).sum(), y.size, y.sum(), (y**2).sum())
-    t_star = welch_t_stat(x.size, tot[0] - pt[:, 0], tot[1] - pt[:, 1], y.size, pt[:, 0], pt[:, 1])
-    return cf.TestResult(float(t_obs), float(perm_p(t_obs, t_star[:, None])[0]))
+    p = permutation_welch_p(x.size, y.size, t_obs, *tot[:2], pt[:, 0], pt[:, 1])
+    return cf.TestResult(float(t_obs), p)
 
 
 def _rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, higher_is_better: bool, power: dict) -> dict:
@@ -126,6 +126,15 @@ def _row(name, hib, nb, nt, means, moments, ranks, alpha) -> dict:
         "hedges_g_ci95": None,
         **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, _power(g, alpha)),
     }
+
+
+def _resampled(fields: dict, diff, g, p: float) -> None:
+    """A measure's resampled results into its `_row`, the same on both paths."""
+    fields |= {"diff_ci95": [diff.low, diff.high], "hedges_g_ci95": [g.low, g.high], "p_permutation": p}
+
+
+def _iqm(fields: dict, side: str, est: float, lo: float, hi: float) -> None:
+    fields |= {f"iqm_{side}": est, f"iqm_{side}_ci95": [lo, hi]}
 
 
 def _analyse(
@@ -197,20 +206,14 @@ def _analyse(
         boot = (boot_b[:, j], boot_b[:, M + j], boot_t[:, j], boot_t[:, M + j])
         diff = bca_two_sample("mean_diff", x, y, *boot, alpha)
         g = bca_two_sample("hedges_g", x, y, *boot, alpha)
-        t_star = welch_t_stat(
-            nb, tot[j] - perm[:, j], tot[M + j] - perm[:, M + j], nt, perm[:, j], perm[:, M + j]
-        )
         t_obs = welch_t_stat(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
-        out[name]["diff_ci95"] = [diff.low, diff.high]
-        out[name]["hedges_g_ci95"] = [g.low, g.high]
-        out[name]["p_permutation"] = float(perm_p(t_obs, t_star[:, None])[0])
+        p = permutation_welch_p(nb, nt, t_obs, tot[j], tot[M + j], perm[:, j], perm[:, M + j])
+        _resampled(out[name], diff, g, p)
     # IQM per method of the first (primary) measure
-    first = names[0]
     for side, x, q in (("baseline", xb[:, 0], iqm_b), ("treatment", xt[:, 0], iqm_t)):
         est = cf.iqm_sorted(np.sort(x))
         lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
-        out[first][f"iqm_{side}"] = est + centre[0]
-        out[first][f"iqm_{side}_ci95"] = [lo + centre[0], hi + centre[0]]
+        _iqm(out[names[0]], side, est + centre[0], lo + centre[0], hi + centre[0])
     t_bca = time.perf_counter() - t1
     t1 = time.perf_counter()
     curve = None
@@ -277,14 +280,10 @@ def _analyse_large(
             t3 = time.perf_counter()
         ranks = [float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)]
         fields = _row(name, hib, nb, nt, means, res["sums"], ranks, alpha)
-        diff, hg = res["diff"], res["hedges_g"]
-        fields |= {"diff_ci95": [diff.low, diff.high], "p_permutation": res["p_permutation"],
-                   "hedges_g_ci95": [hg.low, hg.high]}
+        _resampled(fields, res["diff"], res["hedges_g"], res["p_permutation"])
         if j == 0:
             for side in ("baseline", "treatment"):
-                est, lo, hi = res[f"iqm_{side}"]
-                fields[f"iqm_{side}"] = est
-                fields[f"iqm_{side}_ci95"] = [lo, hi]
+                _iqm(fields, side, *res[f"iqm_{side}"])
         return fields, {"distinct_values": res["distinct_values"], **res["methods"]}, t2 - t1, t3 - t2
 
     # the measures side by side while their temporaries fit `large.HOST_BUDGET`: NumPy's samplers

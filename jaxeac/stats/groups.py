@@ -17,6 +17,7 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
 from jaxeac.stats.large import resampling_path
+from jaxeac.stats.paired import paired_analysis, paired_tests
 from jaxeac.stats.resample import boot_counts, cumulative
 from jaxeac.stats.tasks import below_half, wins_replicates
 
@@ -132,23 +133,12 @@ def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples
     from C, the task's shared draw over its seeds, else `jaxeac.stats.paired.paired_analysis`,
     the run folders' paired analysis, which follows the same rule."""
     n = d.size
-    t = cf.paired_t(d)
-    out = {
-        "n": n,
-        "mean_diff": float(d.mean()),
-        "sd_diff": float(d.std(ddof=1)),
-        "t_paired": t.statistic,
-        "df": n - 1,
-        "p_paired_t": t.pvalue,
-        "d_z": cf.d_z(d),
-    }
+    out = paired_tests(d)
     out["path"] = resampling_path(n, np.unique(d).size, paired=True)  # the one rule, as paired.py
     if C is not None and out["path"] == large.RAW:  # C: the shared draw, units first [n, R]
         star = d @ C.astype(np.float64) / n
         out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
         return out
-    from jaxeac.stats.paired import paired_analysis
-
     res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha)
     out["mean_diff_ci"] = res["mean_diff_ci95"]
     return out

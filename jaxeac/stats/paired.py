@@ -26,13 +26,11 @@ Resampling draws come from NumPy's exact samplers seeded from the JAX key
 from __future__ import annotations
 
 import math
-from dataclasses import astuple
 
 import jax
 import numpy as np
 from scipy import special
 
-from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval
@@ -65,6 +63,21 @@ def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def paired_tests(d: np.ndarray) -> dict:
+    """The closed-form part of a paired comparison of per-seed differences d, its one definition
+    (run folders and the engine): the mean difference, its sd and se, the paired t test (Student
+    1908; n − 1 df; no spread gives t = ±inf, p = 0, or t = 0, p = 1) and d_z (`_dz`)."""
+    n = d.size
+    mean = float(d.mean())
+    sd = float(d.std(ddof=1))
+    se = sd / math.sqrt(n)
+    t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
+    p = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
+    dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
+    return {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
+            "p_paired_t": p, "d_z": dz}
+
+
 def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05) -> dict:
     """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i."""
     xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
@@ -76,16 +89,11 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     r = float(np.corrcoef(xb, xt)[0, 1]) if xb.std() > 0 and xt.std() > 0 else math.nan
     d = xt - xb
     del xb, xt
-    n = d.size
-    mean = float(d.mean())
-    sd = float(d.std(ddof=1))
-    se = sd / math.sqrt(n)
-    t, p_t, _ = astuple(cf.paired_t(d))
-    dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
+    out = paired_tests(d)
+    n, mean, dz = out["n"], out["mean_diff"], out["d_z"]
     k_boot, k_flip = jax.random.split(as_key(key))
     values, counts = np.unique(d, return_counts=True)
-    out = {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
-           "p_paired_t": p_t, "d_z": dz, "correlation": r, "distinct_differences": int(values.size)}
+    out |= {"correlation": r, "distinct_differences": int(values.size)}
     rng = large.host_rng(k_boot)
     path = large.resampling_path(n, values.size, paired=True)  # the one rule
     out["path"] = path
