@@ -59,8 +59,8 @@ def test_study_keeps_a_timeline_per_task_and_phase(study):
     tl = result["timeline"]
     assert list(tl["tasks"]) == list(settings.tasks)
     for phases in tl["tasks"].values():
-        assert {"run", "compile", "device_run", "statistics"} <= set(phases)
-    assert {"aggregate", "figure"} <= set(tl["study"]) and tl["total_s"] > 0
+        assert {"run", "compile", "device_run", "finish", "curves"} <= set(phases)
+    assert {"statistics", "figure"} <= set(tl["study"]) and tl["total_s"] > 0
     from jaxeac.experiments.study import timeline_text
 
     text = timeline_text(tl)
@@ -152,3 +152,41 @@ def test_one_task_study_has_no_aggregate(tmp_path):
     settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
     result = run_study(settings, tmp_path, progress=False)
     assert result["aggregate"] is None and "## Across tasks" not in (tmp_path / "report.md").read_text()
+
+
+def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch):
+    """Where E8 goes beside the runs (accelerators), every task's diagnostics start with the study and
+    its folder is finished when they are in: the same summaries and statistics as one task at a time."""
+    from jaxeac.experiments import grid
+
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1", "CliffWalking-v1"), algos=("ac", "eac"), seeds=8,
+                             trials=10, resamples=400)
+    results = {}
+    for beside in (False, True):
+        monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", beside)
+        results[beside] = run_study(settings, tmp_path / str(beside), progress=False)
+        for task in settings.tasks:
+            summary = json.loads((tmp_path / str(beside) / "tasks" / task / "summary.json").read_text())
+            assert summary["memory_diagnostics"]["eac"]["successes_match_run"]
+            results[beside, task] = summary["memory_diagnostics"]
+    assert "finish" not in results[True]["timeline"]["tasks"][settings.tasks[0]]
+    for task in settings.tasks:
+        assert results[True, task] == results[False, task]
+    assert results[True]["comparisons"] == results[False]["comparisons"]
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--tasks", "FrozenLake-4x4-v1:slip=abc"], "--tasks: task 'FrozenLake-4x4-v1:slip=abc': cannot read 'abc'"),
+    (["--tasks", "FrozenLake-4x4-v1:slip"], "--tasks: task 'FrozenLake-4x4-v1:slip': write NAME or NAME:slip=P"),
+    (["--tasks", "FrozenLake-4x4-v1:=0.1"], "--tasks: task 'FrozenLake-4x4-v1:=0.1': write NAME"),
+    (["--tasks", "CliffWalking-v1:slip=0", "CliffWalking-v1:slip=0.0"], "--tasks names one task twice"),
+    (["--algos", "ac", "ac"], "--algos: algos lists an algorithm twice (ac ac)"),
+    (["--algos", "ac"], "--algos ac: a study compares algorithms with ac"),
+    (["--seeds", "1"], "--seeds 1: a comparison needs at least 2 seeds"),
+])
+def test_study_refuses_before_any_compute(tmp_path, capsys, argv, match):
+    """One `error:` line naming the flag, exit 2, and nothing run or written."""
+    assert main(["study", "--seeds", "4", *argv, "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and match in err[0], err
+    assert not (tmp_path / "s").exists()

@@ -1,5 +1,7 @@
 """Beyond the paper's grid: every task × every algorithm, compared with AC (`jaxeac study`, X4).
 
+(Over 400 lines: the study end to end: tasks, their runs and folders, one-pass statistics, timeline, report.)
+
 Each task (a registered environment, `jaxeac.registered()`, optionally with a slip
 probability) runs every algorithm — AC, EAC, EAC's ablations and the value-based
 baselines Q-learning and SARSA (X3) — over the same seeds, with one fixed setting of the
@@ -8,7 +10,7 @@ own episode limit. The declared family of comparisons is every algorithm other t
 against AC on every task; Holm (1979) adjusts Welch's p across that whole family.
 Per comparison: mean successes of 200 trials (the primary measure, SPEC §6) with a BCa
 CI, the difference from AC with a BCa CI, Hedges' g, the IQM and the probability of
-improvement (`jaxeac.stats.tidy.compare_samples`). Results are what the run found.
+improvement (`compare_tasks`). Results are what the run found.
 
 Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
 compiled programs (`jaxeac.envs.tabular.TableLayout`), padded to the largest task of its group
@@ -17,9 +19,11 @@ compiled programs (`jaxeac.envs.tabular.TableLayout`), padded to the largest tas
 
 A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chunk at a time)
 and reused by a rerun with the same settings, so a study killed midway resumes where it
-stopped. Tasks are compared one at a time as they finish, keeping only their statistics and
-success curves' counts, so host memory does not grow with the number of tasks;
-``study.json``, ``report.md`` and ``fig_study.png`` are written when every task is done.
+stopped. Of each task only its per-seed successes (int32 [N] per algorithm) and its success
+curves' counts ([T, T + 1]) stay in memory; the statistics of every task and the aggregate across
+tasks are one pass of `jaxeac.stats.engine.compare` (`compare_tasks`) once all are in.
+``study.json`` (with a ``timeline``: where the time went, per task and phase), ``report.md`` and
+``fig_study.png`` are written when every task is done.
 """
 
 from __future__ import annotations
@@ -97,7 +101,10 @@ class StudySettings:
         for task in self.tasks:  # `T`, `T:slip=0` and `T:slip=0.0` are one task
             if (same := seen.setdefault(parse_task(task), task)) != task or list(self.tasks).count(task) > 1:
                 raise UsageError(f"--tasks names one task twice ({same!r} and {task!r}); list each once")
-        check_algos(self.algos)
+        try:
+            check_algos(self.algos)
+        except UsageError as exc:  # the message names the flag, as every other refusal here
+            raise UsageError(str(exc) if str(exc).startswith("--algos") else f"--algos: {exc}") from None
         if "ac" not in self.algos:
             raise UsageError("a study compares every algorithm with ac: --algos must include ac")
         if len(set(self.algos)) < 2:
@@ -216,14 +223,14 @@ def timeline_text(tl: dict) -> str:
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
               on_task: Callable[[str, dict], None] | None = None, tuning=None, timeline: bool = False) -> dict:
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
-    with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``)."""
-    from jaxeac.experiments.grid import run_grid_to_folder
-    from jaxeac.experiments.tune import across_tasks, run_tuning
+    with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
+
+    On accelerators E8's diagnostics of every task start with the study, beside the runs, and each
+    task's folder is finished (its summary.json) as they come in, while later tasks run; the
+    statistics of all tasks are one pass (`compare_tasks`) once every task's successes are in."""
+    from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.plots import cumulative_counts
-    from jaxeac.results import OutputOptions
-    from jaxeac.stats import holm
-    from jaxeac.stats.tidy import compare_samples
 
     settings.validate()
     out = Path(out)
@@ -233,47 +240,45 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     with tl.phase("setup"):
         grids = {task: settings.task_settings(task) for task in settings.tasks}
         envs = task_envs(grids)
-    rows, per_task, curves, kept = [], {}, {}, {}
+        tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
+        todo = {t: g for t, g in tasks.items() if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
+    curves, kept = {}, {}
     n = len(settings.tasks)
-    for i, task in enumerate(settings.tasks):
-        grid = _TaskSettings.of(grids[task], envs[task])
-        folder = out / "tasks" / folder_name(task)
-        if finished_run(folder, plain_json(dataclasses.asdict(grid))):
-            if progress:
-                print(f"study: task {i + 1}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
-                      flush=True)
-        else:
-            with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
-                      desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar, \
-                    tl.phase("run", task):
-                _, summary = run_grid_to_folder(grid, folder, options=OutputOptions.auto(grid.seeds),
-                                                figures=False, progress=bar.update)
-            tl.note(task, compile=summary["compile_seconds"], device_run=summary["run_seconds"],
-                    diagnostics=summary.get("diagnostics_seconds", 0.0))
-        # One task's curves in memory at a time: its statistics and the figure's counts ([T, T + 1]).
-        with tl.phase("load", task):
-            success = _successes(folder, grid)
-        with tl.phase("curves", task):
-            curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
-        samples = {a: success[a].sum(axis=1) for a in grid.algos}
-        del success
-        kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # for the aggregate across tasks
-        with tl.phase("statistics", task):
-            stats = compare_samples(samples, baseline="ac", resamples=settings.resamples, key=settings.key + i)
-        per_task[task] = {"env": grid.env, "slip": grid.slip, "chances": grid.chances, "trials": grid.trials,
-                          "algorithms": stats["algorithms"]}
-        for row in stats["comparisons"]:
-            rows.append({"task": task, **{k: v for k, v in row.items() if k != "p_holm"}})
+    with _TaskRunner(todo, tl) as runner:
+        for i, (task, grid) in enumerate(tasks.items()):
+            folder = _folder(out, task)
+            if task not in todo:
+                if progress:
+                    print(f"study: task {i + 1}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
+                          flush=True)
+                with tl.phase("load", task):
+                    success, samples = _successes(folder, grid)
+            else:
+                with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
+                          desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
+                    results = runner.run(task, grid, folder, bar.update)
+                success = {a: r.success for a, r in results.items()}
+                samples = {a: np.asarray(r.successes) for a, r in results.items()}
+                del results
+            # One task's success curves in memory at a time: the figure's counts ([T, T + 1]) are kept.
+            with tl.phase("curves", task):
+                curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
+            del success
+            kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # per-seed successes, all tasks
+            if timeline:  # as each task ends: a study stopped midway still shows where its time went
+                print(f"study: timeline {task}: " + ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items()),
+                      file=sys.stderr, flush=True)
+        first = grids[settings.tasks[0]]
+        with tl.phase("statistics"):  # while the last tasks' diagnostics finish
+            per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
+                                                      key=settings.key)
+        with tl.phase("diagnostics_wait"):
+            runner.finish()
+    for task, info in per_task.items():
+        g = grids[task]
+        per_task[task] = {"env": g.env, "slip": g.slip, "chances": g.chances, "trials": g.trials, **info}
         if on_task is not None:
             on_task(task, per_task[task])
-        if timeline:  # as each task ends: a study stopped midway still shows where its time went
-            print(f"study: timeline {task}: " + ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items()),
-                  file=sys.stderr, flush=True)
-    for row, p in zip(rows, holm([r["p_welch"] for r in rows]) if rows else [], strict=True):
-        row["p_holm"] = float(p)
-    first = grids[settings.tasks[0]]
-    with tl.phase("aggregate"):
-        aggregate = across_tasks(kept, first.trials, resamples=settings.resamples, key=settings.key)
     result = {
         "family": "every algorithm but ac against ac, on every task; Holm across all of them",
         "comparisons_in_family": len(rows), "seeds": settings.seeds, "key": settings.key,
@@ -294,6 +299,155 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         atomic_write_json(stage / "study.json", result)
         atomic_write_text(stage / "report.md", report_markdown(result))
     return result
+
+
+def _folder(out: Path, task: str) -> Path:
+    return out / "tasks" / folder_name(task)
+
+
+def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, resamples: int, key: int
+                  ) -> tuple[dict, list[dict], dict | None]:
+    """Every task's statistics and the aggregate across tasks in one pass of
+    `jaxeac.stats.engine.compare` over per-seed successes ``samples[task][algo]``, with the settings
+    of `jaxeac.experiments.tune.across_tasks` (so the aggregate is that function's, bit for bit).
+
+    Returns ({task: {"algorithms": {algo: n, mean, iqm, iqm_ci95}}}, the rows (each algorithm but ac
+    against ac per task: difference of means with a BCa CI, Welch's p, Hedges' g, IQMs, P(X > ac);
+    ``p_holm``: Holm over Welch's p of every row), the aggregate or None for one task)."""
+    from jaxeac.stats.engine import compare
+    from jaxeac.stats.inputs import PerSeed
+
+    values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
+    seeds = {t: {a: np.arange(x.size).astype(str) for a, x in per.items()} for t, per in values.items()}
+    res = compare(PerSeed(values, seeds, "successes per seed over the trials", "study"), baseline="ac",
+                  level=0.95, resamples=resamples, key=key, normalize="minmax",
+                  reference_scores={t: (0.0, float(trials)) for t in values}, profile_points=min(trials + 1, 101))
+    per_task: dict = {t: {"algorithms": {}} for t in values}
+    for a in res.algorithms:
+        per_task[a["task"]]["algorithms"][a["algo"]] = {"n": a["n"], "mean": a["mean"], "iqm": a["iqm"],
+                                                        "iqm_ci95": a["iqm_ci"]}
+    rows = []
+    for r in res.rows:
+        ax, ay = per_task[r["task"]]["algorithms"][r["x"]], per_task[r["task"]]["algorithms"][r["y"]]
+        rows.append({"task": r["task"], "x": r["x"], "y": r["y"], "n_x": r["n_x"], "n_y": r["n_y"],
+                     "mean_x": r["mean_x"], "mean_y": r["mean_y"], "diff": r["diff"], "diff_ci95": r["diff_ci"],
+                     "p_welch": r["p_welch"], "hedges_g": r["hedges_g"], "iqm_x": ax["iqm"],
+                     "iqm_x_ci95": ax["iqm_ci95"], "iqm_y": ay["iqm"], "iqm_y_ci95": ay["iqm_ci95"],
+                     "p_improvement": r["p_improvement"], "p_improvement_ci95": r["p_improvement_ci"],
+                     "p_holm": r["p_welch_holm"]})
+    agg = res.aggregate
+    if len(values) < 2:
+        agg = None
+    elif agg is not None:
+        agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed lie "
+                                "in [0, T], a scale fixed before any run and the same for every algorithm")
+        agg["key"] = key
+    return per_task, rows, agg
+
+
+#: Diagnostics computed at once for this many tasks beside the runs (accelerators only).
+DIAGNOSTIC_WORKERS = 2
+
+
+class _TaskRunner:
+    """Runs a study's tasks into their folders. Where E8's diagnostics go beside the run
+    (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), those of every task to run
+    start at once on a small pool, and each task's folder is finished (summary.json, then moved in
+    place) by a finisher thread when its diagnostics are in, so that no task waits for its own
+    diagnostics; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
+
+    def __init__(self, todo: dict, tl: Timeline) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        import jax
+
+        from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnose_grid, diagnostic_seeds
+
+        self.tl, self.open, self.done = tl, [], []
+        self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False)
+        self.diagnosed: dict = {}
+        self.pool = self.finisher = None
+        if self.beside:
+            self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS)
+            self.finisher = ThreadPoolExecutor(max_workers=1)
+            for task, grid in todo.items():
+                if seeds := diagnostic_seeds(grid):
+                    self.diagnosed[task] = self.pool.submit(diagnose_grid, grid, grid.grid_map(), seeds)
+
+    def __enter__(self) -> _TaskRunner:
+        return self
+
+    def run(self, task: str, grid, folder: Path, progress) -> dict:
+        """Run `task` into `folder` (finished now or later); its `CompactSeeds` per algorithm."""
+        from jaxeac.experiments.grid import GridRun
+        from jaxeac.io import RUN_FOLDER_FILES, staged_dir
+        from jaxeac.results import RESULTS_FILE, OutputOptions, ResultsWriter
+        from jaxeac.running.batch import run_algorithms
+        from jaxeac.running.outputs import CompactCollector
+
+        options = OutputOptions.auto(grid.seeds)
+        env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
+        stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
+        stage = stage_cm.__enter__()
+        self.open.append(stage_cm)
+        t0 = time.perf_counter()
+        try:
+            with ResultsWriter(stage / RESULTS_FILE, grid.trials, env.n_states, options) as writer:
+                collectors = [CompactCollector(seeds, grid.trials, env.n_states, n_chances=env.n_chances,
+                                               on_chunk=writer.chunk_writer(a, seeds)) for a in grid.algos]
+                runs = run_algorithms(env, [grid.run_config(a) for a in grid.algos], root_key=grid.key,
+                                      n_seeds=grid.seeds, chunk_size=grid.chunk_size, progress=progress,
+                                      collectors=collectors)
+        except BaseException as exc:
+            self.open.remove(stage_cm)
+            stage_cm.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        run = GridRun(grid, grid.grid_map(), dict(zip(grid.algos, runs, strict=True)))
+        self.tl.note(task, run=time.perf_counter() - t0, compile=sum(r.compile_seconds for r in runs),
+                     device_run=sum(r.run_seconds for r in runs))
+        if self.beside:
+            self.done.append(self.finisher.submit(self._finish, task, run, stage, stage_cm, options))
+        else:
+            with self.tl.phase("finish", task):
+                self._finish(task, run, stage, stage_cm, options)
+        return run.results
+
+    def _finish(self, task: str, run, stage: Path, stage_cm, options) -> None:
+        """The folder's summary.json (with E8's diagnostics), then the folder moved in place."""
+        from jaxeac.experiments.grid import memory_diagnostics, per_seed_csv, summarize
+        from jaxeac.io import atomic_write_json
+
+        try:
+            summary = summarize(run)
+            summary["outputs"] = dataclasses.asdict(options)
+            diagnosed = self.diagnosed.pop(task).result() if task in self.diagnosed else None
+            summary |= memory_diagnostics(run, diagnosed=diagnosed)
+            if options.per_seed_csv:
+                (stage / "per_seed.csv").write_text(per_seed_csv(run))
+            atomic_write_json(stage / "summary.json", summary)
+        except BaseException as exc:
+            self.open.remove(stage_cm)
+            stage_cm.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        self.open.remove(stage_cm)
+        stage_cm.__exit__(None, None, None)
+        self.tl.note(task, diagnostics=summary.get("diagnostics_seconds", 0.0))
+
+    def finish(self) -> None:
+        """Wait for every folder to be finished (re-raising the first failure)."""
+        for f in self.done:
+            f.result()
+
+    def __exit__(self, *exc) -> None:
+        for pool in (self.pool, self.finisher):
+            if pool is not None:
+                pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
+        for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were
+            self.open.remove(stage_cm)
+            try:
+                stage_cm.__exit__(RuntimeError, RuntimeError("study stopped"), None)
+            except RuntimeError:
+                pass
 
 
 STUDY_FIGURE = "fig_study.png"
@@ -339,11 +493,12 @@ def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int, path: Path) -
     plt.close(fig)
 
 
-def _successes(folder: Path, grid: GridSettings) -> dict[str, np.ndarray]:
+def _successes(folder: Path, grid: GridSettings) -> tuple[dict, dict[str, np.ndarray]]:
+    """A finished task folder's ({algo: `SuccessBits` [N, T]}, {algo: successes per seed [N]})."""
     from jaxeac.results import load_grid_results
 
-    loaded = load_grid_results(folder, grid.algos, grid.trials)
-    return {a: np.asarray(loaded[a].success, bool) for a in grid.algos}
+    loaded = load_grid_results(folder, grid.algos, grid.trials, compact=True)
+    return {a: loaded[a].success for a in grid.algos}, {a: np.asarray(loaded[a].successes) for a in grid.algos}
 
 
 def report_markdown(result: dict) -> str:
