@@ -186,7 +186,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         raw, counts = value_counts(measures[names[j]], N)
         vals, inv = np.unique(raw - means[j], return_inverse=True)  # the centred values of the seeds
         K = np.bincount(inv.reshape(-1), weights=counts, minlength=vals.size).astype(np.int64)
-        exact = large.few_values(vals.size)
+        exact = large.path_above(vals.size) == large.PER_VALUE  # the one rule
         rng = large.host_rng(jax.random.fold_in(key, j))
         H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
         s1, s2 = large.moment_sums(H, vals)
@@ -202,6 +202,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
         return p_w, p_perm, p_bm, {
             "distinct_values": int(vals.size),
+            "path": large.path_above(vals.size),
             "permutation": large.REFERENCES["permutation_per_value" if exact else "normal_permutation"],
         }
 

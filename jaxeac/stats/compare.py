@@ -284,7 +284,8 @@ def _analyse_large(
         if j == 0:
             for side in ("baseline", "treatment"):
                 _iqm(fields, side, *res[f"iqm_{side}"])
-        return fields, {"distinct_values": res["distinct_values"], **res["methods"]}, t2 - t1, t3 - t2
+        record = {"distinct_values": res["distinct_values"], "path": res["path"], **res["methods"]}
+        return fields, record, t2 - t1, t3 - t2
 
     # the measures side by side while their temporaries fit `large.HOST_BUDGET`: NumPy's samplers
     # and array work free the GIL, and each measure draws from its own keys, so the results do

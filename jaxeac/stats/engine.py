@@ -33,7 +33,7 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.groups import Group, pair_row, paired_row
 from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, read_npz, read_tidy
-from jaxeac.stats.large import PATH_RULE, resampling_path
+from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
 from jaxeac.stats.resample import boot_counts
 from jaxeac.stats.result import Comparison
 from jaxeac.stats.sb3 import read_sb3
@@ -322,7 +322,7 @@ def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
     if len(order) < 2:
         return None, None
     n = ref.size
-    if resampling_path(n, n) != "raw draws":
+    if resampling_path(n, n) != RAW:
         return None, order
     return boot_counts(key, n, resamples, chunk=chunk, units_first=True), order
 

@@ -32,10 +32,10 @@ class Group:
         self.n = self.x.size
         distinct, counts = np.unique(self.x, return_counts=True)
         self.path = resampling_path(self.n, distinct.size)
-        if self.path == "raw draws":
+        if self.path == large.RAW:
             self.values, self.k = self.x, np.ones(self.n, np.int64)
             self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True)
-        elif self.path == "exact per-value counts":
+        elif self.path == large.PER_VALUE:
             self.values, self.k = distinct, counts
             c = large.multinomial_counts(large.host_rng(key), counts, resamples)
             self.CT = np.ascontiguousarray(c.T, np.float32)
@@ -63,11 +63,11 @@ class Group:
             return [est, *large.normal_bca(est, jackknife_iqm(self.x), alpha)]
         jk = (
             jackknife_iqm(self.x)
-            if self.path == "raw draws"
+            if self.path == large.RAW
             else large.jackknife_iqm_counts(self.k, self.values)
         )
         star = large.iqm_from_counts(self.CT, self.values, units_first=True, cum=self.cum[1:])
-        jk = [jk] if self.path == "raw draws" else [(jk, self.k)]
+        jk = [jk] if self.path == large.RAW else [(jk, self.k)]
         return [est, *bca_interval(est, star, jk, alpha)]
 
 

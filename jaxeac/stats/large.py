@@ -171,8 +171,11 @@ def resampling_path(n: int, distinct: int, *, paired: bool = False) -> str:
     this function, and each result records the path it took."""
     if paired and few_values(distinct):
         return PER_VALUE
-    if int(n) <= LARGE_N:
-        return RAW
+    return RAW if int(n) <= LARGE_N else path_above(distinct)
+
+
+def path_above(distinct: int) -> str:
+    """`resampling_path` above `LARGE_N` seeds, for the large-N analyses that only run there."""
     return PER_VALUE if few_values(distinct) else ASYMPTOTIC
 
 
@@ -242,7 +245,7 @@ class ValueTable:
 
     @property
     def exact(self) -> bool:
-        return few_values(self.distinct)
+        return path_above(self.distinct) == PER_VALUE
 
 
 def stacked_means(columns, n: int, block: int = 1 << 16) -> np.ndarray:

@@ -57,8 +57,9 @@ def measure_large(
     t_obs = float(welch_t_stat(nb, *sums[:2], nt, *sums[2:]))
     table = large.ValueTable(x, y) if table is None else table
     v = table.values - c
-    out = {"t_welch": t_obs, "sums": sums, "distinct_values": table.distinct}
-    if table.exact:
+    out = {"t_welch": t_obs, "sums": sums, "distinct_values": table.distinct,
+           "path": large.path_above(table.distinct)}  # the one rule (`large.resampling_path`)
+    if out["path"] == large.PER_VALUE:
         out["methods"] = {
             "bootstrap": large.REFERENCES["bootstrap_per_value"],
             "permutation": large.REFERENCES["permutation_per_value"],
