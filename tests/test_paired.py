@@ -151,3 +151,28 @@ def test_pairing_of_a_table(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: --paired needs the same seed ids") and len(err.splitlines()) == 1
     assert not (tmp_path / "o_compare").exists()
+
+
+def test_one_resampling_rule_for_paired_differences(rng):
+    """Run folders and the engine take a paired interval's path from `large.resampling_path`
+    (paired: counts per distinct difference wherever they are few, at any n) and record it."""
+    from jaxeac.stats.engine import compare
+    from jaxeac.stats.inputs import PerSeed
+
+    assert large.resampling_path(50, 10, paired=True) == large.PER_VALUE
+    assert large.resampling_path(50, 10) == large.RAW  # unpaired groups: raw draws up to LARGE_N
+    assert large.resampling_path(50, large.MAX_DISTINCT + 1, paired=True) == large.RAW
+    assert large.resampling_path(large.LARGE_N + 1, large.MAX_DISTINCT + 1, paired=True) == large.ASYMPTOTIC
+    x, y = correlated(60, rng)  # integers: few distinct differences
+    assert paired_analysis(x, y, 3, resamples=400)["path"] == large.PER_VALUE
+    seeds = np.arange(60).astype(str)
+    per = PerSeed({"": {"a": x, "b": y}}, {"": {"a": seeds, "b": seeds}}, "value", "arrays", "arrays", {})
+    (row,) = compare(per, resamples=400, key=5).rows
+    assert row["paired"]["path"] == large.PER_VALUE
+    n = large.MAX_DISTINCT + 100
+    x2, y2 = correlated(n, rng, integer=False)  # continuous: every difference distinct, more than a
+    ids = np.arange(n).astype(str)  # per-value path takes
+    per2 = PerSeed({"": {"a": x2, "b": y2}}, {"": {"a": ids, "b": ids}}, "value", "arrays", "arrays", {})
+    (row2,) = compare(per2, resamples=400, key=5).rows
+    pr = row2["paired"]
+    assert pr["path"] == large.RAW and pr["mean_diff_ci"][0] < pr["mean_diff"] < pr["mean_diff_ci"][1]

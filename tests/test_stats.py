@@ -37,7 +37,7 @@ from jaxeac.stats import (
     welch_t,
 )
 from jaxeac.stats._rng import key_words, mulhi32, random_subsets, threefry2x32, uniform_index
-from jaxeac.stats.bootstrap import jackknife_iqm
+from jaxeac.stats.bca import jackknife_iqm
 from jaxeac.stats.resample import bootstrap_sums
 
 sm_prop = pytest.importorskip("statsmodels.stats.proportion")

@@ -230,7 +230,7 @@ def test_per_value_bootstrap_is_the_seed_bootstrap():
 
 def test_per_value_jackknife_and_bca_equal_the_per_seed_ones():
     """The O(distinct values) estimate, jackknife and BCa equal the per-seed computation."""
-    from jaxeac.stats.bootstrap import bca_two_sample, bca_two_sample_counts, jackknife_iqm
+    from jaxeac.stats.bca import bca_two_sample, bca_two_sample_counts, jackknife_iqm
 
     rng = np.random.default_rng(3)
     x, y = rng.integers(0, 30, 3001).astype(float), rng.integers(2, 35, 2500).astype(float)
@@ -300,7 +300,7 @@ def test_ranks_and_logrank_at_scale_match_scipy_and_statsmodels():
 def test_abc_interval_matches_bca():
     """ABC (analytic BCa) against BCa of many resamples: scipy at small n (second-order agreement),
     and at 2·10^5 seeds against the exact per-value bootstrap's BCa within its Monte Carlo error."""
-    from jaxeac.stats.bootstrap import bca_two_sample
+    from jaxeac.stats.bca import bca_two_sample
 
     rng = np.random.default_rng(5)
     x, y = rng.exponential(1.0, 400), rng.exponential(1.4, 300)

@@ -1,11 +1,12 @@
 """Statistics for AC-versus-EAC comparisons (SPEC §6).
 
-Entry point: `compare_run_dir(run_dir, ...)` writes stats.json, report.md and
-figures. Array-level functions (per-seed values as 1-D arrays, curves as
-[seeds, trials]) are exported for notebooks; every resampling function takes
-an explicit `key` (an int seed or a `jax.random` key). Above
-`jaxeac.stats.large.LARGE_N` seeds per method the large-N path takes over (same
-outputs; which methods, and why they are equivalent at that N: `jaxeac.stats.large`).
+Entry points: `jaxeac.stats.engine.compare(data, ...)` (`jaxeac.compare`) for per-seed results
+from anywhere, across tasks; for a run folder it calls `compare_run_dir(run_dir, ...)`, which
+writes stats.json, report.md and figures. Array-level functions (per-seed values as 1-D arrays,
+curves as [seeds, trials]) are exported for notebooks; every resampling function takes an
+explicit `key` (an int seed or a `jax.random` key). Which resampling path each piece takes
+(raw draws, exact counts per value, or an asymptotic form above
+`jaxeac.stats.large.LARGE_N` seeds) is the one rule `jaxeac.stats.large.resampling_path`.
 """
 
 from jaxeac.stats.bootstrap import bca_ci, bca_interval, iqm, iqm_ci

@@ -1,8 +1,8 @@
 """Bootstrap intervals: BCa (Efron 1987) and the IQM (SPEC §6).
 
 The resampling here; the interval arithmetic (`bca_interval`, the closed-form jackknife
-values) in `jaxeac.stats.bca`, whose names this module also offers. Above `large.LARGE_N`
-seeds `bca_ci` takes the large-N path of `jaxeac.stats.measure_large`.
+values) in `jaxeac.stats.bca`. Above `large.LARGE_N` seeds `bca_ci` takes the large-N path of
+`jaxeac.stats.measure_large`, and `iqm_ci` the engine's `Group` (`jaxeac.stats.groups`).
 """
 
 from __future__ import annotations
@@ -11,15 +11,8 @@ import numpy as np
 
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.bca import (  # noqa: F401 (offered here too: this module's names before jaxeac.stats.bca)
-    bca_interval,
-    bca_two_sample,
-    bca_two_sample_counts,
-    jackknife_iqm,
-    jackknife_means,
-    jackknife_moments,
-)
-from jaxeac.stats.closed_form import Estimate, check_sample, hedges_correction, iqm
+from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
+from jaxeac.stats.closed_form import Estimate, check_sample, iqm
 from jaxeac.stats.measure_large import measure_large
 from jaxeac.stats.resample import bootstrap_sums
 
@@ -58,17 +51,13 @@ def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int =
     """IQM of one method's per-seed values with a BCa bootstrap CI, on the path
     `large.resampling_path` gives (raw draws on the device, counts per value, or the normal limit)."""
     x = check_sample(x)
-    est = iqm(x)
-    path = large.resampling_path(x.size, np.unique(x).size if large.is_large(x.size) else 0)
-    if path == large.ASYMPTOTIC:
-        lo, hi = large.normal_bca(est, jackknife_iqm(x), alpha)
+    if large.is_large(x.size):  # counts per value or the normal limit: the engine's group
+        from jaxeac.stats.groups import Group
+
+        est, lo, hi = Group(x, as_key(key), resamples, chunk).iqm(alpha)
         return Estimate(est, lo, hi, 1 - alpha)
-    if path == large.PER_VALUE:
-        table = large.ValueTable(x, x[:0])
-        q = large.iqm_from_counts(large.multinomial_counts(large.host_rng(as_key(key)), table.kb, resamples),
-                                  table.values)
-    else:
-        _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
+    est = iqm(x)
+    _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
     lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
     return Estimate(est, lo, hi, 1 - alpha)
 
@@ -80,12 +69,4 @@ def _split2(key):
     return k[0], k[1]
 
 
-__all__ = [
-    "bca_ci",
-    "bca_interval",
-    "iqm",
-    "iqm_ci",
-    "jackknife_iqm",
-    "jackknife_means",
-    "hedges_correction",
-]
+__all__ = ["bca_ci", "bca_interval", "iqm", "iqm_ci"]
