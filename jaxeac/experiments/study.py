@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import threading
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -363,7 +364,7 @@ class _TaskRunner:
 
         from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnose_grid, diagnostic_seeds
 
-        self.tl, self.open, self.done = tl, [], []
+        self.tl, self.open, self.done, self.lock = tl, [], [], threading.Lock()
         self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False)
         self.diagnosed: dict = {}
         self.pool = self.finisher = None
@@ -399,8 +400,7 @@ class _TaskRunner:
                                       n_seeds=grid.seeds, chunk_size=grid.chunk_size, progress=progress,
                                       collectors=collectors)
         except BaseException as exc:
-            self.open.remove(stage_cm)
-            stage_cm.__exit__(type(exc), exc, exc.__traceback__)
+            self._close(stage_cm, exc)
             raise
         run = GridRun(grid, grid.grid_map(), dict(zip(grid.algos, runs, strict=True)))
         self.tl.note(task, run=time.perf_counter() - t0, compile=sum(r.compile_seconds for r in runs),
@@ -426,12 +426,18 @@ class _TaskRunner:
                 (stage / "per_seed.csv").write_text(per_seed_csv(run))
             atomic_write_json(stage / "summary.json", summary)
         except BaseException as exc:
-            self.open.remove(stage_cm)
-            stage_cm.__exit__(type(exc), exc, exc.__traceback__)
+            self._close(stage_cm, exc)
             raise
-        self.open.remove(stage_cm)
-        stage_cm.__exit__(None, None, None)
+        self._close(stage_cm, None)
         self.tl.note(task, diagnostics=summary.get("diagnostics_seconds", 0.0))
+
+    def _close(self, stage_cm, exc: BaseException | None) -> None:
+        """Move a finished stage in place (`exc` None) or drop it; once, whichever thread comes first."""
+        with self.lock:
+            if stage_cm not in self.open:
+                return
+            self.open.remove(stage_cm)
+            stage_cm.__exit__(*((type(exc), exc, exc.__traceback__) if exc is not None else (None, None, None)))
 
     def finish(self) -> None:
         """Wait for every folder to be finished (re-raising the first failure)."""
@@ -443,9 +449,8 @@ class _TaskRunner:
             if pool is not None:
                 pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
         for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were
-            self.open.remove(stage_cm)
             try:
-                stage_cm.__exit__(RuntimeError, RuntimeError("study stopped"), None)
+                self._close(stage_cm, RuntimeError("study stopped"))
             except RuntimeError:
                 pass
 
