@@ -163,9 +163,9 @@ def test_api_10k_identical_to_pinned():
 # ------------------------------------------------------------------ the large-N path
 from scipy import stats as sps  # noqa: E402
 
+from jaxeac.stats import _rng, asymptotic, device_sums, large  # noqa: E402
 from jaxeac.stats import closed_form as cf  # noqa: E402
 from jaxeac.stats import events as ev  # noqa: E402
-from jaxeac.stats import large  # noqa: E402
 from jaxeac.stats.curves import curve_results, curve_results_large  # noqa: E402
 from jaxeac.stats.measure_large import measure_large  # noqa: E402
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation  # noqa: E402
@@ -206,7 +206,7 @@ def test_per_value_bootstrap_is_the_seed_bootstrap():
     keep = table.kb > 0
     v = table.values[keep]
     R = 2000
-    cnt = large.multinomial_counts(large.host_rng(jax.random.key(0)), table.kb[keep], R)
+    cnt = _rng.multinomial_counts(_rng.host_rng(jax.random.key(0)), table.kb[keep], R)
     assert (cnt.sum(1) == BIG).all()
     means = cnt @ v / BIG
     q = large.iqm_from_counts(cnt, v)
@@ -237,8 +237,8 @@ def test_per_value_jackknife_and_bca_equal_the_per_seed_ones():
     tb, tt = large.ValueTable(x, x[:0]), large.ValueTable(y, y[:0])
     (vb, kb), (vt, kt) = ((t.values, t.kb.astype(float)) for t in (tb, tt))
     R = 500
-    sb = large.moment_sums(large.multinomial_counts(large.host_rng(jax.random.key(0)), tb.kb, R), vb)
-    st = large.moment_sums(large.multinomial_counts(large.host_rng(jax.random.key(1)), tt.kb, R), vt)
+    sb = large.moment_sums(_rng.multinomial_counts(_rng.host_rng(jax.random.key(0)), tb.kb, R), vb)
+    st = large.moment_sums(_rng.multinomial_counts(_rng.host_rng(jax.random.key(1)), tt.kb, R), vt)
     for statistic in ("mean_diff", "hedges_g"):
         a = bca_two_sample(statistic, x, y, *sb, *st, 0.05)
         b = bca_two_sample_counts(statistic, vb, kb, vt, kt, *sb, *st, 0.05)
@@ -258,7 +258,7 @@ def test_per_value_permutation_is_the_label_permutation():
     table = large.ValueTable(x[:n], x[n:])
     pooled = table.kb + table.kt
     R = 2000
-    h = large.hypergeometric_counts(large.host_rng(jax.random.key(1)), pooled, n, R)
+    h = _rng.hypergeometric_counts(_rng.host_rng(jax.random.key(1)), pooled, n, R)
     assert (h.sum(1) == n).all() and (h <= pooled).all()
     sums = h @ table.values
     N = 2 * n
@@ -314,7 +314,7 @@ def test_abc_interval_matches_bca():
             )
 
         ref = sps.bootstrap((x, y), stat, n_resamples=40_000, method="BCa", rng=1).confidence_interval
-        got = large.abc_two_sample(statistic, x, y)
+        got = asymptotic.abc_two_sample(statistic, x, y)
         width = ref.high - ref.low
         assert abs(got.low - ref.low) < 0.03 * width and abs(got.high - ref.high) < 0.03 * width
     # large n: the asymptotic path's intervals against an exact bootstrap's BCa of the same data
@@ -326,11 +326,11 @@ def test_abc_interval_matches_bca():
     for seed, z in ((7, x), (8, y)):
         t = large.ValueTable(z, z[:2])
         keep = t.kb > 0
-        cnt = large.multinomial_counts(large.host_rng(jax.random.key(seed)), t.kb[keep], R)
+        cnt = _rng.multinomial_counts(_rng.host_rng(jax.random.key(seed)), t.kb[keep], R)
         sums.append(large.moment_sums(cnt, t.values[keep] - c))
     for statistic in ("mean_diff", "hedges_g"):
         bca = bca_two_sample(statistic, x - c, y - c, *sums[0], *sums[1], 0.05)
-        abc = large.abc_two_sample(statistic, x - c, y - c)
+        abc = asymptotic.abc_two_sample(statistic, x - c, y - c)
         width = bca.high - bca.low
         assert abs(abc.low - bca.low) < 0.06 * width and abs(abc.high - bca.high) < 0.06 * width
 
@@ -349,7 +349,7 @@ def test_normal_permutation_p_matches_exact_permutation():
     c = np.r_[x, y].mean()
     v = t.values - c
     R = 4000
-    h = large.hypergeometric_counts(large.host_rng(jax.random.key(3)), t.kb + t.kt, BIG, R)
+    h = _rng.hypergeometric_counts(_rng.host_rng(jax.random.key(3)), t.kb + t.kt, BIG, R)
     s1, s2 = large.moment_sums(h, v)
     tot1, tot2 = (t.kb + t.kt) @ v, (t.kb + t.kt) @ (v * v)
     from jaxeac.stats.closed_form import welch_t_stat
@@ -375,16 +375,15 @@ def test_gaussian_curve_bands_and_max_t_match_the_seed_resampling():
     bt, _ = dispatch_bootstrap(kt, st, R)()
     pt = dispatch_permutation(kp, np.concatenate([sb, st]), n, R)()
     exact = curve_results(sb.astype(float), st.astype(float), bb, bt, pt, alpha, True)
-    mom = [large.curve_moments(c)() for c in (sb, st)]
+    mom = [device_sums.curve_moments(c)() for c in (sb, st)]
     gauss = curve_results_large(mom[0], mom[1], (kb, kt, kp), R, alpha, True)
     np.testing.assert_allclose(gauss["mean_baseline"], exact["mean_baseline"], rtol=1e-12)
     np.testing.assert_allclose(gauss["t_welch"], exact["t_welch"], rtol=1e-9)
     # the whole laws: max deviation of the bootstrap and of the Gaussian, max |t| under permutation
     seb = np.sqrt(exact["mean_baseline"] * (1 - exact["mean_baseline"]) * n / (n - 1) / n)
     boot_dev = (np.abs(bb / n - exact["mean_baseline"]) / seb).max(1)
-    g_dev = (
-        np.abs(large.gaussian_draws(large.host_rng(jax.random.key(5)), large.covariance(mom[0]) / n, R)) / seb
-    ).max(1)
+    cov = device_sums.covariance(mom[0]) / n
+    g_dev = (np.abs(device_sums.gaussian_draws(_rng.host_rng(jax.random.key(5)), cov, R)) / seb).max(1)
     assert sps.ks_2samp(boot_dev, g_dev).pvalue > 1e-3
     lo, hi = _mc_band(boot_dev, 1 - alpha)
     assert lo <= gauss["sup_t_critical"]["baseline"] <= hi
@@ -393,7 +392,7 @@ def test_gaussian_curve_bands_and_max_t_match_the_seed_resampling():
     tot = sb.sum(0) + st.sum(0)
     perm_max = np.abs(welch_t_stat(n, tot - pt, None, n, pt, None)).max(1)
     pooled = {"n": 2 * n, "s": mom[0]["s"] + mom[1]["s"], "G": mom[0]["G"] + mom[1]["G"]}
-    g_max = large.gaussian_max_abs(large.host_rng(jax.random.key(6)), large.covariance(pooled), R)
+    g_max = device_sums.gaussian_max_abs(_rng.host_rng(jax.random.key(6)), device_sums.covariance(pooled), R)
     assert sps.ks_2samp(perm_max, g_max).pvalue > 1e-3
     lo, hi = _mc_band(perm_max, 1 - alpha)
     assert lo <= gauss["maxT_critical"] <= hi
@@ -405,23 +404,24 @@ def test_gaussian_curve_bands_and_max_t_match_the_seed_resampling():
 
 def test_curve_moments_and_subset_sums_are_exact():
     rng = np.random.default_rng(8)
-    c = rng.random((large.BLOCK + 123, 7)) < 0.3
-    m = large.curve_moments(c)()
+    c = rng.random((device_sums.BLOCK + 123, 7)) < 0.3
+    m = device_sums.curve_moments(c)()
     x = c.astype(float)
     np.testing.assert_array_equal(m["G"], x.T @ x)
     np.testing.assert_array_equal(m["s"], x.sum(0))
-    packed = large.curve_moments(SuccessBits.pack(c))()  # unpacked on the device: the same sums
+    packed = device_sums.curve_moments(SuccessBits.pack(c))()  # unpacked on the device: the same sums
     np.testing.assert_array_equal(packed["G"], m["G"])
     np.testing.assert_array_equal(packed["s"], m["s"])
     key = jax.random.key(5)
-    np.testing.assert_array_equal(large.dispatch_subset_sums(key, SuccessBits.pack(c[:3000]), 1000, 50)(),
-                                  large.dispatch_subset_sums(key, c[:3000], 1000, 50)())
+    subset_sums = device_sums.dispatch_subset_sums
+    np.testing.assert_array_equal(subset_sums(key, SuccessBits.pack(c[:3000]), 1000, 50)(),
+                                  subset_sums(key, c[:3000], 1000, 50)())
     pins = rng.integers(0, 11, (5000, 4))
-    mp = large.curve_moments(pins)()
+    mp = device_sums.curve_moments(pins)()
     np.testing.assert_array_equal(mp["G"], pins.T.astype(float) @ pins)
     # random halves: each draw takes exactly k units, and all C(n, k) subsets are equally likely
     n, k, reps = 5, 2, 20_000
-    sums = large.dispatch_subset_sums(jax.random.key(0), np.eye(n, dtype=bool), k, reps, block=2)()
+    sums = device_sums.dispatch_subset_sums(jax.random.key(0), np.eye(n, dtype=bool), k, reps, block=2)()
     assert (sums.sum(1) == k).all()
     from itertools import combinations
 
@@ -429,7 +429,7 @@ def test_curve_moments_and_subset_sums_are_exact():
     counts = np.bincount([index[tuple(np.nonzero(r)[0])] for r in sums], minlength=len(index))
     assert sps.chisquare(counts).pvalue > 1e-3
     n, k, reps = 150, 40, 4000  # several blocks of 64, 32 positions per matmul
-    sums = large.dispatch_subset_sums(jax.random.key(1), np.eye(n, dtype=bool), k, reps, block=64)()
+    sums = device_sums.dispatch_subset_sums(jax.random.key(1), np.eye(n, dtype=bool), k, reps, block=64)()
     assert (sums.sum(1) == k).all() and set(np.unique(sums)) <= {0.0, 1.0}
     assert sps.chisquare(sums.sum(0)).pvalue > 1e-3  # every seed equally likely to be taken
 
@@ -573,7 +573,7 @@ def test_running_column_sums_are_the_whole_arrays(n):
     NumPy gives for the whole [n, M] array, bit for bit."""
     z = np.random.default_rng(n).normal(size=n) * 7
     u = np.stack([z, z * z], 1)
-    mean, sd = large._units_moments(z, block=16)
+    mean, sd = asymptotic._units_moments(z, block=16)
     np.testing.assert_array_equal(mean, u.mean(0))
     np.testing.assert_array_equal(sd, u.std(0))
     cols = [z, z * 3, np.cos(z)]

@@ -7,6 +7,7 @@ values) in `jaxeac.stats.bca`. Above `large.LARGE_N` seeds `bca_ci` takes the la
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from jaxeac.stats import large
@@ -36,7 +37,7 @@ def bca_ci(
         raise ValueError(f"statistic must be 'mean_diff' or 'hedges_g', got {statistic!r}")
     x = check_sample(x_baseline, "x_baseline")
     y = check_sample(x_treatment, "x_treatment")
-    kb, kt = _split2(key)
+    kb, kt = jax.random.split(as_key(key), 2)
     if large.is_large(x.size, y.size):  # per-value bootstrap or ABC (`jaxeac.stats.large`)
         res = measure_large(x, y, (kb, kt, None), resamples=resamples, alpha=alpha, permutation=False)
         return res["diff" if statistic == "mean_diff" else "hedges_g"]
@@ -60,13 +61,6 @@ def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int =
     _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
     lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
     return Estimate(est, lo, hi, 1 - alpha)
-
-
-def _split2(key):
-    import jax
-
-    k = jax.random.split(as_key(key), 2)
-    return k[0], k[1]
 
 
 __all__ = ["bca_ci", "bca_interval", "iqm", "iqm_ci"]

@@ -18,9 +18,11 @@ import numpy as np
 from jaxeac.bits import SuccessBits
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key
+from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts
+from jaxeac.stats.asymptotic import normal_permutation_p
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, is_binary
+from jaxeac.stats.device_sums import covariance, curve_moments, dispatch_subset_sums, gaussian_max_abs
 from jaxeac.stats.events import logrank_counts, logrank_masks, wilson_ci
 from jaxeac.stats.measure_large import perm_p
 from jaxeac.stats.measures import Coded, as_values, event_counts, value_counts
@@ -63,7 +65,7 @@ def calibrate(
     labels: the waiter from `dispatch_calibration(key, n, splits, resamples)`, if
     already started (the draws then overlap other work). Above `large.LARGE_N` seeds
     the halves are drawn per distinct value (measures) and per block of seeds (curves),
-    see `_calibrate_large`; moments: the curves' `large.curve_moments` (the dict, or the function
+    see `_calibrate_large`; moments: the curves' `curve_moments` (the dict, or the function
     that waits for it), if at hand.
     """
     names = list(measures)
@@ -178,7 +180,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         c = SuccessBits(curves.bits[:N], curves.trials) if packed else np.asarray(curves)[:N]
         binary = is_binary(c)
         cols = c if binary else np.concatenate([c, c * c], 1)
-        wait_curve = large.dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
+        wait_curve = dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
     rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
     methods: dict = {}
 
@@ -187,8 +189,8 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         vals, inv = np.unique(raw - means[j], return_inverse=True)  # the centred values of the seeds
         K = np.bincount(inv.reshape(-1), weights=counts, minlength=vals.size).astype(np.int64)
         exact = large.path_above(vals.size) == large.PER_VALUE  # the one rule
-        rng = large.host_rng(jax.random.fold_in(key, j))
-        H = large.hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
+        rng = host_rng(jax.random.fold_in(key, j))
+        H = hypergeometric_counts(rng, K, h, splits + (resamples if exact else 0))
         s1, s2 = large.moment_sums(H, vals)
         tot1, tot2 = K @ vals, K @ (vals * vals)
         a1, a2 = s1[:splits], s2[:splits]
@@ -198,7 +200,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
             r1, r2 = s1[splits:], s2[splits:]
             p_perm = perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
         else:
-            p_perm = large.normal_permutation_p(t_split)
+            p_perm = normal_permutation_p(t_split)
         p_bm = cf.brunner_munzel_counts(K - H[:splits], H[:splits], alpha)[3]
         return p_w, p_perm, p_bm, {
             "distinct_values": int(vals.size),
@@ -215,7 +217,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         methods[name] = method
     if time_event is not None:
         times, K = event_counts(*time_event, N)
-        H = large.hypergeometric_counts(large.host_rng(jax.random.fold_in(key, M)), K, h, splits)
+        H = hypergeometric_counts(host_rng(jax.random.fold_in(key, M)), K, h, splits)
         p_lr = logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), K, H)[1]
         rates["logrank"] = {"first_success": _rate(p_lr, alpha)}
     if curves is not None:
@@ -236,9 +238,9 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
                 last = (curves.rows(N, N + 1)[0] if packed else np.asarray(curves)[N]).astype(np.float64)
                 mom = {"n": N, "s": mom["s"] - last, "G": mom["G"] - np.outer(last, last)}
             else:
-                mom = large.curve_moments(c)()
-        rng = large.host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
-        max_ref = large.gaussian_max_abs(rng, large.covariance(mom), resamples)
+                mom = curve_moments(c)()
+        rng = host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
+        max_ref = gaussian_max_abs(rng, covariance(mom), resamples)
         rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
         methods["curve_maxT"] = large.REFERENCES["max_t_gaussian"]
     return _calibration_record(

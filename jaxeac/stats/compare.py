@@ -31,6 +31,7 @@ from jaxeac.stats._rng import as_key
 from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
+from jaxeac.stats.device_sums import curve_moments
 from jaxeac.stats.measure_large import measure_large, permutation_welch_p
 from jaxeac.stats.measures import as_values, fill_values
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums
@@ -151,7 +152,7 @@ def _analyse(
     moments=None,
 ) -> dict:
     """Measures (and optionally curves) from one shared bootstrap and permutation draw.
-    `moments`: above `large.LARGE_N`, the curves' `large.curve_moments` if already dispatched."""
+    `moments`: above `large.LARGE_N`, the curves' `curve_moments` if already dispatched."""
     names = list(mb)
     if list(mt) != names:
         raise UsageError(
@@ -242,7 +243,7 @@ def _analyse_large(
     mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better, moments=None
 ) -> dict:
     """`_analyse` above `large.LARGE_N` seeds per method: same results dict, scalable methods.
-    `moments`: the curves' `large.curve_moments` waiters, if already dispatched."""
+    `moments`: the curves' `curve_moments` waiters, if already dispatched."""
     names = list(mb)
     nb, nt = mb[names[0]].size, mt[names[0]].size
     k_b, k_t, k_p = jax.random.split(as_key(key), 3)
@@ -251,7 +252,7 @@ def _analyse_large(
     binary = None
     if curves is not None:  # per-chunk sums on the device while the host does the measures
         binary = is_binary(*curves)
-        moments = moments or [large.curve_moments(c) for c in curves]
+        moments = moments or [curve_moments(c) for c in curves]
     pieces["dispatch_curve_sums"] = time.perf_counter() - t0
     def one(j: int, name: str):  # a measure's closed forms and resampling (on a host thread)
         with large.HOST_BUDGET.hold(large.job_bytes(nb, nt)):

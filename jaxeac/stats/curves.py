@@ -16,8 +16,9 @@ import numpy as np
 
 from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
-from jaxeac.stats._rng import as_key
+from jaxeac.stats._rng import as_key, host_rng
 from jaxeac.stats.closed_form import mean_var, welch_t_stat
+from jaxeac.stats.device_sums import covariance, curve_moments, gaussian_draws, gaussian_max_abs
 from jaxeac.stats.resample import bootstrap_sums, permutation_sums
 
 
@@ -146,7 +147,7 @@ def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_meth
 
 
 def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: float, binary: bool) -> dict:
-    """Curve statistics above `large.LARGE_N` seeds, from per-chunk moments (`large.curve_moments`).
+    """Curve statistics above `large.LARGE_N` seeds, from per-chunk moments (`curve_moments`).
 
     Means and SEs are exact; the sup-t critical values come from the Gaussian multiplier
     bootstrap N(0, Σ̂/n) per method (the diff band from the same draws, as the seed
@@ -165,8 +166,8 @@ def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: f
     mt, vt = mean_var(nt, st, sq(mom_t))
     seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
     k_b, k_t, k_p = (jax.random.fold_in(k, large.CURVE_STREAM) for k in keys)
-    dev_b = large.gaussian_draws(large.host_rng(k_b), large.covariance(mom_b) / nb, resamples)
-    dev_t = large.gaussian_draws(large.host_rng(k_t), large.covariance(mom_t) / nt, resamples)
+    dev_b = gaussian_draws(host_rng(k_b), covariance(mom_b) / nb, resamples)
+    dev_t = gaussian_draws(host_rng(k_t), covariance(mom_t) / nt, resamples)
     zero = np.zeros_like(mb)
     sed = np.sqrt(seb**2 + set_**2)
     crits = (
@@ -175,7 +176,7 @@ def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: f
         _sup_t(dev_t - dev_b, zero, sed, alpha),
     )
     pooled = {"n": nb + nt, "s": sb + st, "G": mom_b["G"] + mom_t["G"]}
-    max_star = large.gaussian_max_abs(large.host_rng(k_p), large.covariance(pooled), resamples)
+    max_star = gaussian_max_abs(host_rng(k_p), covariance(pooled), resamples)
     t_obs = welch_t_stat(nb, sb, sq(mom_b), nt, st, sq(mom_t))
     return _summary(
         mb,
@@ -219,7 +220,7 @@ def curve_bands(
     if raw_b.ndim == 2 and raw_t.ndim == 2 and large.is_large(raw_b.shape[0], raw_t.shape[0]):
         check_curves(raw_b[:2], raw_t[:2], trials)
         binary = is_binary(raw_b, raw_t)
-        mom_b, mom_t = large.curve_moments(raw_b), large.curve_moments(raw_t)
+        mom_b, mom_t = curve_moments(raw_b), curve_moments(raw_t)
         return curve_results_large(mom_b(), mom_t(), (kb, kt, kp), resamples, alpha, binary)
     cb, ct = check_curves(curves_baseline, curves_treatment, trials)
     binary = is_binary(cb, ct)

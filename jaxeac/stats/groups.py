@@ -15,6 +15,8 @@ from scipy import special
 
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
+from jaxeac.stats._rng import host_rng, multinomial_counts
+from jaxeac.stats.asymptotic import abc_two_sample, normal_bca
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
 from jaxeac.stats.large import resampling_path
 from jaxeac.stats.paired import paired_analysis, paired_tests
@@ -37,7 +39,7 @@ class Group:
             self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True)
         elif self.path == large.PER_VALUE:
             self.values, self.k = distinct, counts
-            c = large.multinomial_counts(large.host_rng(key), counts, resamples)
+            c = multinomial_counts(host_rng(key), counts, resamples)
             self.CT = np.ascontiguousarray(c.T, np.float32)
         else:
             self.values, self.k, self.CT = distinct, counts, None
@@ -60,7 +62,7 @@ class Group:
     def iqm(self, alpha: float) -> list[float]:
         est = cf.iqm_sorted(self.x)
         if self.CT is None:
-            return [est, *large.normal_bca(est, jackknife_iqm(self.x), alpha)]
+            return [est, *normal_bca(est, jackknife_iqm(self.x), alpha)]
         jk = (
             jackknife_iqm(self.x)
             if self.path == large.RAW
@@ -105,7 +107,7 @@ def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
         d = bca_two_sample_counts("mean_diff", gy.values, gy.k, gx.values, gx.k, *sy, *sx, alpha)
         diff_ci = [d.low, d.high]
     else:
-        e = large.abc_two_sample("mean_diff", gy.x, gx.x, alpha)
+        e = abc_two_sample("mean_diff", gy.x, gx.x, alpha)
         diff_ci = [e.low, e.high]
     p_hat, star, jk = wins(gx, gy)
     p_ci = (

@@ -69,28 +69,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# the pieces of the large-N path, offered under this module's name (its callers' and tests')
-from jaxeac.stats._rng import host_rng, hypergeometric_counts, multinomial_counts, warm_key_programs  # noqa: F401
-from jaxeac.stats.asymptotic import (  # noqa: F401
-    _column_sums,
-    _units_moments,
-    abc_intervals,
-    abc_two_sample,
-    normal_bca,
-    normal_permutation_p,
-)
-from jaxeac.stats.device_sums import (  # noqa: F401
-    BLOCK,
-    _gram,
-    _subset_sums,
-    _unpack_bits,
-    covariance,
-    curve_moments,
-    dispatch_subset_sums,
-    gaussian_draws,
-    gaussian_max_abs,
-    on_device,
-)
+from jaxeac.stats._rng import warm_key_programs
+from jaxeac.stats.asymptotic import _column_sums
+from jaxeac.stats.device_sums import BLOCK, _gram, _subset_sums, _unpack_bits
 from jaxeac.stats.measures import Coded, as_values, joint_counts
 from jaxeac.stats.resample import cumulative
 

@@ -11,7 +11,8 @@ import jax
 import numpy as np
 
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key
+from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts, multinomial_counts
+from jaxeac.stats.asymptotic import abc_intervals, normal_bca, normal_permutation_p
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
 from jaxeac.stats.closed_form import iqm_sorted, welch_t_stat
 
@@ -66,7 +67,7 @@ def measure_large(
         }
         if permutation:
             pooled = table.kb + table.kt
-            h = large.hypergeometric_counts(large.host_rng(k_p), pooled, nt, resamples)
+            h = hypergeometric_counts(host_rng(k_p), pooled, nt, resamples)
             pt1, pt2 = large.moment_sums(h, v)
             tot1, tot2 = pooled @ v, pooled @ (v * v)
             out["p_permutation"] = permutation_welch_p(nb, nt, t_obs, tot1, tot2, pt1, pt2)
@@ -76,7 +77,7 @@ def measure_large(
                 keep = counts > 0
                 kk, vv = counts[keep].astype(np.float64), v[keep]
                 groups.append((vv, kk))
-                cnt = large.multinomial_counts(large.host_rng(k), counts[keep], resamples)
+                cnt = multinomial_counts(host_rng(k), counts[keep], resamples)
                 sums.append(large.moment_sums(cnt, vv))
                 if iqm:
                     q = large.iqm_from_counts(cnt, vv)
@@ -93,14 +94,14 @@ def measure_large(
         "bootstrap": large.REFERENCES["abc"],
         "permutation": large.REFERENCES["normal_permutation"],
     }
-    out["p_permutation"] = float(large.normal_permutation_p(t_obs))
+    out["p_permutation"] = float(normal_permutation_p(t_obs))
     if bootstrap:
-        abc = large.abc_intervals(("mean_diff", "hedges_g"), xc, yc, alpha)
+        abc = abc_intervals(("mean_diff", "hedges_g"), xc, yc, alpha)
         out["diff"], out["hedges_g"] = abc["mean_diff"], abc["hedges_g"]
     if iqm:
         out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
         for side, z in (("baseline", xc), ("treatment", yc)):
             est = iqm_sorted(np.sort(z))
-            lo, hi = large.normal_bca(est, jackknife_iqm(z), alpha)
+            lo, hi = normal_bca(est, jackknife_iqm(z), alpha)
             out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
     return out

@@ -10,7 +10,7 @@ samples. The paired analysis of a measure (Student 1908; Efron & Tibshirani 1993
   (recorded as ``path``): counts per distinct difference where there are at most
   `large.MAX_DISTINCT` (the same law as drawing pairs one by one, Efron 1979, so exact at any
   N), else pairs one by one up to `large.LARGE_N` seeds, else the bootstrap's normal limit
-  (`large.normal_bca`, jackknife SE and acceleration);
+  (`normal_bca`, jackknife SE and acceleration);
 * the **paired t test** (n − 1 degrees of freedom) and a **sign-flip permutation test**
   (under no difference each d_i is as likely to be −d_i; Fisher 1935): the flips of the
   seeds sharing a value |d| are a binomial count per value, exact for any N; with more
@@ -20,7 +20,7 @@ samples. The paired analysis of a measure (Student 1908; Efron & Tibshirani 1993
   the same resamples, and the correlation of the two methods' per-seed values.
 
 Resampling draws come from NumPy's exact samplers seeded from the JAX key
-(`large.host_rng`), so results do not depend on the device.
+(`host_rng`), so results do not depend on the device.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import numpy as np
 from scipy import special
 
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key
+from jaxeac.stats._rng import as_key, host_rng, multinomial_counts
+from jaxeac.stats.asymptotic import normal_bca
 from jaxeac.stats.bca import bca_interval
 
 #: Random draws per block when resampling pairs or flipping signs seed by seed.
@@ -94,11 +95,11 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     k_boot, k_flip = jax.random.split(as_key(key))
     values, counts = np.unique(d, return_counts=True)
     out |= {"correlation": r, "distinct_differences": int(values.size)}
-    rng = large.host_rng(k_boot)
+    rng = host_rng(k_boot)
     path = large.resampling_path(n, values.size, paired=True)  # the one rule
     out["path"] = path
     if path == large.PER_VALUE:  # exact: counts per distinct difference
-        c = large.multinomial_counts(rng, counts, resamples)
+        c = multinomial_counts(rng, counts, resamples)
         s1, s2 = large.moment_sums(c, values)
         boot_mean, boot_sq = s1 / n, s2 / n
         drop = n * mean - values  # leave one pair of each value out
@@ -122,13 +123,13 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     else:  # the bootstrap's normal limit (one value per seed: the jackknife made in place)
         jk_mean = n * mean - d
         jk_mean /= n - 1
-        lo, hi = large.normal_bca(mean, jk_mean, alpha)
+        lo, hi = normal_bca(mean, jk_mean, alpha)
         jk_sq = d * d
         np.subtract(jk_sq.sum(), jk_sq, out=jk_sq)
         jk_sq /= n - 1
         jk_dz = _dz(jk_mean, jk_sq, n - 1)
         del jk_mean, jk_sq
-        dlo, dhi = large.normal_bca(dz, jk_dz, alpha)
+        dlo, dhi = normal_bca(dz, jk_dz, alpha)
         out |= {"mean_diff_ci95": [lo, hi], "d_z_ci95": [dlo, dhi],
                 "bootstrap": large.REFERENCES["normal_bca"]}
         boot_mean = None
@@ -142,7 +143,7 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
 def sign_flip_p(d: np.ndarray, values: np.ndarray, counts: np.ndarray, key, resamples: int) -> dict:
     """Two-sided sign-flip permutation p of Σ d_i: (1 + #{|S*| ≥ |S|}) / (R + 1)."""
     observed = abs(float(d.sum()))
-    rng = large.host_rng(key)
+    rng = host_rng(key)
     mags, inv = np.unique(np.abs(values), return_inverse=True)
     per_mag = np.bincount(inv.reshape(-1), weights=counts, minlength=mags.size).astype(np.int64)
     keep = mags > 0

@@ -25,6 +25,7 @@ from jaxeac.stats import large
 from jaxeac.stats._rng import as_key, key_record
 from jaxeac.stats.calibration import calibrate, dispatch_calibration
 from jaxeac.stats.compare import _analyse
+from jaxeac.stats.device_sums import curve_moments
 from jaxeac.stats.figures import FIGURES, write_figures
 from jaxeac.stats.measures import (
     MEASURES,
@@ -138,7 +139,7 @@ def compare_experiment(
         paired_jobs = _beside(*(functools.partial(pair, j, k) for j, k in enumerate(names)))
     hib = {k: MEASURES[k][0] for k in names}
     # above large.LARGE_N the curves' sums start on the device now, for the analysis and the calibration
-    moments = [large.curve_moments(c) for c in curves] if large.is_large(sb.shape[0], st.shape[0]) else None
+    moments = [curve_moments(c) for c in curves] if large.is_large(sb.shape[0], st.shape[0]) else None
     calibration = None
     if calibration_splits > 0:  # on a host thread beside the analysis: its own keys, the same results
         def calibration_job():
