@@ -226,8 +226,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
-    On accelerators E8's diagnostics of every task start with the study, beside the runs, and each
-    task's folder is finished (its summary.json) as they come in, while later tasks run; the
+    On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
+    summary.json) when they are in, while later tasks run; the
     statistics of all tasks are one pass (`compare_tasks`) once every task's successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
@@ -242,7 +242,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         grids = {task: settings.task_settings(task) for task in settings.tasks}
         envs = task_envs(grids)
         tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
-        todo = {t: g for t, g in tasks.items() if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
+        todo = {t: g for t, g in tasks.items()
+                if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
     curves, kept = {}, {}
     n = len(settings.tasks)
     with _TaskRunner(todo, tl) as runner:
@@ -346,16 +347,18 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     return per_task, rows, agg
 
 
-#: Diagnostics computed at once for this many tasks beside the runs (accelerators only).
-DIAGNOSTIC_WORKERS = 2
+#: Tasks whose E8 diagnostics run at once beside the runs (accelerators only). All 11 tasks' queued
+#: on 2 workers at the study's start slowed the runs of one H200 (grid-paper-v0:slip=0.1 at 1,000
+#: seeds: 17.8 s against 2.2 s); one at a time, started with its task, is as beside a grid run.
+DIAGNOSTIC_WORKERS = 1
 
 
 class _TaskRunner:
     """Runs a study's tasks into their folders. Where E8's diagnostics go beside the run
-    (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), those of every task to run
-    start at once on a small pool, and each task's folder is finished (summary.json, then moved in
-    place) by a finisher thread when its diagnostics are in, so that no task waits for its own
-    diagnostics; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
+    (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), a task's start with its run
+    (queued behind the earlier tasks'), and its folder is finished (summary.json, then moved in
+    place) by a finisher thread when they are in, so that the next task's run need not wait for
+    them; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
 
     def __init__(self, todo: dict, tl: Timeline) -> None:
         from concurrent.futures import ThreadPoolExecutor
@@ -368,12 +371,10 @@ class _TaskRunner:
         self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False)
         self.diagnosed: dict = {}
         self.pool = self.finisher = None
+        self._diagnose, self._seeds = diagnose_grid, diagnostic_seeds
         if self.beside:
             self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS)
             self.finisher = ThreadPoolExecutor(max_workers=1)
-            for task, grid in todo.items():
-                if seeds := diagnostic_seeds(grid):
-                    self.diagnosed[task] = self.pool.submit(diagnose_grid, grid, grid.grid_map(), seeds)
 
     def __enter__(self) -> _TaskRunner:
         return self
@@ -388,6 +389,8 @@ class _TaskRunner:
 
         options = OutputOptions.auto(grid.seeds)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
+        if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
+            self.diagnosed[task] = self.pool.submit(self._diagnose, grid, grid.grid_map(), diagnosed)
         stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
         stage = stage_cm.__enter__()
         self.open.append(stage_cm)
