@@ -174,8 +174,7 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tabl
         return future.result()[0], 0.0  # compiled by an earlier call (or another thread)
     try:
         t0 = time.perf_counter()
-        mesh = seed_mesh(devices) if len(devices) > 1 else None
-        program = make_batch_run(env, cfg, mesh).lower(*_placed(devices, root, seeds, hyper, tables)).compile()
+        program = _jitted(env, cfg, devices).lower(*_placed(devices, root, seeds, hyper, tables)).compile()
         seconds = time.perf_counter() - t0
         trim_host_memory()
         future.set_result((program, seconds))
@@ -185,6 +184,24 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tabl
             with _COMPILED_LOCK:
                 _COMPILED.pop(key, None)
             future.set_exception(RuntimeError("the program's compile did not finish"))
+
+
+_JITTED: dict = {}  # (program key, config) -> the jitted chunk program of one device
+
+
+def _jitted(env: Env, cfg: RunConfig, devices: tuple) -> Callable:
+    """`make_batch_run` for these devices: a mesh program for several, else one jitted function
+    shared by every single device, so each device after the first reuses its trace and lowering
+    (only XLA's compile, or the persistent cache's load, is per device)."""
+    if len(devices) > 1:
+        return make_batch_run(env, cfg, seed_mesh(devices))
+    key = (program_key(env), cfg)
+    with _COMPILED_LOCK:
+        if key not in _JITTED:
+            if len(_JITTED) >= 64:
+                _JITTED.clear()
+            _JITTED[key] = make_batch_run(env, cfg)
+        return _JITTED[key]
 
 
 def _persistent_cache_shared(platform: str) -> bool:
