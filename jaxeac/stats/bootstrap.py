@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
+from jaxeac.stats.bca import bca_interval, bca_two_sample
 from jaxeac.stats.closed_form import Estimate, check_sample, iqm
 from jaxeac.stats.measure_large import measure_large
 from jaxeac.stats.resample import bootstrap_sums
@@ -59,7 +59,7 @@ def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int =
         return Estimate(est, lo, hi, 1 - alpha)
     est = iqm(x)
     _, q = bootstrap_sums(as_key(key), x[:, None], resamples, chunk=chunk, iqm=True)
-    lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
+    lo, hi = large.iqm_interval(est, large.RAW, alpha, x=x, star=q)
     return Estimate(est, lo, hi, 1 - alpha)
 
 

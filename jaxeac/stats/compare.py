@@ -28,7 +28,7 @@ from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key
-from jaxeac.stats.bca import bca_interval, bca_two_sample, jackknife_iqm
+from jaxeac.stats.bca import bca_two_sample
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
 from jaxeac.stats.device_sums import curve_moments
@@ -213,7 +213,7 @@ def _analyse(
     # IQM per method of the first (primary) measure
     for side, x, q in (("baseline", xb[:, 0], iqm_b), ("treatment", xt[:, 0], iqm_t)):
         est = cf.iqm_sorted(np.sort(x))
-        lo, hi = bca_interval(est, q, [jackknife_iqm(x)], alpha)
+        lo, hi = large.iqm_interval(est, large.RAW, alpha, x=x, star=q)
         _iqm(out[names[0]], side, est + centre[0], lo + centre[0], hi + centre[0])
     t_bca = time.perf_counter() - t1
     t1 = time.perf_counter()

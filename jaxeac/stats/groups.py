@@ -16,8 +16,8 @@ from scipy import special
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import host_rng, multinomial_counts
-from jaxeac.stats.asymptotic import abc_two_sample, normal_bca
-from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
+from jaxeac.stats.asymptotic import abc_two_sample
+from jaxeac.stats.bca import bca_interval, bca_two_sample_counts
 from jaxeac.stats.large import resampling_path
 from jaxeac.stats.paired import paired_analysis, paired_tests
 from jaxeac.stats.resample import boot_counts, cumulative
@@ -61,16 +61,10 @@ class Group:
 
     def iqm(self, alpha: float) -> list[float]:
         est = cf.iqm_sorted(self.x)
-        if self.CT is None:
-            return [est, *normal_bca(est, jackknife_iqm(self.x), alpha)]
-        jk = (
-            jackknife_iqm(self.x)
-            if self.path == large.RAW
-            else large.jackknife_iqm_counts(self.k, self.values)
-        )
-        star = large.iqm_from_counts(self.CT, self.values, units_first=True, cum=self.cum[1:])
-        jk = [jk] if self.path == large.RAW else [(jk, self.k)]
-        return [est, *bca_interval(est, star, jk, alpha)]
+        star = None if self.CT is None else large.iqm_from_counts(self.CT, self.values, units_first=True,
+                                                                  cum=self.cum[1:])
+        return [est, *large.iqm_interval(est, self.path, alpha, x=self.x, star=star, values=self.values,
+                                         counts=self.k)]
 
 
 def wins(gx: Group, gy: Group):

@@ -70,7 +70,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.stats._rng import warm_key_programs
-from jaxeac.stats.asymptotic import _column_sums
+from jaxeac.stats.asymptotic import _column_sums, normal_bca
+from jaxeac.stats.bca import bca_interval, jackknife_iqm
 from jaxeac.stats.device_sums import BLOCK, _gram, _subset_sums, _unpack_bits
 from jaxeac.stats.measures import Coded, as_values, joint_counts
 from jaxeac.stats.resample import cumulative
@@ -287,6 +288,16 @@ def jackknife_iqm_counts(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
     return iqm_from_counts(drop, values)
 
 
+
+
+def iqm_interval(est: float, path: str, alpha: float, *, x=None, star=None, values=None, counts=None):
+    """The IQM's interval on `path` (`resampling_path`), its one definition: BCa (Efron 1987) of the
+    replicates `star` with the jackknife of the units x (`RAW`) or of a unit of each distinct value
+    (`PER_VALUE`: `values` with `counts`), or BCa on the bootstrap's normal limit (`ASYMPTOTIC`)."""
+    if path == ASYMPTOTIC:
+        return normal_bca(est, jackknife_iqm(x), alpha)
+    jk = [jackknife_iqm(x)] if path == RAW else [(jackknife_iqm_counts(counts, values), counts)]
+    return bca_interval(est, star, jk, alpha)
 
 
 def compile_ahead(n: int, trials: int, splits: int, block: int = 4096) -> None:

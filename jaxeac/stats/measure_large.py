@@ -12,8 +12,8 @@ import numpy as np
 
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts, multinomial_counts
-from jaxeac.stats.asymptotic import abc_intervals, normal_bca, normal_permutation_p
-from jaxeac.stats.bca import bca_interval, bca_two_sample_counts, jackknife_iqm
+from jaxeac.stats.asymptotic import abc_intervals, normal_permutation_p
+from jaxeac.stats.bca import bca_two_sample_counts
 from jaxeac.stats.closed_form import iqm_sorted, welch_t_stat
 
 
@@ -82,8 +82,7 @@ def measure_large(
                 if iqm:
                     q = large.iqm_from_counts(cnt, vv)
                     est = float(large.iqm_from_counts(kk[None], vv)[0])
-                    jk = (large.jackknife_iqm_counts(kk, vv), kk)
-                    lo, hi = bca_interval(est, q, [jk], alpha)
+                    lo, hi = large.iqm_interval(est, large.PER_VALUE, alpha, star=q, values=vv, counts=kk)
                     out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
             (vb, kb), (vt, kt) = groups
             if bootstrap:
@@ -102,6 +101,6 @@ def measure_large(
         out["methods"]["iqm"] = large.REFERENCES["normal_bca"]
         for side, z in (("baseline", xc), ("treatment", yc)):
             est = iqm_sorted(np.sort(z))
-            lo, hi = normal_bca(est, jackknife_iqm(z), alpha)
+            lo, hi = large.iqm_interval(est, large.ASYMPTOTIC, alpha, x=z)
             out[f"iqm_{side}"] = (est + c, lo + c, hi + c)
     return out
