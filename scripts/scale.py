@@ -16,7 +16,8 @@ so an older build is timed too (its chunks spanning every device: ready times pe
 
 ``--commands`` times the `jaxeac grid` command itself, each run in a fresh process, for source
 trees taking turns and sets of visible GPUs: wall seconds, its summary's compile and run seconds,
-the report's, and a digest of its results.parquet (equal digests: the same per-seed results);
+the report's, and digests of its results.parquet's bytes and of its rows (equal rows: the same
+per-seed results, whatever the row groups);
 ``--cold N`` runs each first with an empty compilation cache, then warm.
 
     python scripts/scale.py --commands --builds OLD NEW --visible 0 0,1 --seeds-list 4194304 8388608
@@ -250,6 +251,26 @@ def _file_digest(path: Path) -> str:
     return h.hexdigest()
 
 
+def _rows_digest(path: Path) -> str:
+    """A hash of results.parquet's rows, column by column, whatever its row groups (a run cut into
+    other chunks writes other row groups: other bytes, the same rows)."""
+    import hashlib
+
+    import pyarrow.parquet as pq
+
+    h = hashlib.blake2b(digest_size=16)
+    table = pq.read_table(path)
+    for name in table.column_names:
+        h.update(name.encode())
+        column = table.column(name).combine_chunks()
+        if name == "algo":
+            column = column.cast("string")
+        for buffer in column.buffers():
+            if buffer is not None:
+                h.update(buffer)
+    return h.hexdigest()
+
+
 def _command(build: Path | None, visible: str, n: int, report: bool, cache: str, tmp: Path) -> dict:
     """One `jaxeac grid` command in a fresh process (see `command_runs`)."""
     import os
@@ -276,7 +297,8 @@ def _command(build: Path | None, visible: str, n: int, report: bool, cache: str,
     per_algo = {a: {"compile_s": v["compile_seconds"], "run_s": v["run_seconds"], "settings": v.get("run")}
                 for a, v in summary["per_algo"].items()}
     row |= {"compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"], "per_algo": per_algo,
-            "results_digest": _file_digest(out / "results.parquet")}
+            "results_digest": _file_digest(out / "results.parquet"),
+            "rows_digest": _rows_digest(out / "results.parquet")}
     if (out / "stats.json").is_file():
         row["report_timing"] = json.loads((out / "stats.json").read_text()).get("timing")
     shutil.rmtree(out, ignore_errors=True)
