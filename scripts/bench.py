@@ -327,6 +327,46 @@ def _render_stats(path: Path, rec: dict) -> list[str]:
             f"{rec['compile_and_warmup_seconds']:.2f} | {rec['warm_run_seconds']:.2f} |", ""]
 
 
+def _render_commands(path: Path, rec: dict) -> list[str]:
+    """A `scripts/scale.py --commands` record (runs of the `jaxeac grid` command, bundled): per
+    seed count and report, each build's runs on one and two GPUs and the two-over-one ratios."""
+    env = rec.get("environment", {})
+    out = [f"#### `{path.name}`: {env.get('cards', '?')}, {env.get('cpus', '?')} CPUs\n",
+           "| runs | build | GPUs | seeds | report | cache | wall s | compile s | run s | AC run s "
+           "| EAC run s | results digest |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    groups = {k: v for k, v in rec["runs"].items() if k.startswith("cmd")}
+    for label, runs in groups.items():
+        for r in runs:
+            algo = r.get("per_algo", {})
+            gpus = len(r["visible"].split(","))
+            out.append(f"| {label} | {r['build']} | {gpus} | {r['seeds']:,} | "
+                       f"{'yes' if r['report'] else 'no'} | {r['cache']} | {r['wall_s']:.2f} | "
+                       f"{r.get('compile_s', 0):.2f} | {r.get('run_s', 0):.2f} | "
+                       f"{algo.get('ac', {}).get('run_s', 0):.2f} | "
+                       f"{algo.get('eac', {}).get('run_s', 0):.2f} | "
+                       f"`{r.get('results_digest', '–')[:8]}` |")
+    out.append("")
+    for runs in groups.values():
+        by = {(r["build"], r["seeds"], r["report"], r["cache"], len(r["visible"].split(","))): r
+              for r in runs}
+        for (build, seeds, report, cache, gpus), two in by.items():
+            one = by.get((build, seeds, report, cache, 1))
+            if gpus == 2 and one is not None:
+                out.append(f"- {build}, {seeds:,} seeds, {'with' if report else 'no'} report ({cache}): "
+                           + _two_over_one(one, two))
+    out.append("")
+    return out
+
+
+def _two_over_one(one: dict, two: dict) -> str:
+    """Two GPUs' speed over one's, from two `--commands` runs."""
+    per = {a: one["per_algo"][a]["run_s"] / two["per_algo"][a]["run_s"] for a in two["per_algo"]}
+    return (f"two GPUs over one: wall {one['wall_s'] / two['wall_s']:.2f}×, "
+            f"run {one['run_s'] / two['run_s']:.2f}× ("
+            + ", ".join(f"{a.upper()} {x:.2f}×" for a, x in per.items())
+            + f"); compile on two / on one {two['compile_s'] / one['compile_s']:.2f}")
+
+
 def render(paths: list[Path]) -> str:
     """Markdown tables from benchmark JSON files (grid, scale, kernel-check, bowling and stats records)."""
     out = []
@@ -337,6 +377,9 @@ def render(paths: list[Path]) -> str:
             continue
         if "results" in rec:
             out += _render_bowling(path, rec)
+            continue
+        if isinstance(rec.get("runs"), dict) and any(k.startswith("cmd") for k in rec["runs"]):
+            out += _render_commands(path, rec)
             continue
         if rec["rows"] and "subset_identical" in rec["rows"][0]:
             out += _render_scale(path, rec)
