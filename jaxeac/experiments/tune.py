@@ -12,8 +12,9 @@ flatter themselves), all settings of one algorithm and task as entries of one co
   cross-environment setting of Patterson, Neumann, White & White 2024).
 
 Each algorithm then runs at its selected settings on the study's evaluation seeds (same key,
-same seeds: per seed what a plain run at that setting gives) and is compared with AC as the
-study compares the preset (Holm over the family, the aggregate across tasks). Also recorded:
+same seeds: per seed what a plain run at that setting gives) and is compared with AC by the test
+behind the study's + / − on the preset (Welch, Holm over the condition's family) and by the
+aggregate across tasks (at most `AGGREGATE_RESAMPLES` resamples, its costly part). Also recorded:
 selection optimism (the chosen setting's tuning mean against its evaluation mean, Welch 95 %
 interval) and sensitivity (best − median of an algorithm's cross-task scores over its grid).
 `across_tasks`, the study's aggregate across tasks, is here too: the study and the selection
@@ -59,6 +60,8 @@ KEYS_OF = {"actor_critic": ("alpha", "beta", "gamma", "temperature"),
 MAX_TUNE_BYTES = 2 << 30
 #: Seed resamples of the sensitivity's interval.
 SENSITIVITY_RESAMPLES = 2000
+#: At most this many resamples for the tuned conditions' aggregates across tasks (the costly part).
+AGGREGATE_RESAMPLES = 2000
 
 
 def keys_of(algo: str) -> tuple[str, ...]:
@@ -247,21 +250,40 @@ def across_tasks(
     return agg
 
 
-def _verdicts(samples: dict, settings) -> dict:
-    """As the study compares the preset: per task every algorithm against AC, Holm over the family,
-    and the aggregate across tasks."""
-    from jaxeac.stats import holm
-    from jaxeac.stats.tidy import compare_samples
+def _welch_p(a: np.ndarray, b: np.ndarray) -> float:
+    """Welch's two-sided p for mean(b) − mean(a); where both are constant: 1 if equal, else 0."""
+    from scipy import stats
 
+    with np.errstate(all="ignore"):
+        p = float(stats.ttest_ind(b, a, equal_var=False).pvalue)
+    return p if math.isfinite(p) else float(np.mean(a) == np.mean(b))
+
+
+def _holm(ps: list[float]) -> list[float]:
+    """Holm's (1979) step-down adjustment."""
+    m, out, running = len(ps), [0.0] * len(ps), 0.0
+    for k, i in enumerate(sorted(range(m), key=ps.__getitem__)):
+        running = max(running, min(1.0, (m - k) * ps[i]))
+        out[i] = running
+    return out
+
+
+def _verdicts(samples: dict, settings) -> dict:
+    """As the study's verdicts on the preset: per task every algorithm against AC with Welch's test,
+    Holm over the family (the test behind the study's + / −), and the aggregate across tasks
+    (`across_tasks`, at most `AGGREGATE_RESAMPLES` resamples: it is the costly part)."""
     rows, means = [], {}
-    for i, (task, per) in enumerate(samples.items()):
-        stats = compare_samples(per, baseline="ac", resamples=settings.resamples, key=settings.key + i)
-        means[task] = {a: m["mean"] for a, m in stats["algorithms"].items()}
-        rows += [{"task": task, **{k: v for k, v in r.items() if k != "p_holm"}} for r in stats["comparisons"]]
-    for row, p in zip(rows, holm([r["p_welch"] for r in rows]) if rows else [], strict=True):
-        row["p_holm"] = float(p)
+    for task, per in samples.items():
+        means[task] = {a: float(np.mean(x)) for a, x in per.items()}
+        for a, x in per.items():
+            if a != "ac":
+                diff, lo, hi = welch_diff_ci95(per["ac"], x)
+                rows.append({"task": task, "x": a, "y": "ac", "diff": diff, "diff_ci95": [lo, hi],
+                             "p_welch": _welch_p(per["ac"], x)})
+    for row, p in zip(rows, _holm([r["p_welch"] for r in rows]), strict=True):
+        row["p_holm"] = p
     trials = settings.task_settings(next(iter(samples))).trials
-    agg = across_tasks(samples, trials, resamples=settings.resamples, key=settings.key)
+    agg = across_tasks(samples, trials, resamples=min(settings.resamples, AGGREGATE_RESAMPLES), key=settings.key)
     return {"means": means, "comparisons": rows, "aggregate": agg}
 
 
@@ -271,8 +293,6 @@ def run_tuning(
     """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
     the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
     `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun."""
-    from jaxeac.experiments.study import folder_name
-
     tasks, algos = list(grids), list(settings.algos)
     trials = grids[tasks[0]].trials
     store = None if tuning.folder is None else tuning.folder / "tune"
@@ -285,7 +305,8 @@ def run_tuning(
             atomic_write_json(store / "setup.json", tuning.record())
 
     def runs(t, a, pts, key, seeds, what, name):
-        path = None if store is None else store / folder_name(t) / f"{a}.{name}.npz"
+        # the task's folder as the study names it under tasks/ (`study.folder_name`; not imported: no cycle)
+        path = None if store is None else store / t.replace(":slip=", "-slip") / f"{a}.{name}.npz"
         config = {"task": _task_config(grids[t]), "algo": a, "points": pts, "key": key, "seeds": seeds}
         x, reused = _cached(path, config, lambda: _run(envs[t], grids[t], a, pts, key=key, seeds=seeds,
                                                        chunk_size=settings.chunk_size))
@@ -321,8 +342,9 @@ def run_tuning(
         for a in algos:
             sel = per_algo[a]
             pts = [sel["points"][sel["per_task"][t]], sel["points"][sel["cross_task"]]]
+            pts = pts[:1] if pts[0] == pts[1] else pts  # one selection for both: run once
             both = runs(t, a, pts, settings.key, n, f"evaluating at its selections on {n:,} seeds", "evaluation")
-            samples["per_task"][t][a], samples["cross_task"][t][a] = both[0], both[1]
+            samples["per_task"][t][a], samples["cross_task"][t][a] = both[0], both[-1]
     optimism = {a: {} for a in algos}
     for a in algos:
         for t in tasks:

@@ -30,13 +30,13 @@ def sensitivity_figure(tu: dict, trials: int, path: Path) -> None:
     for i, t in enumerate(tasks):
         for j, k in enumerate(keys):
             ax = axes[i, j]
-            for a, s in algos.items():
+            for a, s in sorted(algos.items(), key=lambda item: item[0] in ("ac", "eac")):  # AC, EAC on top
                 c = s["curves"].get(t, {}).get(k)
                 if c is None:
                     continue
                 lo, hi = zip(*c["ci95"], strict=True)
-                ax.plot(c["values"], c["mean"], color=style.color(a), lw=1.3, marker="o", ms=2.5,
-                        label=style.label(a))
+                ax.plot(c["values"], c["mean"], color=style.color(a), lw=1.8 if a in ("ac", "eac") else 1.2,
+                        marker="o", ms=2.5, label=style.label(a))
                 ax.fill_between(c["values"], lo, hi, color=style.color(a), alpha=0.2, lw=0)
                 at = c["values"].index(c["chosen"])
                 ax.plot([c["chosen"]], [c["mean"][at]], marker="*", ms=8, color=style.color(a), mec="white",
@@ -58,12 +58,12 @@ def sensitivity_figure(tu: dict, trials: int, path: Path) -> None:
             ax.set_xlabel(f"{SYMBOL[k]} ({k})", fontsize=8)
             if j == 0:
                 ax.set_ylabel(f"mean successes (of {trials})", fontsize=8)
-    handles, labels = {}, {}
+    handles: dict = {}
     for ax in axes.flat:
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(lab, h)
-            labels.setdefault(lab, lab)
-    fig.legend(list(handles.values()), list(labels), loc="lower center", ncol=min(8, len(labels)), fontsize=8,
+    labels = [style.label(a) for a in algos if style.label(a) in handles]  # the study's order
+    fig.legend([handles[lab] for lab in labels], labels, loc="lower center", ncol=min(8, len(labels)), fontsize=8,
                title=f"mean successes over {tu['seeds']:,} tuning seeds, the other keys at the task's selection "
                      "(shaded: 95 % CI of the mean; ★ the selected value)", title_fontsize=8)
     fig.tight_layout(rect=(0, 0.6 / (2.4 * len(tasks) + 0.6), 1, 1))

@@ -27,8 +27,8 @@ def tuned_markdown(tu: dict, *, level: float = 0.05) -> list[str]:
     lines = ["## Tuned: every algorithm at its best setting", "",
              f"Tuning: {tu['seeds']:,} seeds of key {tu['key']}; evaluation: {tu['evaluation_seeds']:,} "
              f"seeds of key {tu['evaluation_key']} (disjoint). Selection — {tu['selection']}. Each condition "
-             "is compared with AC as the preset is (Holm over its own family); + / −: better / worse than AC "
-             f"at Holm p ≤ {level:g}.", "",
+             "is compared with AC as the preset is (Welch, Holm over its own family); + / −: better / worse "
+             f"than AC at Holm p ≤ {level:g}.", "",
              "| algorithm | grid | cross-task setting | its score (tuning) | sensitivity (best − median) |",
              "|---|---|---|---|---|"]
     for a, s in algos.items():
@@ -51,7 +51,9 @@ def tuned_markdown(tu: dict, *, level: float = 0.05) -> list[str]:
         best = [max(algos, key=lambda a, c=c: conds[c]["means"][t][a]) for c in CONDITIONS]
         lines += ["", f"Highest mean: {' / '.join(best)} (preset / per-task / cross-task; the leaders are not "
                   "tested against each other, only against AC)."]
-    lines += ["", "### Across tasks, per condition", "",
+    res = [(c, conds[c]["aggregate"].get("resamples")) for c in CONDITIONS if conds[c].get("aggregate")]
+    lines += ["", "### Across tasks, per condition", "", "Stratified bootstrap: " + ", ".join(
+        f"{c} {r:,} resamples" for c, r in res if r) + ".", "",
               "| algorithm | " + " | ".join(f"IQM {c} [95% CI] | P(> ac) {c}" for c in CONDITIONS) + " |",
               "|---|" + "---|---|" * len(CONDITIONS)]
     for a in algos:
