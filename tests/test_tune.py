@@ -255,3 +255,17 @@ def test_a_folder_tuned_with_another_setup_is_refused_before_any_compute(tuned, 
     assert code == 2 and len(err) == 1 and err[0].startswith("error: --tune: ")
     assert "another setup" in err[0] and "grids" in err[0] and "another --out" in err[0]
     assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before
+
+
+def test_tuned_verdicts_use_the_test_behind_the_studys_marks():
+    from jaxeac.experiments.tune import _holm, _welch_p
+    from jaxeac.stats import holm
+    from jaxeac.stats.tidy import compare_samples
+
+    rng = np.random.default_rng(3)
+    a, b = rng.integers(0, 20, 50), rng.integers(2, 22, 60)
+    row = compare_samples({"ac": a, "x": b}, baseline="ac", resamples=400, key=0)["comparisons"][0]
+    assert _welch_p(a, b) == pytest.approx(row["p_welch"])
+    ps = [0.01, 0.04, 0.03, 0.2, 1e-9]
+    assert _holm(ps) == pytest.approx(list(holm(ps)))
+    assert _welch_p(np.zeros(5), np.zeros(5)) == 1.0 and _welch_p(np.zeros(5), np.ones(5)) == 0.0

@@ -252,9 +252,12 @@ def across_tasks(
 
 def _welch_p(a: np.ndarray, b: np.ndarray) -> float:
     """Welch's two-sided p for mean(b) − mean(a); where both are constant: 1 if equal, else 0."""
+    import warnings
+
     from scipy import stats
 
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # constant samples: handled below
         p = float(stats.ttest_ind(b, a, equal_var=False).pvalue)
     return p if math.isfinite(p) else float(np.mean(a) == np.mean(b))
 
