@@ -2,9 +2,10 @@
 
 A grid over the rates each algorithm reads (actor-critic learners: α, β, γ, τ; Q-learning and
 SARSA: α, γ, ε; `KEYS_OF`) runs on tuning seeds 0 … n−1 of a root key other than the
-evaluation's (Eimer, Lindauer & Raileanu 2023: settings chosen on the seeds they are judged on
-flatter themselves), all settings of one algorithm and task as entries of one compiled program
-(traced `Hyper`, as `jaxeac.experiments.sweep`). Two selections (ties: the first in grid order):
+evaluation's (seed i's key is ``fold_in(root, i)``, SPEC R1, so another root gives other seeds;
+Eimer, Lindauer & Raileanu 2023: settings chosen on the seeds they are judged on flatter
+themselves), all settings of one algorithm and task as entries of one compiled program (traced
+`Hyper`, as `jaxeac.experiments.sweep`). The measure is the study's, successes per seed (SPEC §6). Two selections (ties: the first in grid order):
 
 - **per task**: each algorithm's setting with the most mean successes on that task;
 - **across tasks**: each algorithm's one setting with the highest mean over tasks of its min–max
