@@ -119,6 +119,11 @@ def print_comparison(result: dict, run_dir, *, baseline="ac", treatment="eac", l
     lo, hi = p["diff_ci"]
     print(f"{lead}{p['diff']:+.3f} ({pct} BCa CI [{lo:+.3f}, {hi:+.3f}]), "
           f"Welch p = {p_sig(p['p_welch'])}, Hedges' g = {p['hedges_g']:.3f}, A12 = {p['a12']:.3f}")
+    if result.get("family"):  # a run of more algorithms: each against the baseline, Holm over them
+        from jaxeac.stats.family import family_comparison
+
+        print(f"every algorithm against {baseline} (the declared family):")
+        print("\n".join(f"  {line}" for line in family_comparison(result["family"]).lines()[1:]))
     print(f"report in {run_dir}/{result.get('files', {}).get('report', 'report.md')}")
 
 

@@ -87,7 +87,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                                       on_folder=lambda run, summary: _print_run(summary, out, design))
     else:
         with tqdm(total=settings.seeds * len(settings.algos), unit="seed", disable=args.quiet,
-                  desc="grid", file=sys.stderr) as bar:  # results.parquet is written as the run goes
+                  desc=settings.env or "grid", file=sys.stderr) as bar:  # results.parquet: written as it goes
 
             def on_folder(run, summary) -> None:
                 bar.close()  # the run is done: its bar ends before the summary and the report's bar

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from jaxeac.fmt import compact, compact_interval, p_is, p_sig, size_word
+from jaxeac.stats.family import family_comparison
 from jaxeac.stats.figures import FIGURES  # noqa: F401 (the figures' file names, also here)
 
 
@@ -190,6 +191,18 @@ def sequential_section(seq: dict | None) -> list[str]:
     return out
 
 
+def family_section(stats: dict) -> list[str]:
+    """Every algorithm of the run against the baseline (`jaxeac.stats.family`), where it ran more than two."""
+    if not stats.get("family"):
+        return []
+    body = family_comparison(stats["family"]).markdown().splitlines()[2:]  # below its own title
+    t = stats["treatment"].upper()
+    note = (f"The family is drawn with its own resamples, so its {t} row can differ from the full {t} "
+            "analysis above in the last digits of an interval.")
+    return [f"## Every algorithm against {stats['baseline'].upper()}: the declared family", "", note, "",
+            *body, ""]
+
+
 def render_markdown(stats: dict) -> str:
     """The readable report."""
     b, t = stats["baseline"].upper(), stats["treatment"].upper()
@@ -197,17 +210,21 @@ def render_markdown(stats: dict) -> str:
     holm = stats["holm"]
     res = [stats["primary"], *stats["secondary"].values()]
     out = [
-        f"# {t} versus {b}: {stats['experiment']} run",
+        f"# {t} versus {b} on {stats['subject']}" if stats.get("subject")
+        else f"# {t} versus {b}: {stats['experiment']} run",
         "",
         f"Run directory: `{stats['run_dir']}`; {stats['trials']} trials per seed; "
-        f"{stats['primary']['n_baseline']} {b} seeds and {stats['primary']['n_treatment']} {t} seeds. "
-        f"The seed is the unit of analysis. Every interval is at the {_pct(stats)} level; p-values in "
+        f"{stats['primary']['n_baseline']} {b} seeds and {stats['primary']['n_treatment']} {t} seeds"
+        + (f"; algorithms run: {', '.join(stats['algos_run'])}" if len(stats.get("algos_run", ())) > 2
+           else "")
+        + f". The seed is the unit of analysis. Every interval is at the {_pct(stats)} level; p-values in "
         "three significant figures.",
         "",
         "## In plain words",
         "",
         plain_words(stats),
         "",
+        *family_section(stats),
         *sequential_section(stats.get("sequential")),
         *paired_section(stats),
         "## Estimates" + (" as independent samples (unpaired; secondary: the paired results above answer "

@@ -135,8 +135,9 @@ class Comparison:
             f"{pct} BCa from {self.resamples:,} bootstrap resamples, seeds resampled within each algorithm "
             f"and task (Agarwal et al. 2021); key {self.key}. diff = mean(X) − mean(Y); P(X > Y) counts ties "
             "as one half.",
-            f"Resampling path: {self.resampling['rule']} (groups: "
-            f"{', '.join(f'{k}: {v}' for k, v in self.resampling['groups'].items())}).",
+            f"Resampling path: {self.resampling['rule']} ("
+            + (f"groups: {', '.join(f'{k}: {v}' for k, v in self.resampling['groups'].items())}"
+               if "groups" in self.resampling else f"path: {self.resampling.get('path')}") + ").",
             f"Failed seeds excluded: {src.get('excluded_total', 0)} ({src.get('failed_seed_rule', '')}).",
             "",
         ]

@@ -1,0 +1,75 @@
+"""A run report names its subject and, with more than two algorithms, compares the declared family:
+every algorithm against the baseline, Holm over the family (issue: every report says what it shows)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from jaxeac.stats.family import subject
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(("summary", "expected"), [
+    ({"experiment": "grid", "trials": 200, "config": {"env": "FrozenLake-8x8-slippery-v1", "slip": 0.0,
+                                                       "chances": 200, "preset": "paper"}},
+     "FrozenLake-8x8-slippery-v1, C = 200, 200 trials"),
+    ({"experiment": "grid", "trials": 50, "config": {"env": "grid-paper-v0", "slip": 0.1, "chances": 40}},
+     "grid-paper-v0, slip 0.1, C = 40, 50 trials"),
+    ({"experiment": "grid", "trials": 200, "config": {"preset": "paper", "map_file": None, "env": None,
+                                                       "chances": 40, "slip": 0.0}},
+     "the paper preset's grid world, C = 40, 200 trials"),
+    ({"experiment": "grid", "trials": 9, "config": {"map_file": "maps/my room.txt", "chances": 5}},
+     "the grid world of my room.txt, C = 5, 9 trials"),
+    ({"experiment": "bowling", "trials": 100, "config": {"backend": "c", "chances": 3}},
+     "bowling (c backend), 100 trials"),
+])
+def test_subject_names_what_was_run(summary, expected):
+    assert subject(summary) == expected
+
+
+def test_a_run_of_four_algorithms_reports_each_against_the_baseline(tmp_path):
+    out = tmp_path / "run"
+    env = dict(os.environ, JAXEAC_COMPILATION_CACHE="off", MPLBACKEND="Agg")
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxeac", "run", "--env", "FrozenLake-4x4-v1", "--algos", "ac", "eac",
+         "q_learning", "sarsa", "--seeds", "12", "--trials", "20", "--out", str(out)],
+        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "FrozenLake-4x4-v1: " in proc.stderr  # the progress bar names the environment
+    assert "every algorithm against ac (the declared family):" in proc.stdout
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert report.splitlines()[0] == "# EAC versus AC on FrozenLake-4x4-v1, C = 100, 20 trials"
+    assert "algorithms run: ac, eac, q_learning, sarsa" in report
+    assert "## Every algorithm against AC: the declared family" in report
+    stats = json.loads((out / "stats.json").read_text(encoding="utf-8"))
+    family = stats["family"]
+    assert family["family"] == "all vs baseline ac" and family["family_size"] == 3
+    rows = {(r["x"], r["y"]): r for r in family["rows"]}
+    assert set(rows) == {("eac", "ac"), ("q_learning", "ac"), ("sarsa", "ac")}
+    for r in rows.values():
+        assert r["analysis"] == "paired"  # one key: seed i of each algorithm shares its key (R1)
+        assert r["p_holm"] >= r["paired"]["p_paired_t"]  # Holm never lowers a p-value
+        for line in (f"| {r['x']} | ac | paired |",):
+            assert line in report
+    assert stats["primary"]["n_treatment"] == 12
+    assert stats["algos_run"] == ["ac", "eac", "q_learning", "sarsa"]
+
+
+def test_a_two_algorithm_run_has_no_family_section(tmp_path):
+    from jaxeac.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--seeds", "6", "--trials", "6", "--chances", "10", "--quiet",
+                 "--out", str(out)]) == 0
+    stats = json.loads((out / "stats.json").read_text(encoding="utf-8"))
+    assert stats["family"] is None and stats["algos_run"] == ["ac", "eac"]
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert report.startswith("# EAC versus AC on the paper preset's grid world, C = 10, 6 trials\n")
+    assert "## Every algorithm against" not in report
