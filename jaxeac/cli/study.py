@@ -39,7 +39,7 @@ def add_parser(sub) -> None:
                     help="study folder (default runs/study)")
     st.add_argument("--quiet", action="store_true", help="no progress lines")
     st.add_argument("--timeline", action="store_true",
-                    help="print where the time went, per task and phase (always kept in study.json's timeline)")
+                    help="print where the time went, per task and phase (study.json's timeline keeps it)")
 
 
 def cmd_study(args: argparse.Namespace) -> int:

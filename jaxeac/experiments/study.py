@@ -222,7 +222,8 @@ def timeline_text(tl: dict) -> str:
 
 
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
-              on_task: Callable[[str, dict], None] | None = None, tuning=None, timeline: bool = False) -> dict:
+              on_task: Callable[[str, dict], None] | None = None, tuning=None,
+              timeline: bool = False) -> dict:
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
@@ -256,8 +257,9 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 with tl.phase("load", task):
                     success, samples = _successes(folder, grid)
             else:
-                with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress, file=sys.stderr,
-                          desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)") as bar:
+                with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress,
+                          file=sys.stderr, desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)"
+                          ) as bar:
                     results = runner.run(task, grid, folder, bar.update)
                 success = {a: r.success for a, r in results.items()}
                 samples = {a: np.asarray(r.successes) for a, r in results.items()}
@@ -268,8 +270,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             del success
             kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # per-seed successes, all tasks
             if timeline:  # as each task ends: a study stopped midway still shows where its time went
-                print(f"study: timeline {task}: " + ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items()),
-                      file=sys.stderr, flush=True)
+                phases = ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items())
+                print(f"study: timeline {task}: {phases}", file=sys.stderr, flush=True)
         first = grids[settings.tasks[0]]
         with tl.phase("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
@@ -323,7 +325,8 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     seeds = {t: {a: np.arange(x.size).astype(str) for a, x in per.items()} for t, per in values.items()}
     res = compare(PerSeed(values, seeds, "successes per seed over the trials", "study"), baseline="ac",
                   level=0.95, resamples=resamples, key=key, normalize="minmax",
-                  reference_scores={t: (0.0, float(trials)) for t in values}, profile_points=min(trials + 1, 101))
+                  reference_scores={t: (0.0, float(trials)) for t in values},
+                  profile_points=min(trials + 1, 101))
     per_task: dict = {t: {"algorithms": {}} for t in values}
     for a in res.algorithms:
         per_task[a["task"]]["algorithms"][a["algo"]] = {"n": a["n"], "mean": a["mean"], "iqm": a["iqm"],
@@ -332,8 +335,8 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     for r in res.rows:
         ax, ay = per_task[r["task"]]["algorithms"][r["x"]], per_task[r["task"]]["algorithms"][r["y"]]
         rows.append({"task": r["task"], "x": r["x"], "y": r["y"], "n_x": r["n_x"], "n_y": r["n_y"],
-                     "mean_x": r["mean_x"], "mean_y": r["mean_y"], "diff": r["diff"], "diff_ci95": r["diff_ci"],
-                     "p_welch": r["p_welch"], "hedges_g": r["hedges_g"], "iqm_x": ax["iqm"],
+                     "mean_x": r["mean_x"], "mean_y": r["mean_y"], "diff": r["diff"],
+                     "diff_ci95": r["diff_ci"], "p_welch": r["p_welch"], "hedges_g": r["hedges_g"], "iqm_x": ax["iqm"],
                      "iqm_x_ci95": ax["iqm_ci95"], "iqm_y": ay["iqm"], "iqm_y_ci95": ay["iqm_ci95"],
                      "p_improvement": r["p_improvement"], "p_improvement_ci95": r["p_improvement_ci"],
                      "p_holm": r["p_welch_holm"]})
@@ -341,8 +344,8 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     if len(values) < 2:
         agg = None
     elif agg is not None:
-        agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed lie "
-                                "in [0, T], a scale fixed before any run and the same for every algorithm")
+        agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed "
+                                "lie in [0, T], a scale fixed before any run and the same for every algorithm")
         agg["key"] = key
     return per_task, rows, agg
 
@@ -440,7 +443,8 @@ class _TaskRunner:
             if stage_cm not in self.open:
                 return
             self.open.remove(stage_cm)
-            stage_cm.__exit__(*((type(exc), exc, exc.__traceback__) if exc is not None else (None, None, None)))
+            info = (type(exc), exc, exc.__traceback__) if exc is not None else (None, None, None)
+            stage_cm.__exit__(*info)
 
     def finish(self) -> None:
         """Wait for every folder to be finished (re-raising the first failure)."""
@@ -506,7 +510,8 @@ def _successes(folder: Path, grid: GridSettings) -> tuple[dict, dict[str, np.nda
     from jaxeac.results import load_grid_results
 
     loaded = load_grid_results(folder, grid.algos, grid.trials, compact=True)
-    return {a: loaded[a].success for a in grid.algos}, {a: np.asarray(loaded[a].successes) for a in grid.algos}
+    return ({a: loaded[a].success for a in grid.algos},
+            {a: np.asarray(loaded[a].successes) for a in grid.algos})
 
 
 def report_markdown(result: dict) -> str:
