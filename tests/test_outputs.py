@@ -62,7 +62,7 @@ def test_round_trip_is_exact(tmp_path, rng, trials, monkeypatch):
 @pytest.mark.parametrize("trials", [1, 7, 8, 9, 200])
 def test_success_bits_match_the_bool_matrix(rng, trials, monkeypatch):
     """`SuccessBits`: rows, blocks, columns, column sums and the per-seed measures as from bools."""
-    import jaxeac.stats.rundir as rundir
+    import jaxeac.stats.measures as measures
 
     success = rng.random((37, trials)) < rng.random((37, 1))
     bits = SuccessBits.pack(success)
@@ -76,9 +76,9 @@ def test_success_bits_match_the_bool_matrix(rng, trials, monkeypatch):
         np.testing.assert_array_equal(bits.column(t), success[:, t])
     np.testing.assert_array_equal(bits.column_sums(), success.sum(0))
     np.testing.assert_array_equal(as_bool(bits), success)
-    monkeypatch.setattr(rundir, "_BLOCK", 6)  # several blocks on threads, one short
-    from_bits = rundir.per_seed_measures(bits)
-    from_bools = rundir.per_seed_measures(success)
+    monkeypatch.setattr(measures, "_BLOCK", 6)  # several blocks on threads, one short
+    from_bits = measures.per_seed_measures(bits)
+    from_bools = measures.per_seed_measures(success)
     assert from_bits.keys() == from_bools.keys()
     for name in from_bits:
         np.testing.assert_array_equal(from_bits[name], from_bools[name])
