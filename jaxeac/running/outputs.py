@@ -5,7 +5,12 @@ narrowest integer types that hold them). What becomes of it on the host is a
 `Collector`'s choice: `HostArrays` unpacks every chunk into preallocated `SeedResult`
 arrays (`unpack_output`, the default), `CompactCollector` keeps only the per-seed
 measures and the success curves as bits (`SuccessBits`, 1/8 of a bool matrix) and
-hands each chunk on (to a file writer, say), so host memory stays bounded at 10^7 seeds.
+hands each chunk on (to a file writer, say), so host memory stays bounded at 10^7 seeds;
+its measures may be taken on the device (`device_measures`), and `ChunksBehind` runs the
+writer on a thread of its own, behind the run.
+
+(Over 400 lines: a chunk's way from the device to the host in each form a run keeps it, and
+the writer behind it.)
 """
 
 from __future__ import annotations
