@@ -13,6 +13,8 @@ system C compiler, skipped without one) and the numba peer (``--numba-peer``, th
     python scripts/bench.py --seeds 100 1000 10000 100000 --numpy-seeds 10000 --c-peer --numba-peer \
         --out scripts/bench_results/cpu.json
     python scripts/bench.py --render scripts/bench_results/*.json
+
+(Over 400 lines: the benchmark and the Markdown of every kind of record under bench_results/.)
 """
 
 from __future__ import annotations
