@@ -14,8 +14,8 @@ Writes JSON; ``--render`` prints the BENCHMARKS.md table.
 ``--study`` times whole commands instead, each in a fresh process with the persistent
 compilation cache off (first-run numbers), taking turns: `jaxeac study` of the first task
 alone, of all `--tasks`, and with ``--plain`` the same runs done plainly (`jaxeac run` of
-each task with every algorithm, their times added). Wall seconds and each process's peak
-resident memory:
+each task with every algorithm, their times added). Wall seconds, each process's peak
+resident memory and each study's timeline (study.json's: seconds per task and phase):
 
     python scripts/bench_tasks.py --study --tasks FrozenLake-4x4-v1 FrozenLake-4x4-slippery-v1 \
         CliffWalking-v1 --seeds 200 --repeats 2 --out scripts/bench_results/cpu_study.json
@@ -99,6 +99,7 @@ def bench_study(tasks: list[str], n_seeds: int, repeats: int, plain: bool, out_d
     variants = {"study_one": study(tasks[:1]), "study_all": study(tasks)} | ({"plain_all": runs()} if plain else {})
     times: dict = {k: [] for k in variants}
     rss: dict = {k: 0.0 for k in variants}
+    timelines: dict = {}  # per study variant: its study.json's timeline (per task and phase), last repeat
     for _ in range(repeats):
         for name, cmds in variants.items():
             total = 0.0
@@ -107,11 +108,14 @@ def bench_study(tasks: list[str], n_seeds: int, repeats: int, plain: bool, out_d
                 wall, peak = timed(argv)
                 total, rss[name] = total + wall, max(rss[name], peak)
             times[name].append(total)
+            if (work / "s" / "study.json").is_file():
+                timelines[name] = json.loads((work / "s" / "study.json").read_text()).get("timeline")
             print(f"{name}: {total:.1f} s, peak RSS {rss[name]:.2f} GiB", flush=True)
     shutil.rmtree(work, ignore_errors=True)
     best = {k: min(v) for k, v in times.items()}
     rec = {"tasks": tasks, "seeds": n_seeds, "repeats": repeats, "wall_s": times, "best_s": best,
-           "peak_rss_gib": rss, "study_all_over_one": best["study_all"] / best["study_one"]}
+           "peak_rss_gib": rss, "study_all_over_one": best["study_all"] / best["study_one"],
+           "timelines": timelines}
     if plain:
         rec["study_all_over_plain"] = best["study_all"] / best["plain_all"]
     return rec
