@@ -29,6 +29,7 @@ tasks are one pass of `jaxeac.stats.engine.compare` (`compare_tasks`) once all a
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 import threading
 import time
@@ -322,7 +323,7 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     from jaxeac.stats.inputs import PerSeed
 
     values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
-    seeds = {t: {a: np.arange(x.size).astype(str) for a, x in per.items()} for t, per in values.items()}
+    seeds = {t: {a: _seed_ids(x.size) for a, x in per.items()} for t, per in values.items()}
     res = compare(PerSeed(values, seeds, "successes per seed over the trials", "study"), baseline="ac",
                   level=0.95, resamples=resamples, key=key, normalize="minmax",
                   reference_scores={t: (0.0, float(trials)) for t in values},
@@ -348,6 +349,16 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
                                 "lie in [0, T], a scale fixed before any run and the same for every algorithm")
         agg["key"] = key
     return per_task, rows, agg
+
+
+@functools.lru_cache(maxsize=4)
+def _seed_ids(n: int) -> np.ndarray:
+    """Seeds 0 … n − 1 as the strings `across_tasks` names them (``np.arange(n).astype(str)``: the same
+    values, so the same order and draws) in the narrowest width, one array shared by every algorithm
+    and task of n seeds: at 100,000 seeds × 88 runs, 2 MiB instead of 740 MiB of '<U21'."""
+    ids = np.arange(n).astype(f"<U{len(str(max(n - 1, 0)))}")
+    ids.flags.writeable = False
+    return ids
 
 
 #: Tasks whose E8 diagnostics run at once beside the runs (accelerators only). All 11 tasks' queued
