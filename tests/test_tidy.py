@@ -11,10 +11,10 @@ from scipy import stats
 
 from jaxeac.cli import main
 from jaxeac.stats import a12, holm, iqm
+from jaxeac.stats.engine import compare
 from jaxeac.stats.inputs import read_npz, read_tidy
 from jaxeac.stats.sb3 import read_sb3
 from jaxeac.stats.tasks import prob_improvement
-from jaxeac.stats.tidy import compare_samples
 
 FAST = ["--resamples", "400"]
 
@@ -151,16 +151,17 @@ def test_rliable_importer(tmp_path):
 
 
 def test_many_algorithms_smaller_size():
-    """The 10 × 1,000 × 10,000-resample case (timed in the README) at a smaller size."""
+    """The 10 × 1,000 × 10,000-resample case (timed in BENCHMARKS.md) at a smaller size."""
     rng = np.random.default_rng(0)
     samples = {f"algo{i}": rng.normal(0.1 * i, 1.0, 200) for i in range(5)}
-    res = compare_samples(samples, resamples=2000, key=1)
-    assert len(res["comparisons"]) == 10
-    last = res["comparisons"][-1]  # algo4 vs algo3
-    lo, hi = last["p_improvement_ci95"]
+    res = compare(samples, resamples=2000, key=1)
+    assert len(res.rows) == 10
+    last = res.rows[-1]  # algo4 vs algo3
+    assert (last["x"], last["y"]) == ("algo4", "algo3")
+    lo, hi = last["p_improvement_ci"]
     assert lo < last["p_improvement"] < hi and hi - lo < 0.25
-    again = compare_samples(samples, resamples=2000, key=1)
-    assert again == res  # reproducible from the key
+    again = compare(samples, resamples=2000, key=1)
+    assert again.to_dict() == res.to_dict()  # reproducible from the key
 
 
 # ---------------------------------------------------------------- bad input

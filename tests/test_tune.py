@@ -258,14 +258,20 @@ def test_a_folder_tuned_with_another_setup_is_refused_before_any_compute(tuned, 
 
 
 def test_tuned_verdicts_use_the_test_behind_the_studys_marks():
-    from jaxeac.experiments.tune import _holm, _welch_p
-    from jaxeac.stats import holm
-    from jaxeac.stats.tidy import compare_samples
+    """Welch's p and Holm over the family (every algorithm against AC on every task), as the
+    engine gives them: the test behind the study's + / − marks."""
+    from jaxeac.experiments.tune import verdict_rows
+    from jaxeac.stats.core import compare_per_seed
 
     rng = np.random.default_rng(3)
-    a, b = rng.integers(0, 20, 50), rng.integers(2, 22, 60)
-    row = compare_samples({"ac": a, "x": b}, baseline="ac", resamples=400, key=0)["comparisons"][0]
-    assert _welch_p(a, b) == pytest.approx(row["p_welch"])
-    ps = [0.01, 0.04, 0.03, 0.2, 1e-9]
-    assert _holm(ps) == pytest.approx(list(holm(ps)))
-    assert _welch_p(np.zeros(5), np.zeros(5)) == 1.0 and _welch_p(np.zeros(5), np.ones(5)) == 0.0
+    per = {t: {"ac": rng.integers(0, 20, 50), "eac": rng.integers(2, 22, 60),
+               "sarsa": rng.integers(0, 21, 40)} for t in ("t1", "t2")}
+    rows, means = verdict_rows(per)
+    engine = compare_per_seed(per, baseline="ac", paired="unpaired", resamples=400, key=0)
+    want = {(r["task"], r["x"]): (r["p_welch"], r["p_welch_holm"]) for r in engine.rows}
+    assert len(rows) == len(want) == 4
+    for r in rows:
+        assert (r["p_welch"], r["p_holm"]) == pytest.approx(want[(r["task"], r["x"])], rel=1e-9)
+        assert r["diff"] == pytest.approx(means[r["task"]][r["x"]] - means[r["task"]]["ac"])
+    same = {"t": {"ac": np.zeros(5), "eac": np.zeros(5), "sarsa": np.ones(5)}}
+    assert [r["p_welch"] for r in verdict_rows(same)[0]] == [1.0, 0.0]  # constant samples

@@ -53,6 +53,7 @@ from jaxeac.experiments.common import check_key, check_positive_int, check_rate,
 from jaxeac.experiments.tune_measures import claim, curves, head_to_head, sensitivity
 from jaxeac.experiments.tune_report import CONDITIONS, tuned_markdown, tuned_summary
 from jaxeac.rng import KEY_LIMIT
+from jaxeac.stats.closed_form import holm, welch_t
 
 RATES = ("alpha", "beta", "gamma", "temperature", "epsilon")
 KEYS_OF = {"actor_critic": ("alpha", "beta", "gamma", "temperature"),
@@ -251,31 +252,19 @@ def across_tasks(
     return agg
 
 
-def _welch_p(a: np.ndarray, b: np.ndarray) -> float:
-    """Welch's two-sided p for mean(b) − mean(a); where both are constant: 1 if equal, else 0."""
-    import warnings
-
-    from scipy import stats
-
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # constant samples: handled below
-        p = float(stats.ttest_ind(b, a, equal_var=False).pvalue)
-    return p if math.isfinite(p) else float(np.mean(a) == np.mean(b))
-
-
-def _holm(ps: list[float]) -> list[float]:
-    """Holm's (1979) step-down adjustment."""
-    m, out, running = len(ps), [0.0] * len(ps), 0.0
-    for k, i in enumerate(sorted(range(m), key=ps.__getitem__)):
-        running = max(running, min(1.0, (m - k) * ps[i]))
-        out[i] = running
-    return out
-
-
 def _verdicts(samples: dict, settings) -> dict:
     """As the study's verdicts on the preset: per task every algorithm against AC with Welch's test,
     Holm over the family (the test behind the study's + / −), and the aggregate across tasks
     (`across_tasks`, at most `AGGREGATE_RESAMPLES` resamples: it is the costly part)."""
+    rows, means = verdict_rows(samples)
+    trials = settings.task_settings(next(iter(samples))).trials
+    agg = across_tasks(samples, trials, resamples=min(settings.resamples, AGGREGATE_RESAMPLES), key=settings.key)
+    return {"means": means, "comparisons": rows, "aggregate": agg}
+
+
+def verdict_rows(samples: dict) -> tuple[list, dict]:
+    """Per task, every algorithm against AC: the Welch interval and p, Holm over the family; and
+    the means {task: {algo: mean}}."""
     rows, means = [], {}
     for task, per in samples.items():
         means[task] = {a: float(np.mean(x)) for a, x in per.items()}
@@ -283,12 +272,10 @@ def _verdicts(samples: dict, settings) -> dict:
             if a != "ac":
                 diff, lo, hi = welch_diff_ci95(per["ac"], x)
                 rows.append({"task": task, "x": a, "y": "ac", "diff": diff, "diff_ci95": [lo, hi],
-                             "p_welch": _welch_p(per["ac"], x)})
-    for row, p in zip(rows, _holm([r["p_welch"] for r in rows]), strict=True):
-        row["p_holm"] = p
-    trials = settings.task_settings(next(iter(samples))).trials
-    agg = across_tasks(samples, trials, resamples=min(settings.resamples, AGGREGATE_RESAMPLES), key=settings.key)
-    return {"means": means, "comparisons": rows, "aggregate": agg}
+                             "p_welch": float(welch_t(per["ac"], x).pvalue)})
+    for row, p in zip(rows, holm([r["p_welch"] for r in rows]), strict=True):
+        row["p_holm"] = float(p)
+    return rows, means
 
 
 def run_tuning(
