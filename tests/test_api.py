@@ -87,6 +87,8 @@ def test_the_library_writes_the_command_lines_folder(tmp_path):
     jaxeac.compare(lib)
     assert _numbers(json.loads((lib / "stats.json").read_text())) == _numbers(
         json.loads((cli / "stats.json").read_text()))
+    commands = [json.loads((d / "summary.json").read_text())["command"] for d in (cli, lib)]
+    assert commands[0].startswith("jaxeac run --env grid-paper7-v0 ") and commands[1] is None  # none typed
     loaded = jaxeac.load(lib)
     assert loaded.algos == ("ac", "eac") and loaded.trials == TRIALS
     np.testing.assert_array_equal(loaded.per_seed["eac"]["successes"], loaded.success("eac").sum(1))

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxeac.stats.family import subject
+from jaxeac.stats.family import settings_text, subject
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,6 +34,14 @@ def test_subject_names_what_was_run(summary, expected):
     assert subject(summary) == expected
 
 
+def test_settings_text_states_rates_key_and_command():
+    summary = {"algos": ["ac", "eac"], "key": 3, "command": "jaxeac run --seeds 5",  # not quoted
+               "config": {"alpha": 0.1, "beta": 3.0, "gamma": 0.9, "temperature": 1.0, "epsilon": 0.1}}
+    want = "α = 0.1, β = 3, γ = 0.9, τ = 1; key 3"
+    assert settings_text(summary) == want
+    assert settings_text({}) == ""
+
+
 def test_a_run_of_four_algorithms_reports_each_against_the_baseline(tmp_path):
     out = tmp_path / "run"
     env = dict(os.environ, JAXEAC_COMPILATION_CACHE="off", MPLBACKEND="Agg")
@@ -47,6 +55,10 @@ def test_a_run_of_four_algorithms_reports_each_against_the_baseline(tmp_path):
     report = (out / "report.md").read_text(encoding="utf-8")
     assert report.splitlines()[0] == "# EAC versus AC on FrozenLake-4x4-v1, C = 100, 20 trials"
     assert "algorithms run: ac, eac, q_learning, sarsa" in report
+    assert ("Settings: α = 0.1, β = 0.3, γ = 0.9, τ = 1 (ε = 0.1 for q_learning, sarsa); key 0 (all of them, "
+            "and the command: summary.json)") in report
+    command = json.loads((out / "summary.json").read_text(encoding="utf-8"))["command"]
+    assert command.startswith("jaxeac run --env FrozenLake-4x4-v1 --algos ac eac q_learning sarsa")
     assert "## Every algorithm against AC: the declared family" in report
     stats = json.loads((out / "stats.json").read_text(encoding="utf-8"))
     family = stats["family"]

@@ -55,7 +55,13 @@ def _main(argv: Sequence[str] | None, cleanup: contextlib.ExitStack) -> int:
     runtime.configure(words[0] if words else None, force=True)
     args = build_parser().parse_args(argv)
     args._cleanup = cleanup
-    return COMMANDS[args.command](args)
+    from jaxeac.experiments import common
+
+    common.COMMAND = ("jaxeac", *words)  # what summary.json records as the command
+    try:
+        return COMMANDS[args.command](args)
+    finally:
+        common.COMMAND = None  # a library call later in this process records none
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import sys
 from collections.abc import Callable
 
 import jax
@@ -19,6 +18,10 @@ from jaxeac.algorithm.config import ALGORITHMS, algorithm
 from jaxeac.errors import KEY_LIMIT, UsageError, check_int
 from jaxeac.runtime import versions
 from jaxeac.stats.closed_form import t_interval, welch_interval
+
+#: The command line a run folder records (summary.json's ``command``), set by the `jaxeac` command;
+#: None in a library call, whose process arguments (a notebook's, pytest's) are no jaxeac command.
+COMMAND: tuple[str, ...] | None = None
 
 # ------------------------------------------------------------------ input checks
 
@@ -341,7 +344,7 @@ def summary_base(experiment: str, primary: str, settings, results: dict, measure
         "experiment": experiment, "primary_measure": primary, "algos": list(settings.algos),
         "trials": settings.trials, "seeds": settings.seeds, "key": settings.key,
         "config": dataclasses.asdict(settings), "versions": versions(),
-        "devices": [str(d) for d in jax.devices()], "command": " ".join(["jaxeac", *sys.argv[1:]]),
+        "devices": [str(d) for d in jax.devices()], "command": " ".join(COMMAND) if COMMAND else None,
         "compile_seconds": sum(r.compile_seconds for r in results.values()),
         "run_seconds": sum(r.run_seconds for r in results.values()),
         "per_algo": per_algo,

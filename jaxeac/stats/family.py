@@ -36,6 +36,21 @@ def subject(summary: dict) -> str:
     return ", ".join(parts)
 
 
+def settings_text(summary: dict) -> str:
+    """``α = 0.1, β = 0.3, γ = 0.9, τ = 1 (ε = 0.1 for q_learning, sarsa); key 0`` from summary.json
+    (its ``command`` and ``config`` hold the rest)."""
+    cfg = summary.get("config") or {}
+    names = (("alpha", "α"), ("beta", "β"), ("gamma", "γ"), ("temperature", "τ"))
+    rates = ", ".join(f"{sym} = {cfg[k]:g}" for k, sym in names if isinstance(cfg.get(k), int | float))
+    greedy = [a for a in summary.get("algos") or () if a in ("q_learning", "sarsa")]
+    if greedy and isinstance(cfg.get("epsilon"), int | float):
+        rates += f" (ε = {cfg['epsilon']:g} for {', '.join(greedy)})"
+    parts = [rates]
+    if summary.get("key") is not None:
+        parts.append(f"key {summary['key']}")
+    return "; ".join(p for p in parts if p)
+
+
 def read_summary(run_dir) -> dict:
     try:
         return json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))

@@ -217,6 +217,8 @@ def render_markdown(stats: dict) -> str:
         f"{stats['primary']['n_baseline']} {b} seeds and {stats['primary']['n_treatment']} {t} seeds"
         + (f"; algorithms run: {', '.join(stats['algos_run'])}" if len(stats.get("algos_run", ())) > 2
            else "")
+        + (f". Settings: {stats['run_settings']} (all of them, and the command: summary.json)"
+           if stats.get("run_settings") else "")
         + f". The seed is the unit of analysis. Every interval is at the {_pct(stats)} level; p-values in "
         "three significant figures.",
         "",

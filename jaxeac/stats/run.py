@@ -26,7 +26,7 @@ from jaxeac.stats._rng import as_key, key_record
 from jaxeac.stats.calibration import calibrate, dispatch_calibration
 from jaxeac.stats.compare import _analyse
 from jaxeac.stats.device_sums import curve_moments
-from jaxeac.stats.family import read_summary, run_family, subject
+from jaxeac.stats.family import read_summary, run_family, settings_text, subject
 from jaxeac.stats.figures import FIGURES, write_figures
 from jaxeac.stats.measures import (
     MEASURES,
@@ -372,6 +372,7 @@ def compare_run_dir(
     stats["run_dir"] = str(Path(run_dir))
     summary = read_summary(run_dir)  # the report names its subject and, with more algorithms, the family
     stats["subject"], stats["algos_run"] = subject(summary), summary.get("algos", [baseline, treatment])
+    stats["run_settings"] = settings_text(summary)
     stats["family"] = run_family(run_dir, summary, baseline, stats["primary"]["measure"],
                                  level=stats["level"], resamples=resamples, key=key)
     if data is not None and data.sequential is not None:  # the run's sequential decision comes first
