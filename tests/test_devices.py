@@ -42,13 +42,17 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def test_one_and_two_devices_bit_identical():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env,
-                          cwd=root, timeout=600)
+def _on_cpu_devices(script: str, devices: int, timeout: int) -> str:
+    """`script` in a fresh interpreter with `devices` virtual CPU devices; its stdout."""
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}", JAX_PLATFORMS="cpu")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env,
+                          cwd=Path(__file__).resolve().parents[1], timeout=timeout)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "identical on 1 and 2 devices" in proc.stdout
+    return proc.stdout
+
+
+def test_one_and_two_devices_bit_identical():
+    assert "identical on 1 and 2 devices" in _on_cpu_devices(SCRIPT, 2, timeout=600)
 
 
 def test_processes_write_parts_and_merge_to_the_single_run(tmp_path, capsys):
@@ -131,9 +135,4 @@ def test_devices_apart_bit_identical():
     """A program per device, each taking chunks from the shared queue (`DEVICES_APART`, the GPU
     path), on three virtual CPU devices: the same per-seed results as one device (R1), devices
     sharing the chunks, collected in seed order."""
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3", JAX_PLATFORMS="cpu")
-    root = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-c", APART], capture_output=True, text=True, env=env,
-                          cwd=root, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "identical on 1 and 3 devices apart" in proc.stdout
+    assert "identical on 1 and 3 devices apart" in _on_cpu_devices(APART, 3, timeout=900)
