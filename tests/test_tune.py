@@ -9,7 +9,8 @@ import pytest
 
 from jaxeac.cli import main
 from jaxeac.experiments.study import StudySettings, run_study
-from jaxeac.experiments.tune import Tuning, _run, keys_of, parse_tune
+from jaxeac.experiments.tune import Tuning, keys_of, parse_tune
+from jaxeac.experiments.tune_runs import _run
 
 TASKS = ("FrozenLake-4x4-v1", "grid-paper7-v0:slip=0.2")
 ALGOS = ("ac", "eac", "sarsa")
@@ -202,7 +203,7 @@ def test_head_to_head_per_task_and_over_tasks(tuned):
 def test_a_tuned_study_killed_midway_resumes_where_it_stopped(tuned, tmp_path, monkeypatch, capsys):
     import shutil
 
-    from jaxeac.experiments import tune
+    from jaxeac.experiments import tune_runs
 
     out, settings, tuning, result = tuned
     folder = tmp_path / "again"
@@ -211,13 +212,18 @@ def test_a_tuned_study_killed_midway_resumes_where_it_stopped(tuned, tmp_path, m
     (folder / "tune" / "grid-paper7-v0-slip0.2" / "sarsa.tuning.npz").unlink()
     (folder / "tune" / "grid-paper7-v0-slip0.2" / "eac.evaluation.npz").unlink()
     calls = []
-    real = tune._run
+    real, real_evaluate = tune_runs._run, tune_runs._evaluate
 
     def counting(env, grid, algo, points, **kw):
         calls.append((grid.env, algo, kw["key"]))
         return real(env, grid, algo, points, **kw)
 
-    monkeypatch.setattr(tune, "_run", counting)
+    def counting_evaluate(env, grid, jobs, **kw):
+        calls.extend({(grid.env, a, kw["key"]) for a, _ in jobs})
+        return real_evaluate(env, grid, jobs, **kw)
+
+    monkeypatch.setattr(tune_runs, "_run", counting)
+    monkeypatch.setattr(tune_runs, "_evaluate", counting_evaluate)
     again = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
                          key=None, eval_key=0, trials=20, out=folder)
     redone = run_study(settings, folder, progress=True, tuning=again)
@@ -229,7 +235,7 @@ def test_a_tuned_study_killed_midway_resumes_where_it_stopped(tuned, tmp_path, m
 
 
 def test_a_kept_result_is_reused_only_with_the_same_settings(tmp_path):
-    from jaxeac.experiments.tune import _cached
+    from jaxeac.experiments.tune_runs import _cached
 
     path = tmp_path / "t" / "ac.tuning.npz"
     x, reused = _cached(path, {"trials": 20}, lambda: np.arange(6, dtype=np.int32).reshape(2, 3))

@@ -37,25 +37,22 @@ The report's sections are `jaxeac.experiments.tune_report`'s.
 from __future__ import annotations
 
 import dataclasses
-import io
 import itertools
 import json
 import math
-import sys
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.algorithm.config import Hyper, algorithm
+from jaxeac.algorithm.config import algorithm
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_key, check_positive_int, check_rate, plain_json, welch_diff_ci95
 from jaxeac.experiments.tune_measures import claim, curves, head_to_head, sensitivity
 from jaxeac.experiments.tune_report import CONDITIONS, tuned_markdown, tuned_summary
+from jaxeac.experiments.tune_runs import RATES, TuningRuns
 from jaxeac.rng import KEY_LIMIT
 from jaxeac.stats.closed_form import holm, welch_t
 
-RATES = ("alpha", "beta", "gamma", "temperature", "epsilon")
 KEYS_OF = {"actor_critic": ("alpha", "beta", "gamma", "temperature"),
            "q_learning": ("alpha", "gamma", "epsilon"), "sarsa": ("alpha", "gamma", "epsilon")}
 #: Host bytes the tuning results of one algorithm and task may take (success and steps per trial).
@@ -176,51 +173,6 @@ class Tuning:
         return {"seeds": self.seeds, "key": self.key, "grids": grids}
 
 
-def _hyper(grid, points: list[dict], algo: str, per_point: int) -> Hyper:
-    """Per-entry traced rates: each point's (the preset's where it leaves a key out), `per_point` times."""
-    hypers = [dataclasses.replace(grid, **p).run_config(algo).hyper() for p in points]
-    return Hyper(*(jnp.repeat(jnp.stack([getattr(h, r) for h in hypers]), per_point) for r in RATES))
-
-
-def _run(env, grid, algo: str, points: list[dict], *, key: int, seeds: int, chunk_size) -> np.ndarray:
-    """int32 [len(points), seeds]: successes per seed of `algo` at each point, one program for all."""
-    from jaxeac.running.batch import run_entries
-
-    ids = np.tile(np.arange(seeds), len(points))
-    res, _, _ = run_entries(env, grid.run_config(algo), root_key=key, seeds=ids,
-                            hyper=_hyper(grid, points, algo, seeds), chunk_size=chunk_size)
-    return np.asarray(res.success, bool).sum(axis=1).astype(np.int32).reshape(len(points), seeds)
-
-
-def _cached(path: Path | None, config: dict, compute) -> tuple[np.ndarray, bool]:
-    """`compute()` or, where `path` holds an array computed with the same `config`, that array;
-    (array, reused). Written atomically (npz: the array and its config), so a killed run leaves
-    either the whole file or none."""
-    config = plain_json(config)
-    if path is not None and path.is_file():
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                if json.loads(str(z["config"])) == config:
-                    return z["successes"], True
-        except (OSError, ValueError, KeyError):
-            pass  # damaged: computed again and replaced
-    x = compute()
-    if path is not None:
-        from jaxeac.io import atomic_write_bytes
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        buf = io.BytesIO()
-        np.savez(buf, successes=x, config=np.array(json.dumps(config)))
-        atomic_write_bytes(path, buf.getvalue())
-    return x, False
-
-
-def _task_config(grid) -> dict:
-    """What a task's runs depend on, beside the algorithm, the settings, the key and the seeds."""
-    skip = {"algos", "seeds", "key", "chunk_size", "lanes"}
-    return {f.name: getattr(grid, f.name) for f in dataclasses.fields(grid) if f.name not in skip}
-
-
 def across_tasks(
     samples: dict[str, dict[str, np.ndarray]], trials: int, *, resamples: int, key: int, baseline: str = "ac"
 ) -> dict | None:
@@ -295,22 +247,8 @@ def run_tuning(
         if not (store / "setup.json").is_file():
             atomic_write_json(store / "setup.json", tuning.record())
 
-    def runs(t, a, pts, key, seeds, what, name):
-        # the task's folder as the study names it under tasks/ (`study.folder_name`; not imported: no cycle)
-        path = None if store is None else store / t.replace(":slip=", "-slip") / f"{a}.{name}.npz"
-        config = {"task": _task_config(grids[t]), "algo": a, "points": pts, "key": key, "seeds": seeds}
-        x, reused = _cached(path, config, lambda: _run(envs[t], grids[t], a, pts, key=key, seeds=seeds,
-                                                       chunk_size=settings.chunk_size))
-        if progress:
-            print(f"tune: {t}, {a}: {what}" + (f" (done earlier, reusing {path})" if reused else ""),
-                  file=sys.stderr, flush=True)
-        return x
-
-    scores: dict = {a: {} for a in algos}  # {algo: {task: [points, tuning seeds]}}
-    for t in tasks:
-        for a in algos:
-            scores[a][t] = runs(t, a, tuning.points(a), tuning.key, tuning.seeds,
-                                f"{len(tuning.points(a))} settings x {tuning.seeds:,} tuning seeds", "tuning")
+    runs = TuningRuns(settings, tuning, grids, envs, store, progress)
+    scores = runs.tune()  # {algo: {task: [points, tuning seeds]}}
     per_algo = {}
     for a in algos:
         means = np.stack([scores[a][t].mean(axis=1) for t in tasks])  # [tasks, points]
@@ -327,15 +265,8 @@ def run_tuning(
             "sensitivity_per_task": {t: float((m.max() - np.median(m)) / trials) for t, m in zip(tasks, means, strict=True)},
             "curves": {t: curves(tuning.points(a), per_task[t], scores[a][t]) for t in tasks},
         }
-    samples = {c: {t: {} for t in tasks} for c in CONDITIONS[1:]}
+    samples = runs.evaluate(per_algo)  # {condition: {task: {algo: [N]}}}
     n = settings.seeds
-    for t in tasks:
-        for a in algos:
-            sel = per_algo[a]
-            pts = [sel["points"][sel["per_task"][t]], sel["points"][sel["cross_task"]]]
-            pts = pts[:1] if pts[0] == pts[1] else pts  # one selection for both: run once
-            both = runs(t, a, pts, settings.key, n, f"evaluating at its selections on {n:,} seeds", "evaluation")
-            samples["per_task"][t][a], samples["cross_task"][t][a] = both[0], both[-1]
     optimism = {a: {} for a in algos}
     for a in algos:
         for t in tasks:
