@@ -119,11 +119,22 @@ def _replicates(v: np.ndarray, ct: np.ndarray, n: int, tau: np.ndarray) -> tuple
     return reps, 1.0 - below / n
 
 
-def _sorted(v: np.ndarray, ct: np.ndarray):
-    if v.size > 1 and np.any(v[1:] < v[:-1]):
+def _collapsed(v: np.ndarray, ct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ascending distinct values of v [m] and their counts [D, R]: the rows of ct [m, R] (units
+    first, float32) of equal values summed, so every statistic below costs O(distinct values)
+    per resample (successes over T trials: at most T + 1 values). Few values: one product with
+    the rows' indicator matrix; many: the rows in ascending order, as they are. The counts are
+    integers of at most the units pooled, so the float32 sums are exact below 2**24 units."""
+    distinct, inverse = np.unique(v, return_inverse=True)
+    if distinct.size == v.size:
         order = np.argsort(v, kind="stable")
-        return v[order], ct[order]
-    return v, ct
+        return distinct, ct if np.all(order[1:] > order[:-1]) else ct[order]
+    if distinct.size > large.MAX_DISTINCT:  # equal values' rows added in ascending order
+        order = np.argsort(v, kind="stable")
+        start = np.flatnonzero(np.r_[True, np.diff(v[order]) != 0])
+        return distinct, np.add.reduceat(ct[order], start, axis=0)
+    onehot = (inverse[None, :] == np.arange(distinct.size)[:, None]).astype(ct.dtype)
+    return distinct, onehot @ ct
 
 
 def wins_replicates(vx, ctx, vy, cum_y, nx: int, ny: int) -> np.ndarray:
@@ -173,11 +184,10 @@ def aggregate_across_tasks(
     scale = _scales(per, normalize, reference, baseline)
     algos, tasks = per.algos, per.tasks
 
-    def got(i, a, ordered=True):
+    def got(i, a):  # one task's draw of an algorithm, on the common scale, equal values merged
         e = drawn[i][0][a]
         v, ct = e() if callable(e) else e
-        v = scale[tasks[i]](np.asarray(v, np.float64))
-        return _sorted(v, ct) if ordered else (v, ct)
+        return _collapsed(scale[tasks[i]](np.asarray(v, np.float64)), ct)
 
     pooled = {a: np.concatenate([scores[t][a] for t in tasks]) for a in algos}
     lo_all = min(float(x.min()) for x in pooled.values())
@@ -187,11 +197,13 @@ def aggregate_across_tasks(
     tau = np.linspace(lo_all, hi_all, points) if tau is None else np.asarray(tau, np.float64)
     q = [50 * (1 - level), 50 * (1 + level)]
     resamples = None
-    # task by task: the pairs' probability of improvement
     pair_est = {p: [] for p in family}
     pair_star = {p: 0.0 for p in family}
+    means, parts = {a: [] for a in algos}, {a: [] for a in algos}
+    # task by task, each algorithm's draw taken once: the pairs' probability of improvement, the
+    # per-task means, and the merged counts kept for pooling across tasks
     for i, t in enumerate(tasks):
-        here = {a: got(i, a) for a in dict.fromkeys(a for p in family for a in p)}
+        here = {a: got(i, a) for a in algos}
         cums = {}
         for x, y in family:
             (vx, cx), (vy, cy) = here[x], here[y]
@@ -200,20 +212,22 @@ def aggregate_across_tasks(
             nx, ny = per.values[t][x].size, per.values[t][y].size
             pair_est[(x, y)].append(prob_improvement(scores[t][x], scores[t][y]))
             pair_star[(x, y)] = pair_star[(x, y)] + wins_replicates(vx, cx, vy, cums[y], nx, ny)
+        for a, (v, ct) in here.items():  # kept where merging made them small; else drawn again
+            means[a].append(v @ ct.astype(np.float64) / per.values[t][a].size)
+            parts[a].append((v, ct) if ct.size <= BLOCK_ELEMENTS else i)
+        del here, cums
     # algorithm by algorithm: the same draws, pooled over tasks
     out_algos, profiles = {}, {"tau": tau.tolist()}
     for a in algos:
-        parts = [got(i, a, ordered=False) for i in range(len(tasks))]
-        means = np.stack([v @ ct.astype(np.float64) / per.values[t][a].size
-                          for (v, ct), t in zip(parts, tasks, strict=True)])
-        v, ct = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-        order = np.argsort(v, kind="stable")
-        v, resamples = v[order], ct.shape[1]
+        m = np.stack(means.pop(a))
+        got_a = [got(p, a) if isinstance(p, int) else p for p in parts.pop(a)]
+        v, ct = _collapsed(np.concatenate([p[0] for p in got_a]), np.concatenate([p[1] for p in got_a]))
+        del got_a
+        resamples = ct.shape[1]
         block = max(64, BLOCK_ELEMENTS // v.size)  # resamples at a time: the block stays in cache
-        done = [_replicates(v, ct[order, r : r + block], pooled[a].size, tau)
-                for r in range(0, resamples, block)]
+        done = [_replicates(v, ct[:, r : r + block], pooled[a].size, tau) for r in range(0, resamples, block)]
         reps = {k: np.concatenate([d[0][k] for d in done]) for k in done[0][0]}
-        reps.update(mean=means.mean(0), median=np.median(means, 0))
+        reps.update(mean=m.mean(0), median=np.median(m, 0))
         prof = np.concatenate([d[1] for d in done], axis=1)
         est = point_estimates([scores[t][a] for t in tasks])
         out_algos[a] = {k: {"estimate": est[k], "ci": np.percentile(reps[k], q).tolist()} for k in est}
