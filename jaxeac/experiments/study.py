@@ -248,7 +248,15 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
     curves, kept = {}, {}
     n = len(settings.tasks)
+    side = _side_by_side(todo, envs)
+    tuned = None
+    if tuning is not None and side:  # the tuning's runs beside the study's: the device has room
+        from jaxeac.experiments.tune import tuning_runs
+
+        tuner = tuning_runs(settings, tuning, grids, envs, progress=progress)
+        tuned = _in_background(tuner.tune)
     with _TaskRunner(todo, tl) as runner:
+        ahead = _start_groups(runner, todo, out, side, progress)
         for i, (task, grid) in enumerate(tasks.items()):
             folder = _folder(out, task)
             if task not in todo:
@@ -258,13 +266,17 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 with tl.phase("load", task):
                     success, samples = _successes(folder, grid)
             else:
-                with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress,
-                          file=sys.stderr, desc=f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)"
-                          ) as bar:
-                    results = runner.run(task, grid, folder, bar.update)
+                if task in ahead:
+                    results = ahead[task].result()
+                else:
+                    desc = f"study: task {i + 1}/{n} {task} ({len(grid.algos)} algorithms)"
+                    with tqdm(total=len(grid.algos) * grid.seeds, unit="seed", disable=not progress,
+                              file=sys.stderr, desc=desc) as bar:
+                        results = runner.run(task, grid, folder, bar.update)
                 success = {a: r.success for a, r in results.items()}
                 samples = {a: np.asarray(r.successes) for a, r in results.items()}
                 del results
+                ahead.pop(task, None)
             # One task's success curves in memory at a time: the figure's counts ([T, T + 1]) are kept.
             with tl.phase("curves", task):
                 curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
@@ -295,7 +307,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     }
     if tuning is not None:
         with tl.phase("tuning"):
-            result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress)
+            result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress,
+                                          runs=tuner if tuned else None, scores=tuned)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
         with tl.phase("figure"):
             study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
@@ -359,6 +372,69 @@ def _seed_ids(n: int) -> np.ndarray:
     ids = np.arange(n).astype(f"<U{len(str(max(n - 1, 0)))}")
     ids.flags.writeable = False
     return ids
+
+
+#: Per platform, whether the study's chance-budget groups run side by side (a thread each, its tasks
+#: in turn), so that every group's programs compile at once rather than group after group, and a
+#: tuning's runs start with the study's. Not on CPUs: there compiles and runs share the same cores.
+GROUPS_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
+
+
+def _side_by_side(todo: dict, envs: dict) -> bool:
+    import jax
+
+    return bool(todo) and GROUPS_SIDE_BY_SIDE.get(jax.default_backend(), False)
+
+
+def _in_background(work: Callable):
+    """`work()` on a daemon thread (an interrupted study does not wait for it): a future."""
+    from concurrent.futures import Future
+
+    future: Future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(work())
+        except BaseException as e:  # noqa: BLE001 (the future carries it to whoever waits)
+            future.set_exception(e)
+
+    threading.Thread(target=run, daemon=True, name="jaxeac-study").start()
+    return future
+
+
+def _start_groups(runner: _TaskRunner, todo: dict, out: Path, side: bool, progress: bool) -> dict:
+    """Where groups go side by side (`GROUPS_SIDE_BY_SIDE`): {task: future of its run's results},
+    each chance-budget group's tasks in turn on a thread of its own; else {} (run in the loop)."""
+    if not side:
+        return {}
+    from jaxeac.running.loops import program_key
+
+    groups: dict = {}
+    for task, grid in todo.items():
+        groups.setdefault(program_key(grid.make_env()), []).append(task)
+    ahead: dict = {}
+
+    def group(tasks: list) -> None:
+        for task in tasks:
+            done = ahead[task]
+            try:
+                done.set_result(runner.run(task, todo[task], _folder(out, task), None))
+                if progress:
+                    print(f"study: {task}: runs done", file=sys.stderr, flush=True)
+            except BaseException as e:  # noqa: BLE001 (the task's future carries it)
+                done.set_exception(e)
+                for later in tasks[tasks.index(task) + 1:]:
+                    ahead[later].set_exception(RuntimeError(f"not run: {task} failed before it"))
+                return
+
+    from concurrent.futures import Future
+
+    for tasks in groups.values():
+        for task in tasks:
+            ahead[task] = Future()
+    for tasks in groups.values():
+        threading.Thread(target=group, args=(tasks,), daemon=True, name="jaxeac-study-group").start()
+    return ahead
 
 
 #: Tasks whose E8 diagnostics run at once beside the runs (accelerators only). All 11 tasks' queued

@@ -230,14 +230,9 @@ def verdict_rows(samples: dict) -> tuple[list, dict]:
     return rows, means
 
 
-def run_tuning(
-    settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True
-) -> dict:
-    """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
-    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
-    `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun."""
-    tasks, algos = list(grids), list(settings.algos)
-    trials = grids[tasks[0]].trials
+def tuning_runs(settings, tuning: Tuning, grids: dict, envs: dict, *, progress: bool = True) -> TuningRuns:
+    """The tuning's runs for a study (its `grids`/`envs` per task), kept under ``tune/`` of
+    `tuning.folder` (checked, and its setup recorded, here) and reused on a rerun."""
     store = None if tuning.folder is None else tuning.folder / "tune"
     if store is not None:
         from jaxeac.io import atomic_write_json
@@ -246,9 +241,21 @@ def run_tuning(
         store.mkdir(parents=True, exist_ok=True)
         if not (store / "setup.json").is_file():
             atomic_write_json(store / "setup.json", tuning.record())
+    return TuningRuns(settings, tuning, grids, envs, store, progress)
 
-    runs = TuningRuns(settings, tuning, grids, envs, store, progress)
-    scores = runs.tune()  # {algo: {task: [points, tuning seeds]}}
+
+def run_tuning(
+    settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True,
+    runs: TuningRuns | None = None, scores=None,
+) -> dict:
+    """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
+    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
+    `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun.
+    `runs` and `scores` (a future of ``runs.tune()``): tuning runs started earlier (`tuning_runs`)."""
+    tasks, algos = list(grids), list(settings.algos)
+    trials = grids[tasks[0]].trials
+    runs = runs or tuning_runs(settings, tuning, grids, envs, progress=progress)
+    scores = runs.tune() if scores is None else scores.result()  # {algo: {task: [points, tuning seeds]}}
     per_algo = {}
     for a in algos:
         means = np.stack([scores[a][t].mean(axis=1) for t in tasks])  # [tasks, points]
