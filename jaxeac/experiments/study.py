@@ -443,6 +443,33 @@ def _start_groups(runner: _TaskRunner, todo: dict, out: Path, side: bool, progre
 DIAGNOSTIC_WORKERS = 1
 
 
+#: Compiles of E8's programs at once, ahead of the runs (accelerators: `_prepare_diagnostics`).
+DIAGNOSTIC_COMPILERS = 8
+
+
+def _prepare_diagnostics(todo: dict, diagnostic_seeds):
+    """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
+    memories, chance budget and best-action input), several at once, so that each task's
+    diagnostics find theirs compiled instead of compiling group after group: the pool."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from jaxeac.envs.grid import shortest_actions
+    from jaxeac.running.diagnostics import prepare_diagnostics
+    from jaxeac.running.loops import program_key
+
+    jobs: dict = {}
+    for grid in todo.values():
+        env, grid_map = grid.make_env(), grid.grid_map()
+        best = shortest_actions(grid_map) if grid_map is not None else None
+        for algo, seeds in diagnostic_seeds(grid).items():
+            key = (program_key(env), algo, best is not None, seeds.size)
+            jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
+    pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
+    for env, cfg, n, best in jobs.values():
+        pool.submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best)
+    return pool
+
+
 class _TaskRunner:
     """Runs a study's tasks into their folders. Where E8's diagnostics go beside the run
     (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), a task's start with its run
@@ -462,9 +489,11 @@ class _TaskRunner:
         self.diagnosed: dict = {}
         self.pool = self.finisher = None
         self._diagnose, self._seeds = diagnose_grid, diagnostic_seeds
+        self.compiler = None
         if self.beside:
             self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS)
             self.finisher = ThreadPoolExecutor(max_workers=1)
+            self.compiler = _prepare_diagnostics(todo, diagnostic_seeds)
 
     def __enter__(self) -> _TaskRunner:
         return self
@@ -539,7 +568,7 @@ class _TaskRunner:
             f.result()
 
     def __exit__(self, *exc) -> None:
-        for pool in (self.pool, self.finisher):
+        for pool in (self.pool, self.finisher, self.compiler):
             if pool is not None:
                 pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
         for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were

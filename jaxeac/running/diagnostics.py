@@ -16,7 +16,9 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Sequence
+from concurrent.futures import Future
 
 import jax
 import jax.numpy as jnp
@@ -155,13 +157,48 @@ def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, n_devices: int
     return program
 
 
-def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
-                   best: np.ndarray | None = None, hyper: Hyper | None = None) -> SeedDiagnostics:
-    """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
-    seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
-    `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
-    hold `CHUNK_BYTES` and split over the local devices."""
-    root = jax.random.key(root_key_int(root_key))
+def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None):
+    """(config in the trials loop, devices, chunk, best input, tables) of a `diagnose_seeds` call."""
+    cfg = trials_config(env, cfg)
+    n_devices = min(len(jax.local_devices()), seeds.size)
+    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * env.n_chances * 8 + env.n_states * env.n_actions
+    chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
+    chunk = -(-chunk // n_devices) * n_devices
+    best_arg = jnp.zeros((), bool)
+    if best is not None:  # padded states (a tabular layout's, `bind_inputs`) have no best action
+        n_padded = bind_inputs(env, program_inputs(env)).n_states
+        best_arg = jnp.asarray(np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0))))
+    return cfg, n_devices, chunk, best_arg, program_inputs(env)
+
+
+_EXECUTABLES: dict = {}  # (program, chunk, best's shape) -> Future of the compiled program
+_EXECUTABLES_LOCK = threading.Lock()
+
+
+def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: tuple):
+    """The compiled program for these inputs' shapes, compiled once: a later caller, on any
+    thread, waits for the first (`prepare_diagnostics` compiles ahead of the runs)."""
+    key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, args[3].shape)
+    with _EXECUTABLES_LOCK:
+        future, mine = _EXECUTABLES.get(key), False
+        if future is None:
+            if len(_EXECUTABLES) >= 64:
+                _EXECUTABLES.clear()
+            future, mine = _EXECUTABLES.setdefault(key, Future()), True
+    if not mine:
+        return future.result()
+    try:
+        program = _program(env, cfg, has_best, n_devices).lower(*args).compile()
+    except BaseException as e:
+        with _EXECUTABLES_LOCK:
+            _EXECUTABLES.pop(key, None)
+        future.set_exception(e)
+        raise
+    future.set_result(program)
+    return program
+
+
+def _checked_seeds(seeds) -> np.ndarray:
     seeds = np.asarray(seeds)
     if seeds.ndim != 1 or not (seeds.size == 0 or np.issubdtype(seeds.dtype, np.integer)):
         raise TypeError(f"seeds must be a 1-D sequence of integer seed indices (got {seeds!r})")
@@ -170,23 +207,38 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
         raise ValueError("seeds is empty: no seeds to diagnose; pass at least one seed index")
     if seeds.min() < 0 or seeds.max() >= KEY_LIMIT:
         raise ValueError(f"seeds must lie in 0..{KEY_LIMIT - 1} (got {int(seeds.min())}..{int(seeds.max())})")
-    cfg = trials_config(env, cfg)
+    return seeds
+
+
+def prepare_diagnostics(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndarray | None = None,
+                        hyper: Hyper | None = None) -> None:
+    """Compile the program `diagnose_seeds` of `n_seeds` seeds will run (for these arguments),
+    so that the call finds it compiled: compiles of many tasks' diagnostics can go at once,
+    ahead of their runs."""
+    seeds = _checked_seeds(np.arange(n_seeds))
+    cfg, n_devices, chunk, best_arg, tables = _plan(env, cfg, seeds, best)
     hyper = cfg.hyper() if hyper is None else hyper
-    n_devices = min(len(jax.local_devices()), seeds.size)
-    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * env.n_chances * 8 + env.n_states * env.n_actions
-    chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
-    chunk = -(-chunk // n_devices) * n_devices
-    program = _program(env, cfg, best is not None, n_devices)
-    best_arg = jnp.zeros((), bool)
-    if best is not None:  # padded states (a tabular layout's, `bind_inputs`) have no best action
-        n_padded = bind_inputs(env, program_inputs(env)).n_states
-        best_arg = jnp.asarray(np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0))))
-    tables = program_inputs(env)
+    args = (jax.random.key(0), np.zeros(chunk, np.int32), hyper, best_arg, tables)
+    _executable(env, cfg, n_devices, best is not None, args)
+
+
+def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
+                   best: np.ndarray | None = None, hyper: Hyper | None = None) -> SeedDiagnostics:
+    """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
+    seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
+    `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
+    hold `CHUNK_BYTES` and split over the local devices."""
+    root = jax.random.key(root_key_int(root_key))
+    seeds = _checked_seeds(seeds)
+    cfg, n_devices, chunk, best_arg, tables = _plan(env, cfg, seeds, best)
+    hyper = cfg.hyper() if hyper is None else hyper
     parts = []
     for start in range(0, seeds.size, chunk):
         part = seeds[start:start + chunk]
         padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
-        out = jax.device_get(program(root, padded, hyper, best_arg, tables))
+        args = (root, padded, hyper, best_arg, tables)
+        program = _executable(env, cfg, n_devices, best is not None, args)
+        out = jax.device_get(program(*args))
         parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
