@@ -317,6 +317,29 @@ def test_devices_take_chunks_at_their_own_pace():
     assert job.ran.count(1) > job.ran.count(0) > 0, job.ran
 
 
+def test_on_drained_is_called_once_when_every_chunk_is_handed_out():
+    """`run_chunks(on_drained=...)`: called once, on a thread of its own, after the last chunk's
+    dispatch (E8's counts start there in `jaxeac grid`), whatever the device groups."""
+    import threading
+
+    from jaxeac.running.schedule import run_chunks as _run_chunks
+
+    for groups in (1, 2):
+        log: list[str] = []
+        called = threading.Event()
+        seen: list = []
+
+        def drained(log=log, seen=seen, called=called) -> None:
+            seen.append((threading.current_thread() is threading.main_thread(),
+                         [x for x in log if x.startswith("dispatch")]))
+            called.set()
+
+        _run_chunks([_LoggedJob("a", log, 5, groups=groups)], None, drained)
+        assert called.wait(5)
+        assert len(seen) == 1 and not seen[0][0]
+        assert seen[0][1] == [f"dispatch a{i}" for i in range(5)]
+
+
 def test_a_device_joins_when_its_own_program_is_in():
     """Each device takes chunks once its own program is in (`program_pending`): the first
     device's runs while the second's is still loading; the second then joins, and the host
@@ -541,3 +564,23 @@ def test_queue_blocks_update_lanes_in_place(algo):
     loops = [c for c in re.split(r"\n(?=\S)", text) if not c.startswith("ENTRY")]  # not the one-off start
     copied = {shape for c in loops for shape in re.findall(r"= \w+(\[[\d,]+\])\{[\d,]*\} copy\(", c)}
     assert "while(" in text and not copied & per_lane, sorted(copied)
+
+
+@pytest.mark.parametrize("once_dispatched", [False, True])
+def test_diagnostics_beside_the_run_give_the_same_folder(monkeypatch, tmp_path, once_dispatched):
+    """E8's counts computed beside the run, from its start or once every chunk is handed out
+    (`DIAGNOSE_ONCE_DISPATCHED`), are those computed after it; summary.json's timeline is in order."""
+    from jaxeac.experiments import grid
+    from jaxeac.experiments.grid import GridSettings, run_grid_to_folder
+
+    settings = GridSettings(seeds=9, trials=20, key=1, algos=("ac", "eac"), chunk_size=4).resolved()
+    _, after = run_grid_to_folder(settings, tmp_path / "after", figures=False)
+    backend = jax.default_backend()
+    monkeypatch.setattr(grid, "DIAGNOSE_BESIDE_THE_RUN", {backend: True})
+    monkeypatch.setattr(grid, "DIAGNOSE_ONCE_DISPATCHED", {backend: once_dispatched})
+    _, beside = run_grid_to_folder(settings, tmp_path / "beside", figures=False)
+    assert beside["memory_diagnostics"] == after["memory_diagnostics"]
+    files = [(tmp_path / d / "results.parquet").read_bytes() for d in ("beside", "after")]
+    assert files[0] == files[1]
+    tl = beside["timeline"]
+    assert tl["started"] <= tl["results"] <= tl["figures"] <= tl["diagnosed"]

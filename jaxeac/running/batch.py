@@ -174,8 +174,12 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tabl
         return future.result()[0], 0.0  # compiled by an earlier call (or another thread)
     try:
         t0 = time.perf_counter()
-        program = _jitted(env, cfg, devices).lower(*_placed(devices, root, seeds, hyper, tables)).compile()
+        lowered = _jitted(env, cfg, devices).lower(*_placed(devices, root, seeds, hyper, tables))
+        t1 = time.perf_counter()
+        program = lowered.compile()
         seconds = time.perf_counter() - t0
+        record({"event": "lowered", "devices": [d.id for d in devices], "lower_s": t1 - t0,
+                "xla_s": seconds - (t1 - t0)})  # trace and lowering; XLA's compile or cache load
         trim_host_memory()
         future.set_result((program, seconds))
         return program, seconds
@@ -356,13 +360,14 @@ class _Entries:
 COMPILES_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
 
 
-def _prepare_all(make: Callable[[int], _Entries], count: int, progress, platform: str) -> list[_Entries]:
+def _prepare_all(make: Callable[[int], _Entries], count: int, progress, platform: str,
+                 on_drained: Callable[[], None] | None = None) -> list[_Entries]:
     """`make(i)` for every job on threads (XLA compiles with the GIL released): side by side on
     accelerators, one at a time on CPUs (`COMPILES_SIDE_BY_SIDE`), each job's chunks starting as
     soon as its program is ready (`_run_chunks`). Returns the jobs, run."""
     pool = ThreadPoolExecutor(max_workers=count if COMPILES_SIDE_BY_SIDE.get(platform, False) else 1)
     try:
-        return run_chunks([pool.submit(make, i) for i in range(count)], progress)
+        return run_chunks([pool.submit(make, i) for i in range(count)], progress, on_drained)
     finally:  # on Ctrl-C or an error, do not wait for the other compiles to end
         pool.shutdown(wait=False, cancel_futures=True)
 
@@ -412,12 +417,14 @@ def run_algorithms(
     progress: Callable[[int], None] | None = None,
     collectors: Sequence[Collector | None] | None = None,
     hypers: Sequence[Hyper | None] | None = None,
+    on_drained: Callable[[], None] | None = None,
 ) -> list[SeedsResult | CompactSeeds]:
     """Seeds first_seed … first_seed+N−1 of each config in `cfgs` (one per algorithm), as one
     pipeline: each program's chunks start as soon as it has compiled (`_prepare_all`), and a
     device takes the next algorithm's chunks once the last one's are handed out. Results as
     `run_seeds` gives them, one per config (`collectors[i]` takes config i's chunks, None: host
-    arrays; `hypers[i]` its rates, None: the config's own)."""
+    arrays; `hypers[i]` its rates, None: the config's own). `on_drained()`: called once, on a thread
+    of its own, when every chunk has been handed out to a device (their queue holds no more work)."""
     cfgs = _check_configs(env, cfgs)
     root_key = root_key_int(root_key)
     n_seeds = check_int("n_seeds", n_seeds, high=KEY_LIMIT, fix="pass how many seeds to run, e.g. 100")
@@ -443,7 +450,7 @@ def run_algorithms(
         return _Entries(env, cfgs[i], root_key=root_key, seeds=seeds, hyper=hyper,
                         chunk_size=chunk_size, devices=devices, collector=collectors[i], name=str(i))
 
-    jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform)
+    jobs = _prepare_all(make, len(cfgs), progress, devices[0].platform, on_drained)
     results = []
     for cfg, job in zip(cfgs, jobs, strict=True):
         resolved = cfg.resolve(env, job.chunk_size // len(job.devices), job.devices[0].platform)

@@ -67,8 +67,9 @@ class _Queue:
     """Every chunk of every job, in order, handed out one at a time to the device groups. A job
     may be a future of one still compiling: taking its first chunk waits for it."""
 
-    def __init__(self, jobs: Sequence):
+    def __init__(self, jobs: Sequence, on_drained=None):
         self.lock = threading.Lock()
+        self.on_drained = on_drained  # called once, when the last chunk has been handed out
         self.jobs, self.done = collections.deque(jobs), []
         self.starts: collections.deque = collections.deque()
         self.taken = 0
@@ -95,6 +96,8 @@ class _Queue:
         with self.lock:
             while not self.starts:
                 if not self.jobs:
+                    if self.total is None and self.on_drained is not None:
+                        threading.Thread(target=self.on_drained, daemon=True, name="jaxeac-drained").start()
                     self.total = self.taken
                     return None
                 item = self.jobs[0]
@@ -120,8 +123,8 @@ def _pending(job, group: int) -> Future | None:
 class _Pipeline:
     """The device groups' workers and the collecting thread's hand-over (`run_chunks`)."""
 
-    def __init__(self, jobs: Sequence, n_groups: int, pool: Executor):
-        self.queue = _Queue(jobs)
+    def __init__(self, jobs: Sequence, n_groups: int, pool: Executor, on_drained=None):
+        self.queue = _Queue(jobs, on_drained)
         self.pool = pool  # threads for work that frees the GIL (`prepare`), shared by the workers
         self.cond = threading.Condition()
         self.ready: dict[int, tuple] = {}  # sequence number -> (job, start, group, size, host output, times)
@@ -198,16 +201,18 @@ class _Pipeline:
             return self.ready.pop(seq)
 
 
-def run_chunks(jobs: Sequence, progress) -> list:
+def run_chunks(jobs: Sequence, progress, on_drained=None) -> list:
     """Every chunk of every job, each run whole by one device group: each group's worker takes
     the next chunk from a shared queue and keeps `CHUNKS_IN_FLIGHT` dispatched, so every device
     computes at its own pace; this thread collects the chunks, in seed order, as they come back.
     A job may be a future of one still compiling (`_prepare_all`): the jobs before it run
-    meanwhile, and chunks in flight come back while it compiles. Returns the jobs."""
+    meanwhile, and chunks in flight come back while it compiles. `on_drained()` is called once,
+    on a thread of its own, as soon as every chunk is handed out (the devices have their last
+    work). Returns the jobs."""
     first = next((j for j in jobs if not isinstance(j, Future)), None) or jobs[0].result()
     n_groups = len(first.groups)
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        pipe = _Pipeline(jobs, n_groups, pool)
+        pipe = _Pipeline(jobs, n_groups, pool, on_drained)
         workers = [threading.Thread(target=pipe.work, args=(g,), daemon=True, name=f"jaxeac-device-{g}")
                    for g in range(n_groups)]
         for w in workers:
