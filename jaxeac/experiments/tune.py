@@ -272,7 +272,7 @@ def run_tuning(
             "sensitivity_per_task": {t: float((m.max() - np.median(m)) / trials) for t, m in zip(tasks, means, strict=True)},
             "curves": {t: curves(tuning.points(a), per_task[t], scores[a][t]) for t in tasks},
         }
-    samples = runs.evaluate(per_algo)  # {condition: {task: {algo: [N]}}}
+    samples = runs.evaluate(per_algo, preset)  # {condition: {task: {algo: [N]}}}
     n = settings.seeds
     optimism = {a: {} for a in algos}
     for a in algos:

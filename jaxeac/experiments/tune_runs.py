@@ -67,6 +67,8 @@ def _evaluate(env, grid, jobs: list[tuple[str, dict]], *, key: int, seeds: int,
     from jaxeac.running.batch import run_algorithms
     from jaxeac.running.outputs import CompactCollector
 
+    if not jobs:
+        return []
     ids = np.arange(seeds, dtype=np.int64)
     collectors = [CompactCollector(ids, grid.trials, env.n_states, n_chances=env.n_chances,
                                    whole_chunks=False) for _ in jobs]
@@ -74,6 +76,12 @@ def _evaluate(env, grid, jobs: list[tuple[str, dict]], *, key: int, seeds: int,
                           chunk_size=chunk_size, collectors=collectors,
                           hypers=[dataclasses.replace(grid, **p).run_config(a).hyper() for a, p in jobs])
     return [np.asarray(r.successes, np.int32) for r in runs]
+
+
+def _is_preset(grid, algo: str, point: dict) -> bool:
+    """Whether `point` gives `algo` the preset's rates (its run is then the study's own)."""
+    at, preset = dataclasses.replace(grid, **point).run_config(algo).hyper(), grid.run_config(algo).hyper()
+    return all(np.array_equal(np.asarray(getattr(at, r)), np.asarray(getattr(preset, r))) for r in RATES)
 
 
 def study_chunk(env, grid, algo: str, seeds: int, chunk_size) -> int | None:
@@ -172,9 +180,10 @@ class TuningRuns:
                 scores[a][t] = x
         return scores
 
-    def evaluate(self, per_algo: dict) -> dict:
+    def evaluate(self, per_algo: dict, preset: dict | None = None) -> dict:
         """{"per_task" | "cross_task": {task: {algo: int32 [N]}}}: the evaluation seeds at each
-        algorithm's selections (`per_algo[a]`: its points, ``per_task`` and ``cross_task`` indices)."""
+        algorithm's selections (`per_algo[a]`: its points, ``per_task`` and ``cross_task`` indices).
+        A selection at the preset's rates is the study's own run: its successes `preset[task][algo]`."""
         n = self.settings.seeds
         samples: dict = {c: {t: {} for t in self.tasks} for c in ("per_task", "cross_task")}
         what = f"evaluating at its selections on {n:,} seeds"
@@ -192,8 +201,12 @@ class TuningRuns:
                     want[a] = pts
             if want:
                 jobs = [(a, p) for a, pts in want.items() for p in pts]
-                got = iter(_evaluate(self.envs[t], self.grids[t], jobs, key=self.settings.key, seeds=n,
+                known = {j: np.asarray(preset[t][a], np.int32) for j, (a, p) in enumerate(jobs)
+                         if preset is not None and _is_preset(self.grids[t], a, p)}
+                left = [j for i, j in enumerate(jobs) if i not in known]
+                ran = iter(_evaluate(self.envs[t], self.grids[t], left, key=self.settings.key, seeds=n,
                                      chunk_size=self.settings.chunk_size))
+                got = iter([known[i] if i in known else next(ran) for i in range(len(jobs))])
                 for a, pts in want.items():
                     both[a] = np.stack([next(got) for _ in pts])
                     where = self.path(t, a, "evaluation")
