@@ -221,7 +221,7 @@ def brunner_munzel_counts(kb, kt, alpha: float = 0.05):
     s2b = ((kb * db**2).sum(1) - nb * mean_b**2) / (nb - 1)
     rct = (kt * rc).sum(1) / nt
     rcb = (kb * rc).sum(1) / nb
-    phat = (rct - (nt + 1) / 2) / nb
+    phat = a12_counts(kb, kt)  # = (rct − (nt + 1) / 2) / nb, the pairs counted exactly
     var = nb * s2b + nt * s2t
     se = np.sqrt(np.maximum(var, 0)) / (nb * nt)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -237,6 +237,15 @@ def brunner_munzel_counts(kb, kt, alpha: float = 0.05):
     lo = np.clip(phat - q * se, 0, 1)
     hi = np.clip(phat + q * se, 0, 1)
     return phat, w, df, p, lo, hi
+
+
+def a12_counts(kb, kt):
+    """A12 = P(T > B) + ½P(T = B) (Vargha & Delaney 2000), its one definition: the pairs counted
+    from counts per ascending distinct value kb, kt [..., U], each treatment unit scoring the
+    baseline units below it and half of those equal to it. Half-integers: the sum is exact in
+    float64 below 2^52 pairs, so the result is the correctly rounded share."""
+    kb, kt = np.asarray(kb, np.float64), np.asarray(kt, np.float64)
+    return (kt * (np.cumsum(kb, axis=-1) - 0.5 * kb)).sum(-1) / (kb.sum(-1) * kt.sum(-1))
 
 
 def _pool(x_baseline, x_treatment):

@@ -21,6 +21,7 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 from jaxeac.stats import large
+from jaxeac.stats.closed_form import a12_counts, iqm_sorted
 from jaxeac.stats.inputs import PerSeed, excerpt
 from jaxeac.stats.resample import cumulative
 
@@ -96,8 +97,6 @@ def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict
 def point_estimates(per_task: list) -> dict:
     """rliable's aggregates of scores on one scale, a list of per-task arrays: the mean and the
     median of the per-task means, the IQM and the optimality gap of all runs pooled."""
-    from jaxeac.stats.closed_form import iqm_sorted
-
     means, x = [float(s.mean()) for s in per_task], np.concatenate(per_task)
     return {
         "mean": float(np.mean(means)),
@@ -152,16 +151,20 @@ def wins_replicates(vx, ctx, vy, cum_y, nx: int, ny: int) -> np.ndarray:
 
 def below_half(v: np.ndarray, cum: np.ndarray, at: np.ndarray) -> np.ndarray:
     """Per value of `at`: a sample's units below it plus half of those equal to it, from the
-    sample's ascending values v and cumulative counts cum with a leading 0 (the one definition of
-    the pairs counted by P(X > Y) + ½ P(X = Y); `wins_replicates` is its form per resample)."""
+    sample's ascending values v and cumulative counts cum with a leading 0: the pairs
+    `closed_form.a12_counts` counts, per value (for the jackknife); `wins_replicates` is its form
+    per resample."""
     lo, hi = np.searchsorted(v, at, "left"), np.searchsorted(v, at, "right")
     return cum[lo] + 0.5 * (cum[hi] - cum[lo])
 
 
 def prob_improvement(x, y) -> float:
-    """P(X > Y) + ½ P(X = Y) over all pairs of values (Mann–Whitney U / (n m); Agarwal et al. 2021)."""
-    x, y = np.sort(np.asarray(x, np.float64)), np.sort(np.asarray(y, np.float64))
-    return float(below_half(y, np.arange(y.size + 1), x).sum() / (x.size * y.size))
+    """P(X > Y) + ½ P(X = Y) over all pairs of values (Mann–Whitney U / (n m); Agarwal et al. 2021):
+    A12 of X over Y (`closed_form.a12_counts`)."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    _, inv = np.unique(np.concatenate([y, x]), return_inverse=True)
+    u = int(inv.max()) + 1
+    return float(a12_counts(np.bincount(inv[: y.size], minlength=u), np.bincount(inv[y.size :], minlength=u)))
 
 
 def aggregate_across_tasks(
