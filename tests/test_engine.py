@@ -17,32 +17,23 @@ from jaxeac.stats.inputs import PerSeed
 from jaxeac.stats.resample import boot_counts, bootstrap_sums
 
 PINNED = Path(__file__).parent / "data" / "stats_10k_before.json"
-#: Intervals the BCa tie fix moves (integer-valued IQMs and paired AUC differences): within 1e-4.
+#: Intervals the first BCa tie fix moved (integer-valued IQMs and paired AUC differences): within 1e-4.
 TIE_FIXED = ("iqm_baseline_ci", "iqm_treatment_ci", "mean_diff_ci")
 
 
-def _walk(old, new, path=""):
-    if isinstance(old, dict):
-        for k, v in old.items():
-            if k in ("timing", "run_dir", "versions") or path.endswith("/settings") and k == "alpha":
-                continue
-            if k == "alpha" and path.endswith("/calibration"):
-                continue
-            nk = k[:-2] if k.endswith("_ci95") or k == "ci95" else k  # level-neutral names
-            assert nk in new, f"{path}/{k} is gone"
-            yield from _walk(v, new[nk], f"{path}/{nk}")
-    elif isinstance(old, list):
-        assert len(old) == len(new), path
-        for i, (u, v) in enumerate(zip(old, new, strict=True)):
-            yield from _walk(u, v, f"{path}[{i}]")
-    else:
-        yield path, old, new
+def _skip(path: str, k: str) -> bool:
+    return (k in ("timing", "run_dir", "versions") or (path.endswith("/settings") and k == "alpha")
+            or (k == "alpha" and path.endswith("/calibration")))
 
 
 @pytest.mark.slow
 def test_run_folder_numbers_pinned_at_10k_seeds(tmp_path):
     """Every number of a 10,000-seed run folder's stats.json as before the engine, apart from the
-    tie fix (BCa endpoints of integer-valued statistics) and the key renames."""
+    tie fixes and the key renames: the first (BCa endpoints of integer-valued statistics, within
+    1e-4), then replicates kept in float64 (`test_stats_scale.assert_as_pinned`'s rule: every
+    non-resampled number the same, resampled ones within its tolerances)."""
+    from test_stats_scale import assert_number_as_pinned, pinned_leaves
+
     import jaxeac
 
     out = tmp_path / "run"
@@ -51,36 +42,33 @@ def test_run_folder_numbers_pinned_at_10k_seeds(tmp_path):
     assert res.stats["level"] == 0.95 and res.rows[0]["analysis"] == "paired"
     new = json.loads((out / "stats.json").read_text())
     moved = 0
-    for path, a, b in _walk(json.loads(PINNED.read_text()), new):
-        if isinstance(a, float) and isinstance(b, float):
-            if any(f"/{k}[" in path for k in TIE_FIXED):
-                moved += a != b
-                assert b == pytest.approx(a, rel=1e-4), path
-            else:
-                assert b == pytest.approx(a, rel=1e-12, abs=1e-15), path
+    for path, a, b, width in pinned_leaves(json.loads(PINNED.read_text()), new, "", _skip):
+        if any(f"/{k}[" in path or f"/{k}95[" in path for k in TIE_FIXED):
+            moved += a != b
+            assert b == pytest.approx(a, rel=1e-4), path
         else:
-            assert a == b, path
+            assert_number_as_pinned(path, a, b, width)
     assert moved > 0  # the tie fix did move the integer IQM intervals
 
 
 def test_bca_ties_in_the_replicates_precision():
-    """Integer data: the IQM replicates drawn in float32 give the interval that the same resamples
-    computed exactly in float64 give (before the fix every tie counted as below), and scipy's BCa
-    agrees within Monte-Carlo error."""
+    """Integer data: the IQM replicates (kept in float64) are those of the same resamples computed
+    from their counts, ties with the estimate count one half (before the fix every tie counted as
+    below), and scipy's BCa agrees within Monte-Carlo error."""
     from jaxeac.stats import large
     from jaxeac.stats._rng import as_key
 
     x = np.random.default_rng(5).binomial(12, 0.5, 80).astype(float)
     key, R = as_key(7), 4000
-    _, q32 = bootstrap_sums(key, np.sort(x)[:, None], R, iqm=True)
+    _, q = bootstrap_sums(key, np.sort(x)[:, None], R, iqm=True)
     counts = boot_counts(key, x.size, R).astype(np.float64)
     q64 = large.iqm_from_counts(counts, np.sort(x))
-    np.testing.assert_allclose(q32, q64, rtol=1e-6)
+    np.testing.assert_allclose(q, q64, rtol=1e-12)
     est = float(stats.trim_mean(x, 0.25))
     assert (q64 == est).sum() > 100  # many ties with the estimate
-    ours = bca_interval(est, q32, [jackknife_iqm(x)])
+    ours = bca_interval(est, q, [jackknife_iqm(x)])
     exact = bca_interval(est, q64, [jackknife_iqm(x)])
-    assert ours == pytest.approx(exact, abs=1e-6)  # the same quantiles (float32 endpoints)
+    assert ours == pytest.approx(exact, abs=1e-12)  # the same quantiles
     ref = stats.bootstrap((x,), lambda s, axis: stats.trim_mean(s, 0.25, axis=axis), n_resamples=R,
                           method="BCa", random_state=1).confidence_interval
     assert ours[0] == pytest.approx(ref.low, abs=0.2) and ours[1] == pytest.approx(ref.high, abs=0.2)

@@ -29,9 +29,9 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     if not np.isfinite(theta_hat):  # e.g. Hedges' g of two constant samples
         return float(theta_hat), float(theta_hat)
     b = theta_star.size
-    # ties with the estimate count one half, compared in the replicates' precision: the resampled
-    # sums are float32, so a replicate equal to the estimate may differ from its float64 value in
-    # the last bits (on integer data every tie counted as below); both rounded to float32 here
+    # ties with the estimate count one half: a replicate equal to the estimate may differ from it
+    # in the last bits (the replicates' float64 sums run in another order than the estimate's;
+    # on integer data every tie once counted as below), so both are rounded to float32 here
     star32, hat32 = theta_star.astype(np.float32), np.float32(theta_hat)
     pct = ((star32 < hat32).sum() + (star32 <= hat32).sum()) / (2 * b)
     z0 = special.ndtri(pct)

@@ -29,7 +29,7 @@ def permutation_welch_p(nb: int, nt: int, t_obs, tot1, tot2, s1, s2) -> float:
 
 
 def _threshold(t_obs):
-    """|t| less a relative 1e-6, so float32 sums of the same labelling count as ties."""
+    """|t| less a relative 1e-6, so sums of an equal labelling formed in another order count as ties."""
     a = np.abs(np.asarray(t_obs, np.float64))
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(a), a - 1e-6 * np.maximum(a, 1e-12), a)

@@ -9,8 +9,10 @@ resampling weights serves all of them:
 * permutation: exactly-n_t-of-N label sets L [N, R] (Knuth Algorithm S), then
   treatment sums = Lᵀ @ Z (Fisher 1935; Pitman 1937).
 
-Draws are made `chunk` resamples at a time under one jitted function with
-static shapes, so memory stays bounded (≈ chunk · n floats) for any R;
+The device draws the counts and label sets (exact integers); the host forms the sums in
+float64, so every replicate is kept in float64 (a replicate equal to the estimate is not
+moved off it by float32 rounding). Draws are made `chunk` resamples at a time under one jitted
+function with static shapes, so memory stays bounded (≈ chunk · n floats) for any R;
 chunk c uses `jax.random.fold_in(key, c)` (inside the jitted function, so
 dispatching the next chunk never waits for the last), and results depend only
 on (key, R, chunk). This is the path up to `large.LARGE_N` seeds per method; above
@@ -27,7 +29,6 @@ import numpy as np
 
 from jaxeac.stats._rng import random_subsets, uniform_index
 
-IQM_BLOCK = 128
 # chunk x units per draw: ~80 MB per [chunk, n] float32 buffer; keeps the flat int32 index < 2^31
 MAX_CHUNK_ELEMENTS = 20_000_000
 
@@ -35,26 +36,6 @@ MAX_CHUNK_ELEMENTS = 20_000_000
 def _cap(chunk: int, resamples: int, n: int) -> int:
     """Chunk size, lowered for very many seeds so one chunk's buffers stay bounded."""
     return max(1, min(chunk, resamples, MAX_CHUNK_ELEMENTS // max(n, 1)))
-
-
-def _smallest_sum(k, counts_b, values_b, bc, bcv_cum, h_cum):
-    """Sum of the k smallest values of each resample, from counts over value-sorted units.
-
-    counts_b / values_b: [C, nb, B] counts and values in blocks; bc: block counts;
-    h_cum / bcv_cum: inclusive cumulative block counts / count-weighted sums.
-    """
-    chunk = counts_b.shape[0]
-    j = jnp.sum(h_cum < k, axis=1)  # block holding position k (0-based, 1 per row)
-    j = jnp.minimum(j, bc.shape[1] - 1)
-    rows = jnp.arange(chunk)
-    before_c = h_cum[rows, j] - bc[rows, j]
-    before_s = jnp.where(j > 0, bcv_cum[rows, jnp.maximum(j - 1, 0)], 0.0)
-    c = counts_b[rows, j]  # [C, B]
-    v = values_b[j]  # [C, B]
-    need = (k - before_c)[:, None]
-    cc = jnp.cumsum(c, axis=1) - c
-    part = jnp.clip(need - cc, 0.0, c)
-    return before_s + jnp.sum(part * v, axis=1)
 
 
 def _counts(key, c, n: int, chunk: int):
@@ -95,53 +76,79 @@ def cumulative(ct: np.ndarray, *, zero_row: bool = False) -> np.ndarray:
     return out if zero_row else out[1:]
 
 
-@partial(jax.jit, static_argnames=("chunk", "iqm"))
-def _boot_chunk(key, c, z, chunk: int, iqm: bool):
-    n = z.shape[0]
-    counts = _counts(key, c, n, chunk)
-    sums = counts @ z
-    if not iqm:
-        return sums, jnp.zeros((chunk,), jnp.float32)
-    # IQM of each resample without sorting it (rows of z sorted by column 0): the kept
-    # positions [g, n - g) of the sorted resample sum to F(n - g) - F(g), F(k) = sum of
-    # the k smallest; F comes from block sums plus one within-block cumsum per row.
+def _trimmed_means(counts: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """IQM (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of each resample from its
+    counts [C, n] over the ascending values v, in float64: the kept positions [g, n − g) of the
+    sorted resample sum to F(n − g) − F(g), F(k) the sum of the k smallest, g = n // 4. Units of
+    one value are merged first (exact integer counts), so the work per resample is O(values)."""
+    n = v.size
     g = n // 4
-    pad = (-n) % IQM_BLOCK
-    nb = (n + pad) // IQM_BLOCK
-    counts_b = jnp.pad(counts, ((0, 0), (0, pad))).reshape(chunk, nb, IQM_BLOCK)
-    values_b = jnp.pad(z[:, 0], (0, pad)).reshape(nb, IQM_BLOCK)
-    bc = counts_b.sum(-1)
-    bcv_cum = jnp.cumsum((counts_b * values_b).sum(-1), axis=1)
-    h_cum = jnp.cumsum(bc, axis=1)
-    args = (counts_b, values_b, bc, bcv_cum, h_cum)
-    trimmed = _smallest_sum(n - g, *args) - _smallest_sum(g, *args)
-    return sums, trimmed / (n - 2 * g)
+    start = np.flatnonzero(np.r_[True, v[1:] != v[:-1]])
+    if start.size < n:
+        counts, v = np.add.reduceat(counts, start, axis=1), v[start]
+    cum = np.cumsum(counts, axis=1, dtype=np.float64)
+    cum_v = np.cumsum(counts * v, axis=1)
+    rows = np.arange(counts.shape[0])
+
+    def smallest(k):  # value j holds the k-th smallest; the values before it are taken whole
+        j = np.minimum((cum < k).sum(1), v.size - 1)
+        before = np.where(j > 0, cum[rows, j - 1], 0.0)
+        before_v = np.where(j > 0, cum_v[rows, j - 1], 0.0)
+        return before_v + (k - before) * v[j]
+
+    return (smallest(n - g) - smallest(g)) / (n - 2 * g)
 
 
-@partial(jax.jit, static_argnames=("chunk", "n_treat"))
-def _perm_chunk(key, c, z, chunk: int, n_treat: int):
-    labels = random_subsets(jax.random.fold_in(key, c), z.shape[0], n_treat, chunk)
-    return labels.astype(jnp.float32).T @ z
+def _exact_columns(z: np.ndarray) -> np.ndarray:
+    """Whether each column of z [n, K] is integer-valued with every partial sum below 2^24 in
+    magnitude, so float32 sums of it on the device are exact (e.g. per-trial successes)."""
+    with np.errstate(invalid="ignore"):
+        return np.all(z == np.round(z), axis=0) & (np.abs(z).sum(0) < 2**24)
+
+
+@partial(jax.jit, static_argnames=("n", "chunk"))
+def _boot_chunk(key, c, z_exact, n: int, chunk: int):
+    counts = _counts(key, c, n, chunk)
+    return counts, counts @ z_exact
+
+
+@partial(jax.jit, static_argnames=("n", "k", "chunk"))
+def _perm_chunk(key, c, z_exact, n: int, k: int, chunk: int):
+    labels = random_subsets(jax.random.fold_in(key, c), n, k, chunk).T
+    return labels, labels.astype(jnp.float32) @ z_exact
+
+
+def _sums(draws, z: np.ndarray, exact: np.ndarray, resamples: int, iqm: bool = False):
+    """Each chunk's sums [R, K] in float64: exact columns as the device summed them, the others
+    on the host from the draw (counts or labels, exact integers); and the IQMs of column 0."""
+    sums, q = [], []
+    for w, s_exact in draws:
+        w = np.asarray(w)
+        out = np.empty((w.shape[0], z.shape[1]))
+        out[:, exact] = np.asarray(s_exact, np.float64)
+        if not exact.all():
+            out[:, ~exact] = w.astype(np.float64) @ z[:, ~exact]
+        sums.append(out)
+        if iqm:
+            q.append(_trimmed_means(w, z[:, 0]))
+    return np.concatenate(sums)[:resamples], np.concatenate(q)[:resamples] if iqm else None
 
 
 def dispatch_bootstrap(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = False):
     """Start the bootstrap chunks without waiting (JAX dispatches asynchronously).
 
-    Returns a function that waits and gives (sums [R, K] float64, iqm [R] float64 or None).
-    """
-    z = np.asarray(z)
+    Returns a function that waits and gives (sums [R, K] float64, iqm [R] float64 or None): the
+    device draws the counts (`boot_counts`' draw) and sums the columns it sums exactly
+    (`_exact_columns`), the host sums the others in float64, so every replicate is kept in
+    float64."""
+    z = np.asarray(z, np.float64)
     if iqm:  # sums do not depend on the order of rows; the IQM needs them sorted by column 0
         z = z[np.argsort(z[:, 0], kind="stable")]
-    z = jnp.asarray(z, jnp.float32)
-    chunk = _cap(chunk, resamples, z.shape[0])
-    parts = [_boot_chunk(key, c, z, chunk, iqm) for c in range(-(-resamples // chunk))]
-
-    def result():
-        sums = np.concatenate([np.asarray(s, np.float64) for s, _ in parts])[:resamples]
-        q = np.concatenate([np.asarray(q, np.float64) for _, q in parts])[:resamples] if iqm else None
-        return sums, q
-
-    return result
+    n, exact = z.shape[0], _exact_columns(z)
+    z_exact = jnp.asarray(z[:, exact], jnp.float32)
+    chunk = _cap(chunk, resamples, n)
+    draws = [_boot_chunk(key, c, z_exact, n, chunk) for c in range(-(-resamples // chunk))]
+    return lambda: _sums(draws, z, exact, resamples, iqm)
 
 
 def bootstrap_sums(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = False):
@@ -155,11 +162,15 @@ def bootstrap_sums(key, z, resamples: int, *, chunk: int = 1000, iqm: bool = Fal
 
 
 def dispatch_permutation(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 1000):
-    """Start the permutation chunks without waiting; returns a function giving sums [R, K]."""
-    z = jnp.asarray(z_pool, jnp.float32)
+    """Start the permutation chunks without waiting; returns a function giving the treatment
+    group's sums [R, K] in float64 (exact columns from the device, the others on the host)."""
+    z = np.asarray(z_pool, np.float64)
+    exact = _exact_columns(z)
+    z_exact = jnp.asarray(z[:, exact], jnp.float32)
     chunk = _cap(chunk, resamples, z.shape[0])
-    parts = [_perm_chunk(key, c, z, chunk, int(n_treat)) for c in range(-(-resamples // chunk))]
-    return lambda: np.concatenate([np.asarray(p, np.float64) for p in parts])[:resamples]
+    draws = [_perm_chunk(key, c, z_exact, z.shape[0], int(n_treat), chunk)
+             for c in range(-(-resamples // chunk))]
+    return lambda: _sums(draws, z, exact, resamples)[0]
 
 
 def permutation_sums(key, z_pool, n_treat: int, resamples: int, *, chunk: int = 1000):
