@@ -350,14 +350,61 @@ def _render_commands(path: Path, rec: dict) -> list[str]:
     out.append("")
     for runs in groups.values():
         by = {(r["build"], r["seeds"], r["report"], r["cache"], len(r["visible"].split(","))): r
-              for r in runs}
+              for r in runs if r.get("rc") == 0}
         for (build, seeds, report, cache, gpus), two in by.items():
             one = by.get((build, seeds, report, cache, 1))
             if gpus == 2 and one is not None:
                 out.append(f"- {build}, {seeds:,} seeds, {'with' if report else 'no'} report ({cache}): "
                            + _two_over_one(one, two))
     out.append("")
-    return out
+    return out + _render_record_extras(rec)
+
+
+def _render_record_extras(rec: dict) -> list[str]:
+    """A `scripts/scale.py --record`'s other parts: where each command's seconds went, the
+    per-device timelines, the multi-host recipe and bench.py on one and two GPUs."""
+    runs, out = rec["runs"], []
+    phased = [(label, r) for label, rs in runs.items() if label.startswith("cmd")
+              for r in rs if r.get("phases")]
+    if phased:
+        keys = ["startup_s", "run_s", "figures_s", "diagnostics_wait_s", "folder_s", "report_s", "exit_s"]
+        out += ["Where each command's seconds went (summary.json's timeline; run = compile and chunks):\n",
+                "| runs | build | GPUs | seeds | report | cache | wall s | "
+                + " | ".join(k[:-2] for k in keys) + " |",
+                "|---|---|---|---|---|---|---|" + "---|" * len(keys)]
+        for label, r in phased:
+            out.append(f"| {label} | {r['build']} | {len(r['visible'].split(','))} | {r['seeds']:,} | "
+                       f"{'yes' if r['report'] else 'no'} | {r['cache']} | {r['wall_s']:.2f} | "
+                       + " | ".join(f"{r['phases'].get(k, 0):.2f}" for k in keys) + " |")
+        out.append("")
+    for r in runs.get("timeline", []):
+        if "devices" not in r:
+            continue
+        how = " ".join([*r.get("flags", []), *(f"{k}={v}" for k, v in r.get("env", {}).items())]) or "default"
+        for label, part in (("first run", r.get("first", {})), ("second run", r)):
+            devs = "; ".join(f"GPU {g}: {d['chunks']} chunks, busy {d['kernel_s']:.2f} s, "
+                             f"idle {d['idle_s']:.2f} s" for g, d in part.get("devices", {}).items())
+            out.append(f"- timeline, {r['build']}, {len(r['visible'].split(','))} GPU(s), "
+                       f"{r['seeds']:,} seeds ({how}), {label}: chunks {part.get('wall_s', 0):.2f} s; {devs}")
+    hosts = [r for r in runs.get("cmd_hosts", []) if "parts_s" in r]
+    for r in hosts:
+        one = [o for o in runs["cmd_hosts"]
+               if "parts_s" not in o and o["seeds"] == r["seeds"] and o.get("rc") == 0]
+        out.append(f"- multi-host recipe, {r['seeds']:,} seeds: two processes of one GPU "
+                   + (f"{max(r['parts_s']):.2f} s, merge {r['merge_s']:.2f} s, wall {r['wall_s']:.2f} s"
+                      if r.get("rc") == 0 else f"failed ({r.get('rc')})")
+                   + (f"; one process with two GPUs {one[0]['wall_s']:.2f} s" if one else ""))
+    bench = [r for r in runs.get("bench", []) if "steps_per_s" in r]
+    best: dict = {}
+    for r in bench:
+        key = (r["build"], r["algo"], r["seeds"], len(r["visible"].split(",")))
+        best[key] = max(best.get(key, 0.0), r["steps_per_s"])
+    for (build, algo, seeds, gpus), rate in best.items():
+        one = best.get((build, algo, seeds, 1))
+        if gpus == 2 and one:
+            out.append(f"- bench.py, {build}, {algo.upper()} at {seeds:,} seeds: two GPUs over one "
+                       f"**{rate / one:.2f}×** ({one:.3g} -> {rate:.3g} agent-steps/s)")
+    return out + [""] if out else out
 
 
 def _two_over_one(one: dict, two: dict) -> str:
@@ -380,7 +427,8 @@ def render(paths: list[Path]) -> str:
         if "results" in rec:
             out += _render_bowling(path, rec)
             continue
-        if isinstance(rec.get("runs"), dict) and any(k.startswith("cmd") for k in rec["runs"]):
+        if isinstance(rec.get("runs"), dict) and (any(k.startswith("cmd") for k in rec["runs"])
+                                                  or "scale.py --record" in rec.get("what", "")):
             out += _render_commands(path, rec)
             continue
         if rec["rows"] and "subset_identical" in rec["rows"][0]:

@@ -22,6 +22,15 @@ per-seed results, whatever the row groups);
 
     python scripts/scale.py --commands --builds OLD NEW --visible 0 0,1 --seeds-list 4194304 8388608
     python scripts/scale.py --commands --cold 1000000 --report on --visible 0
+
+``--record`` makes the whole scaling record of the command in one call (`scaling_record`): one and
+two GPUs at each seed count with and without the report, the per-device timelines, the multi-host
+recipe against one process, the 10^6-seed command cold and warm with where its seconds go, and
+bench.py on one and two GPUs; `bench.py --render` turns it into tables.
+
+    python scripts/scale.py --record --builds OLD NEW --seeds-list 4194304 8388608 --out record.json
+
+(Over 400 lines: the scaling evidence of both the kernel and the command, each with its record.)
 """
 
 from __future__ import annotations
@@ -190,7 +199,11 @@ def _digest(r) -> str:
 
 
 def timeline(args) -> dict:
-    """`--timeline`: per mode and algorithm, the second run's chunk events and their summary."""
+    """`--timeline`: per mode and algorithm, the second run's chunk events and their summary (and
+    the first run's, which compiles: with `--cache`, loads its programs from the compilation cache
+    as the `jaxeac` command does)."""
+    if args.cache:
+        configure("grid")  # every setting of the command, its compilation cache included
     from jaxeac.running import batch
 
     own = hasattr(batch, "record_timeline")
@@ -201,15 +214,19 @@ def timeline(args) -> dict:
         t = time.perf_counter()
         with batch.record_timeline() if own else contextlib.nullcontext([]) as first:
             go()  # compiles, and captures the CUDA graphs: not timed
+        first_chunks = [e for e in first if e["event"] == "chunk"]
         first = {"first_call_s": time.perf_counter() - t,
-                 "first_compiles": [e for e in first if e["event"] == "compile"]}
+                 "first_compiles": [e for e in first if e["event"] in ("compile", "lowered")],
+                 "first": summarize(first_chunks), "first_chunks": first_chunks,
+                 "first_dispatches": [e for e in first if e["event"] == "dispatch"]}
         t = time.perf_counter()
         if own:
             with batch.record_timeline() as events:
                 got = go()
             chunks = [e for e in events if e["event"] == "chunk"]
             extra = {"dispatch": dispatches(events),
-                     "compiles": [e for e in events if e["event"] == "compile"]}
+                     "compiles": [e for e in events if e["event"] in ("compile", "lowered")],
+                     "dispatches": [e for e in events if e["event"] == "dispatch"]}
         else:
             extra = {}
             recorder.events.clear()
@@ -233,7 +250,11 @@ def timeline(args) -> dict:
                 record(mode, algo, lambda env=env, cfg=cfg: run_seeds(env, cfg, root_key=0, n_seeds=args.seeds,
                                                                      chunk_size=args.chunk))
         else:
+            from jaxeac.experiments import grid
             from jaxeac.experiments.grid import GridSettings, run_grid_to_folder
+
+            if args.diagnose == "start" and hasattr(grid, "DIAGNOSE_ONCE_DISPATCHED"):
+                grid.DIAGNOSE_ONCE_DISPATCHED = {}
 
             settings = GridSettings(seeds=args.seeds, algos=tuple(args.algos), chunk_size=args.chunk).resolved()
             with tempfile.TemporaryDirectory() as tmp:
@@ -271,29 +292,71 @@ def _rows_digest(path: Path) -> str:
     return h.hexdigest()
 
 
-def _command(build: Path | None, visible: str, n: int, report: bool, cache: str, tmp: Path) -> dict:
-    """One `jaxeac grid` command in a fresh process (see `command_runs`)."""
+def _build_env(build: Path | None, visible: str, cache: str, tmp: Path, extra: dict | None = None) -> dict:
+    """The environment of a fresh process of `build` (first on PYTHONPATH) on GPUs `visible`."""
     import os
-    import shutil
-    import subprocess
 
     name = build.name if build else "installed"
-    env = dict(os.environ, CUDA_VISIBLE_DEVICES=visible)
+    extra = dict(extra or {})
+    if "XLA_FLAGS" in extra:  # after the flags this process was started with
+        extra["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {extra['XLA_FLAGS']}".strip()
+    env = dict(os.environ, CUDA_VISIBLE_DEVICES=visible, **extra)
     if build:
         paths = [str(build.resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]
         env["PYTHONPATH"] = os.pathsep.join(paths)
     if cache != "shared":
         env["JAXEAC_COMPILATION_CACHE"] = str(tmp / f"cache-{name}-{visible}")
+    return env
+
+
+#: Seconds a command of `--commands` / `--record` may take before it is stopped and recorded as such.
+COMMAND_TIMEOUT = 180
+
+
+def _phases(launched: float, ended: float, out: Path, summary: dict) -> dict:
+    """Where a command's wall seconds went (a build whose summary.json has a ``timeline``): process
+    start to the run's start (imports, JAX's start, settings), the run (compile and chunks), the
+    summary's statistics and the figures, E8's counts still running after them, the rest of the
+    folder (E8's blocks, summary.json), the report after the folder (stats.json, report.md), and
+    the process's exit (results.parquet's last rows, the folder's move, the end of the process)."""
+    tl = summary.get("timeline")
+    if not tl:
+        return {}
+    folder = (out / "summary.json").stat().st_mtime
+    stats = out / "stats.json"
+    report = max(folder, (out / "report.md").stat().st_mtime if (out / "report.md").is_file() else
+                 stats.stat().st_mtime if stats.is_file() else folder)
+    drawn = tl.get("figures", tl["results"])  # a build that drew the figures after E8's counts: none
+    return {"startup_s": tl["started"] - launched, "run_s": tl["results"] - tl["started"],
+            "figures_s": drawn - tl["results"], "diagnostics_wait_s": tl["diagnosed"] - drawn,
+            "folder_s": folder - tl["diagnosed"], "report_s": report - folder, "exit_s": ended - report}
+
+
+def _command(build: Path | None, visible: str, n: int, report: bool, cache: str, tmp: Path,
+             extra: dict | None = None) -> dict:
+    """One `jaxeac grid` command in a fresh process (see `command_runs`); `extra`: more environment
+    variables (e.g. XLA_FLAGS)."""
+    import shutil
+    import subprocess
+
+    name = build.name if build else "installed"
+    env = _build_env(build, visible, cache, tmp, extra)
     out = tmp / "run"
     argv = [sys.executable, "-P", "-m", "jaxeac", "grid", "--preset", "paper", "--seeds", str(n), "--quiet",
             "--out", str(out), *([] if report else ["--no-compare"])]
-    t0 = time.perf_counter()
-    proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+    t0, launched = time.perf_counter(), time.time()
+    try:
+        proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=COMMAND_TIMEOUT)
+    except subprocess.TimeoutExpired as e:
+        return {"build": name, "visible": visible, "seeds": n, "report": report, "cache": cache,
+                "wall_s": time.perf_counter() - t0, "rc": "timeout", "stderr": str(e.stderr)[-2000:]}
     row = {"build": name, "visible": visible, "seeds": n, "report": report, "cache": cache,
-           "wall_s": time.perf_counter() - t0, "rc": proc.returncode}
+           "wall_s": time.perf_counter() - t0, "rc": proc.returncode, **({"env": extra} if extra else {})}
+    ended = time.time()
     if proc.returncode != 0:
         return row | {"stderr": proc.stderr[-2000:]}
     summary = json.loads((out / "summary.json").read_text())
+    row["phases"] = _phases(launched, ended, out, summary)
     per_algo = {a: {"compile_s": v["compile_seconds"], "run_s": v["run_seconds"], "settings": v.get("run")}
                 for a, v in summary["per_algo"].items()}
     row |= {"compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"], "per_algo": per_algo,
@@ -301,6 +364,57 @@ def _command(build: Path | None, visible: str, n: int, report: bool, cache: str,
             "rows_digest": _rows_digest(out / "results.parquet")}
     if (out / "stats.json").is_file():
         row["report_timing"] = json.loads((out / "stats.json").read_text()).get("timing")
+    shutil.rmtree(out, ignore_errors=True)
+    return row
+
+
+def _parts(build: Path | None, n: int, report: bool, tmp: Path, port: int,
+           timeout: float = COMMAND_TIMEOUT) -> dict:
+    """The multi-host recipe (docs/USAGE.md, "Several hosts") on one host: two `jaxeac grid`
+    processes of one GPU each with a coordinator, then `jaxeac merge`, stopped after `timeout`
+    seconds in all; wall seconds of the parts (both done) and of the merge, and the merged
+    results' digest."""
+    import shutil
+    import subprocess
+
+    name = build.name if build else "installed"
+    out = tmp / "run"
+    procs, t0 = [], time.perf_counter()
+    for i in range(2):
+        argv = [sys.executable, "-P", "-m", "jaxeac", "grid", "--preset", "paper", "--seeds", str(n),
+                "--quiet", "--out", str(out), "--num-processes", "2", "--process-id", str(i),
+                "--coordinator", f"localhost:{port}"]
+        procs.append(subprocess.Popen(argv, env=_build_env(build, str(i), "shared", tmp),
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    ends, errs = [], []
+    for p in procs:
+        try:
+            _, err = p.communicate(timeout=max(1.0, timeout - (time.perf_counter() - t0)))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            _, err = p.communicate()
+        ends.append(time.perf_counter() - t0)
+        errs.append(err[-1000:] if p.returncode else "")
+    row = {"build": f"{name} 2 processes", "visible": "0,1", "seeds": n, "report": report, "cache": "shared",
+           "parts_s": ends, "rc": max(p.returncode for p in procs)}
+    if row["rc"]:
+        return row | {"wall_s": max(ends), "stderr": errs}
+    t1 = time.perf_counter()
+    try:
+        merge = subprocess.run([sys.executable, "-P", "-m", "jaxeac", "merge", str(out), "--quiet",
+                                *([] if report else ["--no-compare"])],
+                               env=_build_env(build, "0", "shared", tmp), capture_output=True, text=True,
+                               timeout=max(1.0, timeout - (time.perf_counter() - t0)))
+    except subprocess.TimeoutExpired:
+        return row | {"wall_s": time.perf_counter() - t0, "rc": "timeout (merge)"}
+    row |= {"merge_s": time.perf_counter() - t1, "wall_s": time.perf_counter() - t0, "rc": merge.returncode}
+    if merge.returncode:
+        return row | {"stderr": merge.stderr[-2000:]}
+    summary = json.loads((out / "summary.json").read_text())
+    row |= {"compile_s": summary["compile_seconds"], "run_s": summary["run_seconds"],
+            "per_algo": {a: {"compile_s": v["compile_seconds"], "run_s": v["run_seconds"]}
+                         for a, v in summary["per_algo"].items()},
+            "rows_digest": _rows_digest(out / "results.parquet")}
     shutil.rmtree(out, ignore_errors=True)
     return row
 
@@ -331,6 +445,131 @@ def command_runs(args) -> dict:
     return record
 
 
+def _timeline_run(build: Path | None, visible: str, n: int, tmp: Path, extra: dict | None = None,
+                  flags: tuple = ()) -> dict:
+    """`--timeline --mode command` of `build` in a fresh process on GPUs `visible`: its row."""
+    import subprocess
+
+    out = tmp / "timeline.json"
+    argv = [sys.executable, __file__, "--timeline", "--mode", "command", "--cache", "--seeds", str(n),
+            "--out", str(out), *flags]
+    try:
+        proc = subprocess.run(argv, env=_build_env(build, visible, "shared", tmp, extra), capture_output=True,
+                              text=True, timeout=COMMAND_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        return {"visible": visible, "rc": "timeout"}
+    if proc.returncode:
+        return {"visible": visible, "rc": proc.returncode, "stderr": proc.stderr[-2000:]}
+    row = json.loads(out.read_text())["rows"][0]
+    return {"build": build.name if build else "installed", "visible": visible,
+            **({"env": extra} if extra else {}), **({"flags": list(flags)} if flags else {}), **row}
+
+
+def scaling_record(args) -> dict:
+    """`--record`: the scaling record of the `jaxeac grid` command on one and two GPUs of one host,
+    in one call, within `--budget` seconds (a step is skipped once they are spent), the builds
+    (`--builds`: old, new) taking turns, each command a fresh process:
+
+    * ``cmd_warmup``: each build once at 2^20 seeds (fills the shared compilation cache);
+    * ``timeline``: the newest build's per-device timeline (`--timeline --mode command`) at
+      `--seeds` on one and on two GPUs (with `--experiments`: E8 at the run's start, and XLA's
+      command buffers off);
+    * ``cmd_main``: `--seeds-list` without the report, on one and two GPUs;
+    * ``cmd_hosts``: the multi-host recipe as two processes of one GPU each with a coordinator,
+      and `jaxeac merge` (the newest build), against one process with two GPUs, at `--hosts-seeds`
+      (each part keeps every trial's steps and policy for the merge: slow to write at 4M seeds);
+    * ``cmd_report``: the first seed count with the report;
+    * ``cmd_cold``: `--cold` (10^6) seeds with the report on one GPU, a cache of its own empty,
+      then warm, with each command's phases (where its seconds go);
+    * ``bench``: scripts/bench.py on one and two GPUs (the kernel with host arrays).
+
+    Written to `--out` after every step; `bench.py --render` makes its tables."""
+    import os
+    import subprocess
+
+    from bench import command_line
+
+    t_start = time.perf_counter()
+    builds = args.builds or [None]
+    new = builds[-1]
+    seeds = args.seeds_list or [args.seeds]
+    rec: dict = {"what": "scripts/scale.py --record", "command": command_line(), "environment": {},
+                 "runs": {}, "skipped": []}
+
+    def save() -> None:
+        rec["wall_s"] = time.perf_counter() - t_start
+        if args.out:
+            args.out.write_text(json.dumps(rec, indent=2) + "\n")
+
+    def step(name: str, cost: float, work) -> None:
+        if name in (args.skip or []) or time.perf_counter() - t_start + cost > args.budget:
+            rec["skipped"].append(name)
+            print(json.dumps({"skipped": name}), flush=True)
+            return save()
+        rows = rec["runs"].setdefault(name, [])
+        for row in work():
+            print(json.dumps({k: v for k, v in row.items() if k not in ("per_algo", "chunks", "first_chunks",
+                                                                           "compiles", "first_compiles")}),
+                  flush=True)
+            rows.append(row)
+            save()
+
+    try:  # JAX is not started here: the commands get the GPUs to themselves
+        names = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                               capture_output=True, text=True, check=True).stdout.split("\n")
+        cards = f"{len([n for n in names if n])}x {names[0]}"
+    except (OSError, subprocess.CalledProcessError):
+        cards = "no GPU"
+    rec["environment"] = {"cards": cards, "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d")}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+
+        def cmd(build, visible, n, report, cache="shared", extra=None):
+            return {"round": 0, **_command(build, visible, n, report, cache, tmp, extra)}
+
+        step("cmd_warmup", 15 * len(builds), lambda: (cmd(b, "0", args.warmup, False) for b in builds))
+        big = seeds[0]
+        step("timeline", 45, lambda: (_timeline_run(new, v, big, tmp) for v in ("0", "0,1")))
+        if args.experiments:
+            step("timeline", 40, lambda: (_timeline_run(new, v, big, tmp, flags=("--diagnose", "start"))
+                                          for v in ("0", "0,1")))
+            no_graphs = {"XLA_FLAGS": "--xla_gpu_enable_command_buffer="}
+            step("timeline", 30, lambda: [_timeline_run(new, "0,1", big, tmp, extra=no_graphs)])
+        for n in seeds:
+            step("cmd_main", 2 * len(builds) * (4 + n / 4e5),
+                 lambda n=n: (cmd(b, v, n, False) for v in ("0", "0,1") for b in builds))
+        hosts = args.hosts_seeds
+        step("cmd_hosts", 30 + hosts / 4e4, lambda: [cmd(new, "0,1", hosts, False),
+                                                    {"round": 0, **_parts(new, hosts, False, tmp,
+                                                                          12357 + os.getpid() % 1000, 100)}])
+        step("cmd_report", 2 * len(builds) * (8 + big / 4e5),
+             lambda: (cmd(b, v, big, True) for v in ("0", "0,1") for b in builds))
+        cold = (args.cold or [1_000_000])[0]
+        step("cmd_cold", 30, lambda: (cmd(new, "0", cold, True, c) for c in ("cold", "warm")))
+
+        def bench():
+            for visible, chunk in (("0", 1 << 20), ("0,1", 1 << 21)):
+                out = tmp / "bench.json"
+                argv = [sys.executable, str(Path(__file__).with_name("bench.py")), "--builds",
+                        *map(str, builds), "--rounds", "1", "--seeds", str(big), "--chunk", str(chunk),
+                        "--repeats", "2", "--out", str(out)]
+                try:
+                    proc = subprocess.run(argv, env=_build_env(None, visible, "shared", tmp),
+                                          capture_output=True, text=True, timeout=COMMAND_TIMEOUT)
+                except subprocess.TimeoutExpired:
+                    yield {"visible": visible, "rc": "timeout"}
+                    continue
+                if proc.returncode:
+                    yield {"visible": visible, "rc": proc.returncode, "stderr": proc.stderr[-2000:]}
+                    continue
+                for row in json.loads(out.read_text())["rows"]:
+                    yield {"visible": visible, **row}
+
+        step("bench", 30 * len(builds), bench)
+    save()
+    return rec
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=1_000_000)
@@ -344,6 +583,21 @@ def main() -> None:
     p.add_argument("--mode", nargs="+", choices=["kernel", "command"], default=["kernel"],
                    help="--timeline: the kernel with host arrays (as bench.py), the command's run phase, "
                         "or both")
+    p.add_argument("--diagnose", choices=["start", "drained"], default="drained",
+                   help="--timeline --mode command: E8's counts start with the run, or once every chunk is "
+                        "handed out (the default of a build that has it)")
+    p.add_argument("--cache", action="store_true",
+                   help="--timeline: JAX's persistent compilation cache on, as the `jaxeac` command has it")
+    p.add_argument("--record", action="store_true",
+                   help="the whole scaling record in one call (see `scaling_record`)")
+    p.add_argument("--budget", type=float, default=540.0,
+                   help="--record: seconds; a step that would start later is skipped")
+    p.add_argument("--skip", nargs="+", metavar="STEP", help="--record: steps left out (e.g. bench)")
+    p.add_argument("--hosts-seeds", dest="hosts_seeds", type=int, default=1 << 20,
+                   help="--record: seeds of the multi-host recipe's runs")
+    p.add_argument("--warmup", type=int, default=1 << 20, help="--record: seeds of the warm-up commands")
+    p.add_argument("--experiments", action="store_true",
+                   help="--record: also timelines with E8 at the start and with XLA's command buffers off")
     p.add_argument("--commands", action="store_true",
                    help="time the `jaxeac grid` command in fresh processes (see `command_runs`)")
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
@@ -359,6 +613,10 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=1, help="--commands: rounds of the builds taking turns")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
+    if args.record:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        scaling_record(args)
+        return
     if args.commands:
         args.seeds = args.seeds_list or [args.seeds]
         rec = command_runs(args)
