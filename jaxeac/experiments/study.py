@@ -208,6 +208,21 @@ class Timeline:
         return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per}
 
 
+def _said(tl: Timeline, progress: bool):
+    """`tl.phase` of the study's, with a progress line as each ends (a study stopped midway says
+    where it got)."""
+    @contextmanager
+    def phase(name: str):
+        t0 = time.perf_counter()
+        with tl.phase(name):
+            yield
+        if progress:
+            seconds = time.perf_counter() - t0
+            print(f"study: {name.replace('_', ' ')} done in {seconds:.1f} s", file=sys.stderr, flush=True)
+
+    return phase
+
+
 def timeline_text(tl: dict) -> str:
     """study.json's ``timeline`` as lines for a terminal (`jaxeac study --timeline`)."""
     keys = list(tl["tasks_summed"])
@@ -240,6 +255,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     from tqdm import tqdm
 
     tl = Timeline()
+    said = _said(tl, progress)
     with tl.phase("setup"):
         grids = {task: settings.task_settings(task) for task in settings.tasks}
         envs = task_envs(grids)
@@ -286,10 +302,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 phases = ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items())
                 print(f"study: timeline {task}: {phases}", file=sys.stderr, flush=True)
         first = grids[settings.tasks[0]]
-        with tl.phase("statistics"):  # while the last tasks' diagnostics finish
+        with said("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
                                                       key=settings.key)
-        with tl.phase("diagnostics_wait"):
+        with said("diagnostics_wait"):
             runner.finish()
     for task, info in per_task.items():
         g = grids[task]
@@ -306,9 +322,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         "aggregate": aggregate,
     }
     if tuning is not None:
-        with tl.phase("tuning"):
+        with said("tuning"):
             result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress,
-                                          runs=tuner if tuned else None, scores=tuned)
+                                          runs=tuner if tuned else None, scores=tuned,
+                                          phase=said)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
         with tl.phase("figure"):
             study_figure(curves, settings.seeds, stage / STUDY_FIGURE)

@@ -246,16 +246,21 @@ def tuning_runs(settings, tuning: Tuning, grids: dict, envs: dict, *, progress: 
 
 def run_tuning(
     settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True,
-    runs: TuningRuns | None = None, scores=None,
+    runs: TuningRuns | None = None, scores=None, phase=None,
 ) -> dict:
     """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
     the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
     `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun.
-    `runs` and `scores` (a future of ``runs.tune()``): tuning runs started earlier (`tuning_runs`)."""
+    `runs` and `scores` (a future of ``runs.tune()``): tuning runs started earlier (`tuning_runs`);
+    `phase(name)`: a context timing each part (the study's timeline)."""
+    import contextlib
+
+    phase = phase or (lambda name: contextlib.nullcontext())
     tasks, algos = list(grids), list(settings.algos)
     trials = grids[tasks[0]].trials
     runs = runs or tuning_runs(settings, tuning, grids, envs, progress=progress)
-    scores = runs.tune() if scores is None else scores.result()  # {algo: {task: [points, tuning seeds]}}
+    with phase("tuning_runs"):
+        scores = runs.tune() if scores is None else scores.result()  # {algo: {task: [points, tuning seeds]}}
     per_algo = {}
     for a in algos:
         means = np.stack([scores[a][t].mean(axis=1) for t in tasks])  # [tasks, points]
@@ -272,7 +277,8 @@ def run_tuning(
             "sensitivity_per_task": {t: float((m.max() - np.median(m)) / trials) for t, m in zip(tasks, means, strict=True)},
             "curves": {t: curves(tuning.points(a), per_task[t], scores[a][t]) for t in tasks},
         }
-    samples = runs.evaluate(per_algo, preset)  # {condition: {task: {algo: [N]}}}
+    with phase("evaluation_runs"):
+        samples = runs.evaluate(per_algo, preset)  # {condition: {task: {algo: [N]}}}
     n = settings.seeds
     optimism = {a: {} for a in algos}
     for a in algos:
@@ -283,10 +289,12 @@ def run_tuning(
                               "evaluation_mean": float(samples["per_task"][t][a].mean())}
     conditions = {"preset": {"means": {t: {a: float(x.mean()) for a, x in per.items()} for t, per in preset.items()},
                              "comparisons": result["comparisons"], "aggregate": result.get("aggregate")}}
-    for c in CONDITIONS[1:]:
-        conditions[c] = _verdicts(samples[c], settings)
-    sens = sensitivity(scores, tasks, trials, resamples=SENSITIVITY_RESAMPLES, key=settings.key,
-                       same_keys=lambda a: keys_of(a) == keys_of("ac"))
+    with phase("tuned_verdicts"):
+        for c in CONDITIONS[1:]:
+            conditions[c] = _verdicts(samples[c], settings)
+    with phase("sensitivity"):
+        sens = sensitivity(scores, tasks, trials, resamples=SENSITIVITY_RESAMPLES, key=settings.key,
+                           same_keys=lambda a: keys_of(a) == keys_of("ac"))
     out = {**tuning.record(), "evaluation_key": settings.key, "evaluation_seeds": n,
            "selection": "per task: most mean successes on the task; across tasks: highest mean over tasks of "
                         "successes / T (min–max on (0, T)); ties: the first setting in grid order",
