@@ -67,11 +67,6 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     return float(lo), float(hi)
 
 
-def jackknife_means(x: np.ndarray) -> np.ndarray:
-    """Leave-one-out means."""
-    return (x.sum() - x) / (x.size - 1)
-
-
 def jackknife_moments(x: np.ndarray):
     """Leave-one-out (n, sum, sum of squares) of a centred sample."""
     return x.size - 1, x.sum() - x, (x**2).sum() - x**2
