@@ -472,8 +472,8 @@ def scaling_record(args) -> dict:
 
     * ``cmd_warmup``: each build once at 2^20 seeds (fills the shared compilation cache);
     * ``timeline``: the newest build's per-device timeline (`--timeline --mode command`) at
-      `--seeds` on one and on two GPUs (with `--experiments`: E8 at the run's start, and XLA's
-      command buffers off);
+      `--seeds` on one and on two GPUs (with `--experiments`, on two GPUs: XLA's command buffers
+      off, and CUDA's modules loaded when a program loads rather than at its first launch);
     * ``cmd_main``: `--seeds-list` without the report, on one and two GPUs;
     * ``cmd_hosts``: the multi-host recipe as two processes of one GPU each with a coordinator,
       and `jaxeac merge` (the newest build), against one process with two GPUs, at `--hosts-seeds`
@@ -530,11 +530,10 @@ def scaling_record(args) -> dict:
         step("cmd_warmup", 15 * len(builds), lambda: (cmd(b, "0", args.warmup, False) for b in builds))
         big = seeds[0]
         step("timeline", 45, lambda: (_timeline_run(new, v, big, tmp) for v in ("0", "0,1")))
-        if args.experiments:
-            step("timeline", 40, lambda: (_timeline_run(new, v, big, tmp, flags=("--diagnose", "start"))
-                                          for v in ("0", "0,1")))
+        if args.experiments:  # what the first launch of a program on a GPU waits for
             no_graphs = {"XLA_FLAGS": "--xla_gpu_enable_command_buffer="}
-            step("timeline", 30, lambda: [_timeline_run(new, "0,1", big, tmp, extra=no_graphs)])
+            for extra in (no_graphs, {"CUDA_MODULE_LOADING": "EAGER"}):
+                step("timeline", 30, lambda extra=extra: [_timeline_run(new, "0,1", big, tmp, extra=extra)])
         for n in seeds:
             step("cmd_main", 2 * len(builds) * (4 + n / 4e5),
                  lambda n=n: (cmd(b, v, n, False) for v in ("0", "0,1") for b in builds))
@@ -597,7 +596,8 @@ def main() -> None:
                    help="--record: seeds of the multi-host recipe's runs")
     p.add_argument("--warmup", type=int, default=1 << 20, help="--record: seeds of the warm-up commands")
     p.add_argument("--experiments", action="store_true",
-                   help="--record: also timelines with E8 at the start and with XLA's command buffers off")
+                   help="--record: also two-GPU timelines with XLA's command buffers off and with CUDA's "
+                        "modules loaded eagerly")
     p.add_argument("--commands", action="store_true",
                    help="time the `jaxeac grid` command in fresh processes (see `command_runs`)")
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
