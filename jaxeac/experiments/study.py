@@ -302,6 +302,13 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 phases = ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items())
                 print(f"study: timeline {task}: {phases}", file=sys.stderr, flush=True)
         first = grids[settings.tasks[0]]
+        evaluated = None
+        if tuned is not None:  # the evaluation runs beside the statistics (tuning runs done or nearly)
+            from jaxeac.experiments.tune import select
+
+            algos = list(settings.algos)
+            evaluated = _in_background(lambda: tuner.evaluate(
+                select(tuning, tuned.result(), list(tasks), algos, first.trials), kept))
         with said("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
                                                       key=settings.key)
@@ -324,7 +331,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     if tuning is not None:
         with said("tuning"):
             result["tuning"] = run_tuning(settings, tuning, grids, envs, kept, result, progress=progress,
-                                          runs=tuner if tuned else None, scores=tuned,
+                                          runs=tuner if tuned else None, scores=tuned, samples=evaluated,
                                           phase=said)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
         with tl.phase("figure"):

@@ -244,23 +244,9 @@ def tuning_runs(settings, tuning: Tuning, grids: dict, envs: dict, *, progress: 
     return TuningRuns(settings, tuning, grids, envs, store, progress)
 
 
-def run_tuning(
-    settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True,
-    runs: TuningRuns | None = None, scores=None, phase=None,
-) -> dict:
-    """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
-    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
-    `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun.
-    `runs` and `scores` (a future of ``runs.tune()``): tuning runs started earlier (`tuning_runs`);
-    `phase(name)`: a context timing each part (the study's timeline)."""
-    import contextlib
-
-    phase = phase or (lambda name: contextlib.nullcontext())
-    tasks, algos = list(grids), list(settings.algos)
-    trials = grids[tasks[0]].trials
-    runs = runs or tuning_runs(settings, tuning, grids, envs, progress=progress)
-    with phase("tuning_runs"):
-        scores = runs.tune() if scores is None else scores.result()  # {algo: {task: [points, tuning seeds]}}
+def select(tuning: Tuning, scores: dict, tasks: list, algos: list, trials: int) -> dict:
+    """Per algorithm its points, tuning means, selections (per task, across tasks), sensitivity and
+    curves, from the tuning's successes `scores` {algo: {task: [points, tuning seeds]}}."""
     per_algo = {}
     for a in algos:
         means = np.stack([scores[a][t].mean(axis=1) for t in tasks])  # [tasks, points]
@@ -277,8 +263,30 @@ def run_tuning(
             "sensitivity_per_task": {t: float((m.max() - np.median(m)) / trials) for t, m in zip(tasks, means, strict=True)},
             "curves": {t: curves(tuning.points(a), per_task[t], scores[a][t]) for t in tasks},
         }
+    return per_algo
+
+
+def run_tuning(
+    settings, tuning: Tuning, grids: dict, envs: dict, preset: dict, result: dict, *, progress: bool = True,
+    runs: TuningRuns | None = None, scores=None, samples=None, phase=None,
+) -> dict:
+    """Tune, select, evaluate at the selections; `grids`/`envs`: the study's per task, `preset`:
+    the study's per-seed successes {task: {algo: [N]}}, `result`: its study.json. With
+    `tuning.folder`, each algorithm × task's runs are kept under ``tune/`` and reused on a rerun.
+    `runs`, `scores` (a future of ``runs.tune()``) and `samples` (of ``runs.evaluate``): runs started
+    earlier (`tuning_runs`);
+    `phase(name)`: a context timing each part (the study's timeline)."""
+    import contextlib
+
+    phase = phase or (lambda name: contextlib.nullcontext())
+    tasks, algos = list(grids), list(settings.algos)
+    trials = grids[tasks[0]].trials
+    runs = runs or tuning_runs(settings, tuning, grids, envs, progress=progress)
+    with phase("tuning_runs"):
+        scores = runs.tune() if scores is None else scores.result()  # {algo: {task: [points, tuning seeds]}}
+    per_algo = select(tuning, scores, tasks, algos, trials)
     with phase("evaluation_runs"):
-        samples = runs.evaluate(per_algo, preset)  # {condition: {task: {algo: [N]}}}
+        samples = runs.evaluate(per_algo, preset) if samples is None else samples.result()
     n = settings.seeds
     optimism = {a: {} for a in algos}
     for a in algos:
