@@ -29,30 +29,48 @@ COLORS = style.PALETTE  # one colour per algorithm, every figure (jaxeac/style.p
 LABELS = style.LABELS
 
 
-def cumulative_counts(success, chunk: int = 1 << 12) -> np.ndarray:
-    """int64 [T, T + 1]: per trial t, how many seeds have v successes in trials 1..t (exact, in
-    blocks of `chunk` seeds on host threads: O(N·T) once, bounded memory at any N).
-    `success`: bool [N, T] or `SuccessBits`.
+def _prefix_popcounts() -> np.ndarray:
+    """uint8 [9, 256]: row j, column b: how many of byte b's lowest j bits are set."""
+    low_first = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1, bitorder="little")
+    return np.concatenate([np.zeros((1, 256), np.uint8), np.cumsum(low_first, axis=1).T]).astype(np.uint8)
 
-    A block's temporaries take ~13 bytes per seed and trial (the rows, their int32 sums and
-    bincount's int64 copy): 10 MiB at T = 200 per thread. Blocks of 2^15 seeds held 1.4 GiB
-    on a 16-core GPU host, the peak of `jaxeac grid` at 10^7 seeds (BENCHMARKS.md)."""
+
+_PREFIX = _prefix_popcounts()
+
+
+def cumulative_counts(success, chunk: int = 1 << 14) -> np.ndarray:
+    """int64 [T, T + 1]: per trial t, how many seeds have v successes in trials 1..t (exact).
+
+    `success`: bool [N, T] or `SuccessBits`. Works on the packed bits, eight trials a byte: a
+    seed's count after trial 8b + j is its count before byte b plus the set bits among byte b's
+    lowest j + 1, so one histogram of (byte position, count before it, byte value) per block of
+    `chunk` seeds, on host threads, gives every trial's counts: N·T/8 entries instead of N·T,
+    and no unpacking. Temporaries ~ 50 bytes a seed per thread."""
     from concurrent.futures import ThreadPoolExecutor
 
     from jaxeac.bits import SuccessBits
 
-    n, t = success.shape
-    offsets = np.arange(t, dtype=np.int32) * (t + 1)
-    rows = success.rows if isinstance(success, SuccessBits) else lambda a, b: success[a:b]
+    bits = success if isinstance(success, SuccessBits) else SuccessBits.pack(success)
+    n, t = bits.shape
+    nb = bits.bits.shape[1]
+    width = nb * (t + 1) * 256  # bins: (byte position, count before it, byte value)
+    start_of = (np.arange(nb, dtype=np.int64) * (t + 1) * 256)[None, :]
 
-    def block(start: int) -> np.ndarray:  # numpy frees the GIL in cumsum and bincount
-        cum = np.cumsum(rows(start, start + chunk), axis=1, dtype=np.int32)
-        cum += offsets
-        return np.bincount(cum.ravel(), minlength=t * (t + 1))
+    def block(start: int) -> np.ndarray:  # numpy frees the GIL in take, cumsum and bincount
+        b = bits.bits[start:start + chunk]
+        before = np.cumsum(_PREFIX[8].take(b), axis=1, dtype=np.int64)
+        before -= _PREFIX[8].take(b)  # exclusive: the count before each byte
+        return np.bincount((start_of + before * 256 + b).ravel(), minlength=width)
 
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        counts = sum(pool.map(block, range(0, n, chunk)), np.zeros(t * (t + 1), np.int64))
-    return counts.reshape(t, t + 1)
+        joint = sum(pool.map(block, range(0, n, chunk)), np.zeros(width, np.int64))
+    joint = joint.reshape(nb, t + 1, 256)
+    counts = np.zeros((nb, 8, t + 1 + 8), np.int64)
+    for j in range(8):  # after trial 8b + j: the count before byte b plus its lowest j + 1 bits
+        ones = _PREFIX[j + 1]
+        for p in range(j + 2):
+            counts[:, j, p:p + t + 1] += joint[:, :, ones == p].sum(axis=2)
+    return counts.reshape(nb * 8, t + 1 + 8)[:t, :t + 1]
 
 
 def count_percentile(counts: np.ndarray, q: float) -> np.ndarray:

@@ -282,6 +282,20 @@ def test_figure_band_from_counts_matches_numpy(rng):
             np.testing.assert_allclose(count_percentile(counts, q), np.percentile(cum, q, axis=0), atol=1e-12)
 
 
+def test_cumulative_counts_from_bytes_match_the_literal_count(rng):
+    """The figure's counts come from the packed bits a byte at a time; each must equal the
+    literal count of seeds per cumulative value, trial by trial (T not a multiple of 8, T > 255,
+    all failures, all successes, blocks of one seed)."""
+    for n, t, p in [(1, 1, 0.5), (9, 7, 0.5), (40, 8, 0.3), (33, 17, 0.9), (25, 300, 0.6),
+                    (6, 9, 0.0), (6, 9, 1.0)]:
+        success = rng.random((n, t)) < p
+        cum = np.cumsum(success, axis=1)
+        literal = np.array([[(cum[:, i] == v).sum() for v in range(t + 1)] for i in range(t)])
+        for chunk in (1, 4, 1 << 14):
+            np.testing.assert_array_equal(cumulative_counts(success, chunk=chunk), literal)
+        np.testing.assert_array_equal(cumulative_counts(SuccessBits.pack(success), chunk=3), literal)
+
+
 def test_numerical_blow_ups_are_reported_per_seed(tmp_path, capsys):
     """A step size far too large fills p and V with inf/NaN: each such seed is flagged in the
     results, counted in summary.json and named in the printed table."""
