@@ -178,7 +178,8 @@ _EXECUTABLES_LOCK = threading.Lock()
 def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: tuple):
     """The compiled program for these inputs' shapes, compiled once: a later caller, on any
     thread, waits for the first (`prepare_diagnostics` compiles ahead of the runs)."""
-    key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, args[3].shape)
+    shapes = tuple(str(jax.typeof(x)) for x in jax.tree.leaves(args[2:4]))  # the rates' and best's
+    key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, shapes)
     with _EXECUTABLES_LOCK:
         future, mine = _EXECUTABLES.get(key), False
         if future is None:
