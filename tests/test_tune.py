@@ -281,3 +281,37 @@ def test_tuned_verdicts_use_the_test_behind_the_studys_marks():
         assert r["diff"] == pytest.approx(means[r["task"]][r["x"]] - means[r["task"]]["ac"])
     same = {"t": {"ac": np.zeros(5), "eac": np.zeros(5), "sarsa": np.ones(5)}}
     assert [r["p_welch"] for r in verdict_rows(same)[0]] == [1.0, 0.0]  # constant samples
+
+
+def test_tuning_and_evaluation_compile_nothing_beyond_the_study(tmp_path, monkeypatch):
+    """On CPUs the tuning's runs (padded to the study's chunk) and the evaluation's (plain runs at
+    the selected rates) take the programs the study compiled: every compile comes before them."""
+    import jaxeac.running.batch as batch
+    from jaxeac.experiments import tune_runs
+
+    phase, compiled = ["study"], []
+    real = batch._compiled
+
+    def counting(*args, **kw):
+        program, seconds = real(*args, **kw)
+        if seconds > 0:
+            compiled.append(phase[0])
+        return program, seconds
+
+    monkeypatch.setattr(batch, "_compiled", counting)
+    def marking(name):
+        method = getattr(tune_runs.TuningRuns, name)
+
+        def marked(self, *a, **kw):
+            phase[0] = name
+            return method(self, *a, **kw)
+
+        return marked
+
+    for name in ("tune", "evaluate"):
+        monkeypatch.setattr(tune_runs.TuningRuns, name, marking(name))
+    settings = StudySettings(tasks=TASKS, algos=ALGOS, seeds=30, trials=12, resamples=400)
+    tuning = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
+                          key=None, eval_key=0, trials=12, out=tmp_path)
+    run_study(settings, tmp_path, progress=False, tuning=tuning)
+    assert phase[0] == "evaluate" and compiled == ["study"] * len(compiled) and compiled
