@@ -162,6 +162,12 @@ def test_one_resampling_rule_for_paired_differences(rng):
     assert large.resampling_path(50, 10, paired=True) == large.PER_VALUE
     assert large.resampling_path(50, 10) == large.RAW  # unpaired groups: raw draws up to LARGE_N
     assert large.resampling_path(50, large.MAX_DISTINCT + 1, paired=True) == large.RAW
+    # differences that do not repeat gain nothing from counts per value (1,000 continuous paired
+    # seeds took 6x longer per value): raw draws, as unpaired
+    assert large.resampling_path(1000, 1000, paired=True) == large.RAW
+    assert large.resampling_path(50, 26, paired=True) == large.RAW
+    assert large.resampling_path(50, 25, paired=True) == large.PER_VALUE
+    assert large.resampling_path(10**6, 1000, paired=True) == large.PER_VALUE
     assert large.resampling_path(large.LARGE_N + 1, large.MAX_DISTINCT + 1, paired=True) == large.ASYMPTOTIC
     x, y = correlated(60, rng)  # integers: few distinct differences
     assert paired_analysis(x, y, 3, resamples=400)["path"] == large.PER_VALUE

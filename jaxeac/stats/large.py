@@ -135,7 +135,8 @@ PATH_RULE = (
     f"seeds resampled one by one up to {LARGE_N} seeds per group; above, counts per distinct "
     f"value (exact) where a group has at most {MAX_DISTINCT} distinct values, else the normal "
     "limit of the bootstrap (jackknife standard error and acceleration); paired differences with "
-    f"at most {MAX_DISTINCT} distinct values: counts per distinct value at any number of seeds"
+    f"at most {MAX_DISTINCT} distinct values, each seen twice on average (distinct ≤ n / 2): counts "
+    "per distinct value at any number of seeds"
 )
 
 
@@ -151,7 +152,7 @@ def resampling_path(n: int, distinct: int, *, paired: bool = False) -> str:
     design is paired"): `PER_VALUE` wherever the values are few, at any n — the same law as raw
     draws, and the numbers run folders have always had. Every resampling in `jaxeac.stats` asks
     this function, and each result records the path it took."""
-    if paired and few_values(distinct):
+    if paired and few_values(distinct) and 2 * int(distinct) <= int(n):  # values repeat: fewer draws
         return PER_VALUE
     return RAW if int(n) <= LARGE_N else path_above(distinct)
 
