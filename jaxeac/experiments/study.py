@@ -15,7 +15,10 @@ improvement (`compare_tasks`). Results are what the run found.
 Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
 compiled programs (`jaxeac.envs.tabular.TableLayout`), padded to the largest task of its group
 (tasks with the same C), so one program per algorithm and C serves every task of the group
-(the run's and E8's); the figure is drawn once, a panel per task.
+(the run's and E8's); the figure is drawn once, a panel per task. On accelerators the groups run
+side by side (`GROUPS_SIDE_BY_SIDE`: every group's programs compile at once), E8's programs compile
+ahead of the runs, and a tuned study's tuning runs start with the study's and its evaluation runs
+beside the statistics (`jaxeac.experiments.tune_runs`).
 
 A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chunk at a time)
 and reused by a rerun with the same settings, so a study killed midway resumes where it
