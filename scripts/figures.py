@@ -8,8 +8,8 @@ Reads only the kept records (each figure names the ones it uses) and writes four
   statistics report and figures) against N, first runs and cached;
 * ``peers.png``: jaxeac against the peers measured in the same run (grid on the 2-core CPU:
   C, numba, NumPy; bowling: plain MuJoCo stepping, MuJoCo Warp, MJX in JAX);
-* ``scaling.png``: speed-up of a 4M-seed run on two GPUs over one against the ideal line, for
-  the kernel alone and the command's run phase, before and after a program per GPU.
+* ``scaling.png``: the user's command on two GPUs over one (wall time, and the run phase per
+  method) at 4M and 8M seeds, the build before and this one, against the ideal 2x.
 
 Usage::
 
@@ -225,29 +225,44 @@ def peers(records: Path, out: Path) -> Path:
     return _save(fig, out / "peers.png", "jaxeac against peers measured in the same run")
 
 
-SCALE_RECORD = "gpu_h100x2_timeline_4m.json"
+SCALE_RECORD = "gpu_h100x2_grid_command_record.json"
 
 
 def scaling(records: Path, out: Path) -> Path:
-    """Speed-up (one GPU's wall time over n GPUs') against GPUs, from `scale.py --timeline`."""
+    """Two GPUs over one for the user's command (`scale.py --record`): wall time and the run
+    phase per method, the build before and this one, against the ideal 2x."""
     import matplotlib.pyplot as plt
 
     runs = load(records, SCALE_RECORD)["runs"]
-    fig, ax = plt.subplots(figsize=(7, 5.2))
-    ax.plot([1, 2], [1, 2], color="black", ls=":", label="ideal")
-    for build, ls in (("base", "--"), ("new", "-")):
-        one, two = runs[f"{build}_1gpu"], runs[f"{build}_2gpu"]
-        for a, b in zip(one, two, strict=True):
-            what = "kernel " + a["algo"].upper() if a["mode"] == "kernel" else "command run phase, AC+EAC"
-            color = COLORS.get(a["algo"], "tab:gray")
-            ax.plot([1, 2], [1, a["wall_s"] / b["wall_s"]], marker="o", ls=ls, color=color,
-                    label=f"{what}, {'one program over both GPUs' if build == 'base' else 'a program per GPU'}")
-    ax.set_xticks([1, 2])
-    ax.set_xlabel("H100 GPUs (one host)")
-    ax.set_ylabel("speed-up over one GPU (wall time of the run, 4,194,304 seeds)")
-    ax.set_title(f"Scaling over GPUs ({SCALE_RECORD})", fontsize=10)
-    ax.legend(fontsize=7, loc="upper left")
-    ax.grid(alpha=0.3)
+    builds = [(".dev_old", "the build before (f0551bf)", "tab:gray"), (".dev_new", "this build", COLORS["gpu"])]
+
+    def ratio(build, step, seeds, key):
+        one, two = ([r for r in runs[step] if r["build"] == build and r["seeds"] == seeds and r["visible"] == v]
+                    for v in ("0", "0,1"))
+        get = (lambda r: r[key]) if key == "wall_s" else (lambda r: r["per_algo"][key]["run_s"])
+        return get(one[0]) / get(two[0])
+
+    cases = [("wall\n4M", "cmd_main", 4194304, "wall_s"), ("wall\n8M", "cmd_main", 8388608, "wall_s"),
+             ("wall, report\n4M", "cmd_report", 4194304, "wall_s"),
+             ("AC run\n4M", "cmd_main", 4194304, "ac"), ("EAC run\n4M", "cmd_main", 4194304, "eac"),
+             ("AC run\n8M", "cmd_main", 8388608, "ac"), ("EAC run\n8M", "cmd_main", 8388608, "eac")]
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    width = 0.38
+    for i, (build, label, color) in enumerate(builds):
+        xs = [g + (i - 0.5) * width for g in range(len(cases))]
+        values = [ratio(build, step, n, key) for _, step, n, key in cases]
+        ax.bar(xs, values, width, color=color, label=label)
+        for x, v in zip(xs, values, strict=True):
+            ax.text(x, v + 0.03, f"{v:.2f}", ha="center", va="bottom", fontsize=7.5)
+    ax.axhline(2, color="black", ls=":", label="ideal (2x)")
+    ax.axhline(1, color="black", lw=0.6)
+    ax.set_xticks(range(len(cases)), [c[0] for c in cases], fontsize=8.5)
+    ax.set_ylabel("two GPUs over one (time on one / time on two)")
+    ax.set_ylim(0, 2.3)
+    ax.set_title(f"jaxeac grid --preset paper (no report unless named), 2x H100, fresh processes ({SCALE_RECORD})",
+                 fontsize=9)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(alpha=0.3, axis="y")
     return _save(fig, out / "scaling.png")
 
 
