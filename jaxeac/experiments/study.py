@@ -46,6 +46,7 @@ from jaxeac.algorithm.config import ALGORITHMS, BASELINES
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_algos, check_key, check_positive_int, finished_run, plain_json
 from jaxeac.experiments.grid import GridSettings
+from jaxeac.running.threads import in_background
 
 #: The tasks of a full study: the classic tabular tasks, the paper's grid, and the grid made slippery.
 DEFAULT_TASKS = (
@@ -273,7 +274,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         from jaxeac.experiments.tune import tuning_runs
 
         tuner = tuning_runs(settings, tuning, grids, envs, progress=progress)
-        tuned = _in_background(tuner.tune)
+        tuned = in_background(tuner.tune, "jaxeac-study")
     with _TaskRunner(todo, tl) as runner:
         ahead = _start_groups(runner, todo, out, side, progress)
         for i, (task, grid) in enumerate(tasks.items()):
@@ -310,7 +311,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             from jaxeac.experiments.tune import select
 
             algos = list(settings.algos)
-            evaluated = _in_background(lambda: tuner.evaluate(
+            evaluated = in_background(lambda: tuner.evaluate(
                 select(tuning, tuned.result(), list(tasks), algos, first.trials), kept))
         with said("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
@@ -411,22 +412,6 @@ def _side_by_side(todo: dict, envs: dict) -> bool:
     import jax
 
     return bool(todo) and GROUPS_SIDE_BY_SIDE.get(jax.default_backend(), False)
-
-
-def _in_background(work: Callable):
-    """`work()` on a daemon thread (an interrupted study does not wait for it): a future."""
-    from concurrent.futures import Future
-
-    future: Future = Future()
-
-    def run() -> None:
-        try:
-            future.set_result(work())
-        except BaseException as e:  # noqa: BLE001 (the future carries it to whoever waits)
-            future.set_exception(e)
-
-    threading.Thread(target=run, daemon=True, name="jaxeac-study").start()
-    return future
 
 
 def _start_groups(runner: _TaskRunner, todo: dict, out: Path, side: bool, progress: bool) -> dict:

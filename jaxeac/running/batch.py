@@ -52,6 +52,7 @@ from jaxeac.running.schedule import (  # noqa: F401  (record_timeline, DEVICES_A
     record_timeline,
     run_chunks,
 )
+from jaxeac.running.threads import OnceCache, in_background
 from jaxeac.runtime import trim_host_memory
 
 SEEDS_AXIS = "seeds"
@@ -116,8 +117,8 @@ def even_chunk(n: int, chunk_size: int, n_devices: int) -> int:
 
 _measure = jax.jit(device_measures)  # on the device of its input, compiled once per device and shape
 
-_COMPILED: dict = {}  # key -> Future of (compiled program, seconds its compile took)
-_COMPILED_LOCK = threading.Lock()
+_COMPILED = OnceCache()  # key -> (compiled program, seconds its compile took)
+_JITTED_LOCK = threading.Lock()
 
 def _check_seeds(seeds) -> np.ndarray:
     """int64 [N]: seed indices, each in 0..2^32−1 (R1: `fold_in` keeps 32 bits)."""
@@ -164,15 +165,7 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tabl
     any thread, waits for the first and gets 0 seconds (cached)."""
     cfg = cfg.resolve(env, seeds.shape[0] // len(devices))  # every `auto`, once, before tracing
     key = (program_key(env), cfg, devices, seeds.shape, jax.tree.map(lambda x: x.dtype, hyper))
-    with _COMPILED_LOCK:
-        future, mine = _COMPILED.get(key), False
-        if future is None:
-            if len(_COMPILED) >= 64:
-                _COMPILED.clear()
-            future, mine = _COMPILED.setdefault(key, Future()), True
-    if not mine:
-        return future.result()[0], 0.0  # compiled by an earlier call (or another thread)
-    try:
+    def compile_it() -> tuple:
         t0 = time.perf_counter()
         lowered = _jitted(env, cfg, devices).lower(*_placed(devices, root, seeds, hyper, tables))
         t1 = time.perf_counter()
@@ -181,13 +174,10 @@ def _compiled(env: Env, cfg: RunConfig, devices: tuple, root, seeds, hyper, tabl
         record({"event": "lowered", "devices": [d.id for d in devices], "lower_s": t1 - t0,
                 "xla_s": seconds - (t1 - t0)})  # trace and lowering; XLA's compile or cache load
         trim_host_memory()
-        future.set_result((program, seconds))
         return program, seconds
-    finally:
-        if not future.done():  # failed or interrupted: waiters get the error, a later call tries again
-            with _COMPILED_LOCK:
-                _COMPILED.pop(key, None)
-            future.set_exception(RuntimeError("the program's compile did not finish"))
+
+    (program, seconds), mine = _COMPILED.get(key, compile_it)
+    return program, seconds if mine else 0.0  # 0 s: compiled by an earlier call (or another thread)
 
 
 _JITTED: dict = {}  # (program key, config) -> the jitted chunk program of one device
@@ -200,7 +190,7 @@ def _jitted(env: Env, cfg: RunConfig, devices: tuple) -> Callable:
     if len(devices) > 1:
         return make_batch_run(env, cfg, seed_mesh(devices))
     key = (program_key(env), cfg)
-    with _COMPILED_LOCK:
+    with _JITTED_LOCK:
         if key not in _JITTED:
             if len(_JITTED) >= 64:
                 _JITTED.clear()
@@ -212,20 +202,6 @@ def _persistent_cache_shared(platform: str) -> bool:
     """Whether a program compiled for one device is found in JAX's persistent compilation cache
     by the same program on another: on GPUs the cache's key leaves out the device."""
     return platform == "gpu" and bool(jax.config.jax_compilation_cache_dir)
-
-
-def _in_background(work: Callable, name: str) -> Future:
-    """`work()` on a daemon thread of its own (an interrupted run does not wait for it): a future."""
-    future: Future = Future()
-
-    def run() -> None:
-        try:
-            future.set_result(work())
-        except BaseException as e:  # noqa: BLE001 (the future carries it to whoever waits)
-            future.set_exception(e)
-
-    threading.Thread(target=run, daemon=True, name=name).start()
-    return future
 
 
 def _compile_groups(env: Env, cfg: RunConfig, groups: list[tuple], root, seeds, hyper,
@@ -243,7 +219,7 @@ def _compile_groups(env: Env, cfg: RunConfig, groups: list[tuple], root, seeds, 
         return program, seconds
 
     def later(i: int) -> Future:
-        return _in_background(lambda: compile(i)[0], f"jaxeac-compile-{i}")
+        return in_background(lambda: compile(i)[0], f"jaxeac-compile-{i}")
 
     shared = _persistent_cache_shared(groups[0][0].platform)
     others = [] if shared else [later(i) for i in range(1, len(groups))]

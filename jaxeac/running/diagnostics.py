@@ -16,9 +16,7 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 from __future__ import annotations
 
 import dataclasses
-import threading
 from collections.abc import Sequence
-from concurrent.futures import Future
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +37,7 @@ from jaxeac.running.loops import (
     trace_run,
 )
 from jaxeac.running.outputs import KEEP_LOGS
+from jaxeac.running.threads import OnceCache
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
 #: at most DIAGNOSTIC_SEEDS, and at most DIAGNOSTIC_STEPS chance evaluations (T × C a seed in the
@@ -171,8 +170,7 @@ def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None):
     return cfg, n_devices, chunk, best_arg, program_inputs(env)
 
 
-_EXECUTABLES: dict = {}  # (program, chunk, best's shape) -> Future of the compiled program
-_EXECUTABLES_LOCK = threading.Lock()
+_EXECUTABLES = OnceCache()  # (program, chunk, best's shape) -> the compiled program
 
 
 def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: tuple):
@@ -180,23 +178,7 @@ def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: 
     thread, waits for the first (`prepare_diagnostics` compiles ahead of the runs)."""
     shapes = tuple(str(jax.typeof(x)) for x in jax.tree.leaves(args[2:4]))  # the rates' and best's
     key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, shapes)
-    with _EXECUTABLES_LOCK:
-        future, mine = _EXECUTABLES.get(key), False
-        if future is None:
-            if len(_EXECUTABLES) >= 64:
-                _EXECUTABLES.clear()
-            future, mine = _EXECUTABLES.setdefault(key, Future()), True
-    if not mine:
-        return future.result()
-    try:
-        program = _program(env, cfg, has_best, n_devices).lower(*args).compile()
-    except BaseException as e:
-        with _EXECUTABLES_LOCK:
-            _EXECUTABLES.pop(key, None)
-        future.set_exception(e)
-        raise
-    future.set_result(program)
-    return program
+    return _EXECUTABLES.get(key, lambda: _program(env, cfg, has_best, n_devices).lower(*args).compile())[0]
 
 
 def _checked_seeds(seeds) -> np.ndarray:
