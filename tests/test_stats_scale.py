@@ -527,3 +527,134 @@ if __name__ == "__main__":
     PINNED_FILE.write_text(json.dumps(to_jsonable(results), allow_nan=True))
     print("PINNED_DIGESTS = " + json.dumps({k: digest(v) for k, v in results.items()}, indent=4))
     sys.exit(0)
+
+
+def test_compile_ahead_builds_the_large_path_programs_only_when_needed():
+    """`large.compile_ahead` (a head start for `jaxeac grid` on GPUs): nothing below the
+    threshold; above it, every device program of the large path compiles for the given shapes."""
+    assert large.compile_ahead(100, 16, 4) is None
+    large.compile_ahead(large.LARGE_N + 3, 16, 4)  # odd n: halves of 2·⌊n/2⌋ seeds too
+
+
+_KEY_PROGRAMS = """
+import sys, jax, jax.monitoring, numpy as np
+from jaxeac.stats import compare_experiment
+from jaxeac.stats._rng import warm_key_programs
+if sys.argv[1] == "warm":
+    warm_key_programs()
+names = []
+def seen(event, seconds, **meta):
+    if event.endswith("backend_compile_duration"):
+        names.append(str(meta.get("fun_name")).removeprefix("jit(").removesuffix(")"))
+jax.monitoring.register_event_duration_secs_listener(seen)
+rng = np.random.default_rng(0)
+sb, st = (rng.random((64, 12)) < p for p in (0.3, 0.6))
+compare_experiment(sb, st, resamples=100, calibration_splits=0, key=3, paired=True)
+print(sorted({n for n in names if "threefry" in n or n == "unstack"}))
+"""
+
+
+def test_warm_key_programs_leave_no_key_program_to_compile():
+    """`warm_key_programs` (run on the compile-ahead thread of `jaxeac grid`): in a fresh process, a
+    paired comparison compiles key-derivation programs without it and none after it."""
+    import subprocess
+
+    def key_programs(mode: str) -> str:
+        out = subprocess.run([sys.executable, "-c", _KEY_PROGRAMS, mode], capture_output=True, text=True,
+                             check=True)
+        return out.stdout.strip().splitlines()[-1]
+
+    assert "_threefry_split" in key_programs("cold")
+    assert key_programs("warm") == "[]"
+
+
+def test_large_path_from_codes_is_the_float_path_bit_for_bit(monkeypatch):
+    """Measures held as integer codes (`Coded`: counts per value from the codes, float64 values
+    made a measure at a time, means a block of seeds at a time, measures in turn within the host
+    budget) give the very results of the float64 arrays they stand for: analyses, calibration,
+    log-rank and the figures' tables, at a threshold lowered so a small case takes the large path."""
+    from jaxeac.stats import calibration as cal_mod
+    from jaxeac.stats import compare
+    from jaxeac.stats import measures as rundir
+
+    monkeypatch.setattr(large, "LARGE_N", 400)
+    monkeypatch.setattr(large, "MAX_DISTINCT", 100)  # the area measure takes the ABC / normal-limit path
+    monkeypatch.setattr(large, "HOST_BUDGET", large.HostBudget(1))  # one analysis at a time
+    monkeypatch.setattr(rundir, "_COUNT_BLOCK", 97)  # several blocks of codes, the last one short
+    sb, st = synthetic(1001, trials=60, seed=5)
+    codes = [rundir.per_seed_codes(s) for s in (sb, st)]
+    floats = [rundir.per_seed_measures(s) for s in (sb, st)]
+    names = [k for k in codes[0] if not k.startswith("_")]
+    for c, f in zip(codes, floats, strict=True):
+        for k in names:
+            assert c[k].codes.itemsize <= 2
+            np.testing.assert_array_equal(c[k].values(), f[k])
+            for got, want in zip(rundir.value_counts(c[k]), np.unique(f[k], return_counts=True), strict=True):
+                np.testing.assert_array_equal(got, want)
+
+    def same(a, b):
+        assert json.dumps(to_jsonable(a), sort_keys=True) == json.dumps(to_jsonable(b), sort_keys=True)
+
+    def analyse(m):
+        res = compare._analyse(*({k: x[k] for k in names} for x in m), 3, resamples=300, alpha=0.05,
+                               chunk=100, perm_chunk=100, higher_is_better=None)
+        return res["measures"], res["scale"]
+
+    coded = analyse(codes)
+    same(coded, analyse(floats))
+    methods = coded[1]
+    assert "ABC" in methods["auc_cumulative"]["bootstrap"]
+    assert methods["successes"]["bootstrap"].startswith("exact")
+
+    def calibration(m):
+        return cal_mod.calibrate({k: m[k] for k in names}, None, 4, splits=40, resamples=50,
+                                 time_event=(m["_time"], m["_event"]))
+
+    same(calibration(codes[0]), calibration(floats[0]))
+    lr = ev.logrank_tables(*(rundir.event_counts(c["_time"], c["_event"]) for c in codes))
+    (fb, ft) = floats
+    mask = np.r_[np.zeros(fb["_time"].size, bool), np.ones(ft["_time"].size, bool)][None]
+    chi2, p, _, _ = ev.logrank_masks(np.r_[fb["_time"], ft["_time"]].astype(float),
+                                     np.r_[fb["_event"], ft["_event"]], mask)
+    assert (lr.statistic, lr.pvalue) == (chi2[0], p[0])
+    for cols in ([codes[0][k] for k in names], [floats[0][k] for k in names], [codes[0]["successes"]]):
+        direct = np.stack([rundir.as_values(c)[:1000] for c in cols], 1).mean(0)
+        np.testing.assert_array_equal(large.stacked_means(cols, 1000, block=64), direct)
+
+
+@pytest.mark.parametrize("n", [3, 64, 65, 1000])
+def test_running_column_sums_are_the_whole_arrays(n):
+    """ABC's moments of [z, z²] and the calibration's means, a block of rows at a time, are those
+    NumPy gives for the whole [n, M] array, bit for bit."""
+    z = np.random.default_rng(n).normal(size=n) * 7
+    u = np.stack([z, z * z], 1)
+    mean, sd = asymptotic._units_moments(z, block=16)
+    np.testing.assert_array_equal(mean, u.mean(0))
+    np.testing.assert_array_equal(sd, u.std(0))
+    cols = [z, z * 3, np.cos(z)]
+    direct = np.stack(cols, 1)[: n - 1].mean(0)
+    np.testing.assert_array_equal(large.stacked_means(cols, n - 1, block=16), direct)
+
+
+@pytest.mark.parametrize("trials", [1, 7, 8, 9, 13, 200, 203])
+def test_measures_from_packed_bits_are_those_of_the_unpacked_rows(trials):
+    """`per_seed_codes` reads `SuccessBits` byte by byte (set bits and their positions per byte);
+    every code equals the unpacked bool path's, dtype included, on empty, full and random rows,
+    and bits past the last trial (a damaged pad) change nothing."""
+    from jaxeac.stats.measures import per_seed_codes
+
+    rng = np.random.default_rng(trials)
+    success = rng.random((40_000, trials)) < rng.choice([0.0, 0.02, 0.5, 0.98, 1.0], size=(40_000, 1))
+    success[0], success[1] = False, True
+    packed = SuccessBits.pack(success)
+    dirty = SuccessBits(packed.bits.copy(), trials)
+    if trials % 8:
+        dirty.bits[:, -1] |= np.uint8(0xFF << (trials % 8) & 0xFF)  # the pad bits set
+    want = per_seed_codes(success)
+    for bits in (packed, dirty):
+        got = per_seed_codes(bits)
+        assert list(got) == list(want)
+        for name, value in want.items():
+            a, b = getattr(value, "codes", value), getattr(got[name], "codes", got[name])
+            assert a.dtype == b.dtype and np.array_equal(a, b), name
+    assert want["successes"].codes[1] == trials and want["first_success"].codes[0] == trials + 1
