@@ -486,9 +486,8 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
         if figures:
             pool.submit(importlib.import_module, "jaxeac.plots")
     try:
-        run, summary = _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early,
-                                 on_results, on_drained, started)
-        return run, summary
+        return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early,
+                         on_results, on_drained, started)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 

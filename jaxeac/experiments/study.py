@@ -268,7 +268,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
     curves, kept = {}, {}
     n = len(settings.tasks)
-    side = _side_by_side(todo, envs)
+    side = _side_by_side(todo)
     tuned = None
     if tuning is not None and side:  # the tuning's runs beside the study's: the device has room
         from jaxeac.experiments.tune import tuning_runs
@@ -408,7 +408,7 @@ def _seed_ids(n: int) -> np.ndarray:
 GROUPS_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
 
 
-def _side_by_side(todo: dict, envs: dict) -> bool:
+def _side_by_side(todo: dict) -> bool:
     import jax
 
     return bool(todo) and GROUPS_SIDE_BY_SIDE.get(jax.default_backend(), False)
