@@ -1,6 +1,6 @@
 """One task's bootstrap groups and the rows the engine builds from them (`jaxeac.stats.engine`).
 
-A `Group` is one algorithm on one task: its sorted values (or distinct values with counts),
+A `Group` is one algorithm on one task: its sorted values, distinct values with counts,
 the bootstrap counts over them drawn by the group's path (`large.resampling_path`), units
 first, and, computed once on first use, their cumulative counts and sums. `pair_row` is the
 unpaired comparison of two groups, `paired_row` the paired one of per-seed differences.
@@ -25,18 +25,20 @@ from jaxeac.stats.tasks import below_half, wins_replicates
 
 
 class Group:
-    """One algorithm on one task: sorted values (raw) or distinct values with counts, and the
-    bootstrap counts over them, units first, CT [D, R] float32 (exact integers), drawn by the
-    group's path; their cumulative counts and sums are computed once, on first use."""
+    """One algorithm on one task: its sorted values x, their distinct values with counts, and the
+    bootstrap counts per distinct value, CT [D, R] float32 (exact integers), drawn by the group's
+    path (raw draws of the units, counted per value on the device, or counts per value); their
+    cumulative counts and sums are computed once, on first use."""
 
     def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000):
         self.x = np.sort(np.asarray(x, np.float64))
         self.n = self.x.size
         distinct, counts = np.unique(self.x, return_counts=True)
         self.path = resampling_path(self.n, distinct.size)
-        if self.path == large.RAW:
-            self.values, self.k = self.x, np.ones(self.n, np.int64)
-            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True)
+        if self.path == large.RAW:  # the raw draws of the units, counted per distinct value (same numbers)
+            self.values, self.k = distinct, counts
+            bins = np.repeat(np.arange(distinct.size, dtype=np.int32), counts)
+            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True, bins=bins)
         elif self.path == large.PER_VALUE:
             self.values, self.k = distinct, counts
             c = multinomial_counts(host_rng(key), counts, resamples)

@@ -38,30 +38,40 @@ def _cap(chunk: int, resamples: int, n: int) -> int:
     return max(1, min(chunk, resamples, MAX_CHUNK_ELEMENTS // max(n, 1)))
 
 
-def _counts(key, c, n: int, chunk: int):
+def _counts(key, c, n: int, chunk: int, bins=None, width: int = 0):
     """The bootstrap draw, defined once: chunk c's resamples as counts per unit [chunk, n] (n uniform
-    indices per resample under fold_in(key, c), scatter-added)."""
+    indices per resample under fold_in(key, c), scatter-added), or, given `bins` (unit -> bin, int32
+    [n]) and their number `width`, the same draws counted per bin [chunk, width]."""
     idx = uniform_index(jax.random.fold_in(key, c), (chunk, n), n)
+    if bins is not None:
+        idx, n = bins[idx], width
     flat = (idx + (jnp.arange(chunk, dtype=jnp.int32) * n)[:, None]).reshape(-1)
     counts = jnp.zeros((chunk * n,), jnp.float32).at[flat].add(1.0, mode="promise_in_bounds")
     return counts.reshape(chunk, n)
 
 
-_counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk"))
-_counts_chunk_t = jax.jit(lambda key, c, n, chunk: _counts(key, c, n, chunk).T,
-                          static_argnames=("n", "chunk"))
+_counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk", "width"))
+_counts_chunk_t = jax.jit(lambda key, c, n, chunk, bins=None, width=0: _counts(key, c, n, chunk, bins, width).T,
+                          static_argnames=("n", "chunk", "width"))
 
 
-def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: bool = False) -> np.ndarray:
+def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: bool = False,
+                bins: np.ndarray | None = None) -> np.ndarray:
     """Bootstrap resamples of n units as counts per unit, [resamples, n] float32 ([n, resamples]
     with `units_first`, the layout in which cumulative counts over units and row gathers are fast
     in NumPy): the draws `bootstrap_sums` makes under the same key (so its sums are these counts
-    times the rows)."""
+    times the rows). With `bins` (unit i's bin, [n] ascending ints from 0, e.g. the index of its
+    distinct value) the same draws are counted per bin on the device, [resamples, bins] (exactly
+    the per-unit counts summed over each bin's units): transfers and later work then scale with
+    the bins, not the units."""
     chunk = _cap(chunk, resamples, n)
+    extra = {}
+    if bins is not None:
+        extra = {"bins": jnp.asarray(bins, jnp.int32), "width": int(bins[-1]) + 1 if len(bins) else 0}
+    fn = _counts_chunk_t if units_first else _counts_chunk
+    parts = [fn(key, c, n, chunk, **extra) for c in range(-(-resamples // chunk))]  # all dispatched first
     if units_first:
-        parts = [_counts_chunk_t(key, c, n, chunk) for c in range(-(-resamples // chunk))]
         return np.concatenate([np.asarray(p) for p in parts], axis=1)[:, :resamples]
-    parts = [_counts_chunk(key, c, n, chunk) for c in range(-(-resamples // chunk))]
     return np.concatenate([np.asarray(p) for p in parts])[:resamples]
 
 
