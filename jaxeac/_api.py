@@ -214,6 +214,8 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
 
     b, t = names
     if treatment is None:
+        if hasattr(baseline, "columns"):  # a tidy table (a pandas DataFrame): every pair, every task
+            return engine_compare(baseline, resamples=resamples, level=float(level), key=key)
         if not isinstance(baseline, str | os.PathLike):
             raise TypeError("compare(folder) takes a run folder's path; "
                             "to compare arrays give two: compare(a, b)")

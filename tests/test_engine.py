@@ -259,3 +259,33 @@ def test_tables_refused_before_reading(tmp_path, capsys):
         assert main(["compare", "--table", str(table), "--resamples", few, "--out", str(tmp_path / "o")]) == 2
         assert "too few" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_dataframe_is_the_table_read_from_a_file(tmp_path):
+    """A tidy table in memory (a pandas DataFrame, as in a notebook) gives the very result of the
+    same table read from CSV and from Parquet, through `compare` and through `jaxeac.compare`."""
+    import pandas as pd
+
+    import jaxeac
+
+    rng = np.random.default_rng(4)
+    rows = [(t, a, s, k) for t in ("p", "q") for a in ("x", "y", "z") for s in range(6) for k in range(3)]
+    frame = pd.DataFrame(rows, columns=["task", "algo", "seed", "trial"])
+    frame["value"] = rng.normal(frame.trial + (frame.algo == "y"), 1)
+    frame.loc[5, "value"] = np.nan  # a failed seed, excluded and counted as from a file
+    frame.to_csv(tmp_path / "t.csv", index=False)
+    frame.to_parquet(tmp_path / "t.parquet")
+
+    def numbers(res):
+        d = res.to_dict()
+        return json.dumps({k: d[k] for k in ("rows", "algorithms", "tasks")}, sort_keys=True, default=str)
+
+    settings = dict(baseline="x", resamples=400, key=2)
+    want = numbers(compare(tmp_path / "t.csv", **settings))
+    assert numbers(compare(tmp_path / "t.parquet", **settings)) == want
+    got = compare(frame, **settings)
+    assert numbers(got) == want and got.source["excluded_total"] == 1
+    assert list(frame.columns) == ["task", "algo", "seed", "trial", "value"]  # the caller's frame as it was
+    one = frame[frame.task == "p"].drop(columns="task")
+    top = jaxeac.compare(one, resamples=400, key=2)  # one task: every pair
+    assert numbers(top) == numbers(compare(one, resamples=400, key=2)) and len(top.rows) == 3

@@ -33,7 +33,7 @@ from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.groups import Group, pair_row, paired_row
-from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, read_npz, read_tidy
+from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, is_frame, read_npz, read_tidy
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
 from jaxeac.stats.resample import boot_counts
 from jaxeac.stats.result import Comparison
@@ -94,11 +94,13 @@ def as_per_seed(data, *, value: str = "value", aggregate: str = "sum") -> PerSee
         return data
     if isinstance(data, str | os.PathLike):
         return read_any(data, value=value, aggregate=aggregate)
+    if is_frame(data):  # a tidy table in memory: as the same table read from a file
+        return read_tidy(data, value=value, aggregate=aggregate)
     if hasattr(data, "items"):
         return from_arrays(data)
     raise TypeError(
-        "compare takes a run folder or table path, a dict of per-seed arrays ({algo: values}, "
-        "{task: {algo: values}} or {algo: [runs, tasks]}), or a PerSeed"
+        "compare takes a run folder or table path, a tidy DataFrame, a dict of per-seed arrays "
+        "({algo: values}, {task: {algo: values}} or {algo: [runs, tasks]}), or a PerSeed"
     )
 
 

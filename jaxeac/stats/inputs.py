@@ -188,12 +188,21 @@ def _labels(frame, column: str, where: str) -> np.ndarray:
     return text
 
 
+def is_frame(data) -> bool:
+    """Whether `data` is a table in memory (a pandas DataFrame)."""
+    return all(hasattr(data, a) for a in ("columns", "iloc", "to_numpy"))
+
+
 def read_tidy(path, *, value: str = "value", aggregate: str = "sum") -> PerSeed:
-    """A tidy CSV or Parquet table (see the module's docstring)."""
+    """A tidy CSV or Parquet table (see the module's docstring), or the same table in memory as a
+    pandas DataFrame (read as the Parquet file of it would be)."""
     if aggregate not in AGGREGATES:
         raise UsageError(f"--aggregate must be one of {', '.join(AGGREGATES)} (got {excerpt(aggregate)})")
-    path = Path(path)
-    frame = _frame(path)
+    if is_frame(path):
+        frame, path = path.copy(deep=False), "DataFrame"
+    else:
+        path = Path(path)
+        frame = _frame(path)
     frame.columns = [str(c).strip() for c in frame.columns]
     for col in ("algo", "seed", value):
         if col not in frame.columns:
