@@ -289,3 +289,40 @@ def test_dataframe_is_the_table_read_from_a_file(tmp_path):
     one = frame[frame.task == "p"].drop(columns="task")
     top = jaxeac.compare(one, resamples=400, key=2)  # one task: every pair
     assert numbers(top) == numbers(compare(one, resamples=400, key=2)) and len(top.rows) == 3
+
+
+def test_bad_tables_each_refused_in_one_line(tmp_path, capsys):
+    """The bad inputs of the table path, each an exit code 2 and one line naming what is wrong (and
+    quoting at most a short printable excerpt), with nothing written."""
+    good = "".join(f"{t},{a},{s},{s + (a == 'y')}\n" for t in "pq" for a in "xy" for s in range(4))
+    files = {
+        "latin1.csv": "task,algo,seed,value\n".encode() + "p,caf\u00e9,0,1\n".encode("latin-1") * 3,
+        "zeros.csv": b"\0" * 100_000,
+        "garbage.csv": bytes(range(1, 256)) * 400,
+        "one_seed.csv": ("task,algo,seed,value\n" + good + "r,x,0,1\nr,y,0,2\nr,x,1,1\n").encode(),
+        "ragged.csv": ("task,algo,seed,value\n" + good + "r,x,0,1\nr,x,1,2\n").encode(),
+        "good.csv": ("task,algo,seed,value\n" + good).encode(),
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    np.savez(tmp_path / "empty.npz")
+    np.savez(tmp_path / "one.npz", a=np.ones((3, 2)))
+    cases = [
+        (["latin1.csv"], "is not UTF-8 text (byte"),
+        (["zeros.csv"], "holds binary data"),
+        (["garbage.csv"], "is not UTF-8 text (byte"),
+        (["empty.npz"], "holds 0 array(s)"),
+        (["one.npz"], "holds 1 array(s)"),
+        (["one_seed.csv"], "task 'r', algo 'y' has 1 seed(s)"),
+        (["ragged.csv"], "task 'r' lacks algorithm(s) 'y'"),
+        (["good.csv", "--resamples", "1000000000000"], "of work"),
+        (["good.csv", "--resamples", "2"], "too few"),
+        (["good.csv", "--normalize", "minmax"], "reference scores"),
+        (["good.csv", "--tasks", "nowhere"], "--tasks names 'nowhere', which is not in"),
+    ]
+    for (name, *flags), named in cases:
+        code = main(["compare", "--table", str(tmp_path / name), "--out", str(tmp_path / "o"), *flags])
+        err = capsys.readouterr().err
+        assert code == 2 and err.startswith("error: ") and err.count("\n") == 1 and named in err, (name, err)
+        assert len(err) < 400 and "\\x" not in err and "column 'algo'" not in err, (name, err)
+    assert not (tmp_path / "o").exists()
