@@ -9,7 +9,7 @@ explicit `key` (an int seed or a `jax.random` key). Which resampling path each p
 `jaxeac.stats.large.LARGE_N` seeds) is the one rule `jaxeac.stats.large.resampling_path`.
 """
 
-from jaxeac.stats.bootstrap import bca_ci, bca_interval, iqm, iqm_ci
+from jaxeac.stats.bca import bca_interval
 from jaxeac.stats.calibration import calibrate
 from jaxeac.stats.closed_form import (
     Estimate,
@@ -18,6 +18,7 @@ from jaxeac.stats.closed_form import (
     brunner_munzel,
     hedges_g,
     holm,
+    iqm,
     power_ttest,
     seeds_for_power,
     welch_t,
@@ -25,6 +26,7 @@ from jaxeac.stats.closed_form import (
 from jaxeac.stats.compare import compare_measures, permutation_test
 from jaxeac.stats.curves import curve_bands
 from jaxeac.stats.events import logrank, newcombe_diff, risk_ratio_ci, wilson_ci
+from jaxeac.stats.groups import bca_ci, iqm_ci
 from jaxeac.stats.measures import per_seed_measures
 from jaxeac.stats.run import compare_experiment, compare_run_dir
 from jaxeac.stats.rundir import load_run_dir

@@ -6,8 +6,8 @@ replicates below the estimate, acceleration from jackknife influence values
 summed over the samples. Jackknife values are closed-form here (leave-one-out
 means, variances and trimmed means), so no statistic is recomputed n times.
 
-Arithmetic on replicates already drawn: no resampling, so the resampling code of both
-paths (`jaxeac.stats.bootstrap`, `jaxeac.stats.measure_large`) builds on it.
+Arithmetic on replicates already drawn: no resampling, so the resampling code of every path
+(`jaxeac.stats.groups`, `jaxeac.stats.compare`) builds on it.
 """
 
 from __future__ import annotations

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 
+import jax
 import numpy as np
 from scipy import special
 
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import host_rng, multinomial_counts
+from jaxeac.stats._rng import as_key, host_rng, multinomial_counts
 from jaxeac.stats.asymptotic import abc_two_sample
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts
 from jaxeac.stats.large import resampling_path
@@ -30,15 +31,18 @@ class Group:
     path (raw draws of the units, counted per value on the device, or counts per value); their
     cumulative counts and sums are computed once, on first use."""
 
-    def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000):
-        self.x = np.sort(np.asarray(x, np.float64))
+    def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000, *, in_order: bool = False):
+        """`in_order`: raw draws index the units in the order given (by default: sorted)."""
+        x = np.asarray(x, np.float64)
+        distinct, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+        self.x = np.sort(x)
         self.n = self.x.size
-        distinct, counts = np.unique(self.x, return_counts=True)
         self.path = resampling_path(self.n, distinct.size)
         if self.path == large.RAW:  # the raw draws of the units, counted per distinct value (same numbers)
             self.values, self.k = distinct, counts
-            bins = np.repeat(np.arange(distinct.size, dtype=np.int32), counts)
-            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True, bins=bins)
+            bins = inverse.reshape(-1) if in_order else np.repeat(np.arange(distinct.size), counts)
+            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True,
+                                  bins=bins.astype(np.int32))
         elif self.path == large.PER_VALUE:
             self.values, self.k = distinct, counts
             c = multinomial_counts(host_rng(key), counts, resamples)
@@ -95,16 +99,40 @@ def _normal_two(est, jks, alpha):
     return [est, est - z, est + z]
 
 
+def two_sample_ci(statistic: str, gb: Group, gt: Group, alpha: float) -> cf.Estimate:
+    """mean(treatment) − mean(baseline) ("mean_diff") or Hedges' g ("hedges_g") with its BCa interval
+    (Efron 1987) from the groups' bootstrap counts, or the ABC interval where a group has none."""
+    if gb.CT is not None and gt.CT is not None:
+        return bca_two_sample_counts(statistic, gb.values, gb.k, gt.values, gt.k, *gb.sums(), *gt.sums(),
+                                     alpha)
+    return abc_two_sample(statistic, gb.x, gt.x, alpha)
+
+
+def bca_ci(x_baseline, x_treatment, key, *, statistic: str = "mean_diff", resamples: int = 10_000,
+           alpha: float = 0.05, chunk: int = 1000) -> cf.Estimate:
+    """BCa bootstrap CI for mean(treatment) − mean(baseline) or Hedges' g (`two_sample_ci`), the two
+    samples resampled independently (under split(key)), as in
+    `scipy.stats.bootstrap((x_baseline, x_treatment), ..., method="BCa")`."""
+    if statistic not in ("mean_diff", "hedges_g"):
+        raise ValueError(f"statistic must be 'mean_diff' or 'hedges_g', got {statistic!r}")
+    x, y = cf.check_sample(x_baseline, "x_baseline"), cf.check_sample(x_treatment, "x_treatment")
+    kb, kt = jax.random.split(as_key(key), 2)
+    groups = (Group(z, k, resamples, chunk, in_order=True) for z, k in ((x, kb), (y, kt)))
+    return two_sample_ci(statistic, *groups, alpha)
+
+
+def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int = 1000) -> cf.Estimate:
+    """IQM of one method's per-seed values with a BCa bootstrap CI, on the path
+    `large.resampling_path` gives (raw draws on the device, counts per value, or the normal limit)."""
+    est, lo, hi = Group(cf.check_sample(x), as_key(key), resamples, chunk).iqm(alpha)
+    return cf.Estimate(est, lo, hi, 1 - alpha)
+
+
 def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
     """The unpaired comparison of one task's pair (X − Y)."""
     welch = cf.welch_t(gy.x, gx.x)
-    if gx.CT is not None and gy.CT is not None:
-        sy, sx = gy.sums(), gx.sums()
-        d = bca_two_sample_counts("mean_diff", gy.values, gy.k, gx.values, gx.k, *sy, *sx, alpha)
-        diff_ci = [d.low, d.high]
-    else:
-        e = abc_two_sample("mean_diff", gy.x, gx.x, alpha)
-        diff_ci = [e.low, e.high]
+    d = two_sample_ci("mean_diff", gy, gx, alpha)
+    diff_ci = [d.low, d.high]
     p_hat, star, jk = wins(gx, gy)
     p_ci = (
         list(bca_interval(p_hat, star, jk, alpha)) if star is not None else _normal_two(p_hat, jk, alpha)[1:]

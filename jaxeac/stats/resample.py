@@ -60,14 +60,14 @@ def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: 
     """Bootstrap resamples of n units as counts per unit, [resamples, n] float32 ([n, resamples]
     with `units_first`, the layout in which cumulative counts over units and row gathers are fast
     in NumPy): the draws `bootstrap_sums` makes under the same key (so its sums are these counts
-    times the rows). With `bins` (unit i's bin, [n] ascending ints from 0, e.g. the index of its
+    times the rows). With `bins` (unit i's bin, [n] ints from 0, e.g. the index of its
     distinct value) the same draws are counted per bin on the device, [resamples, bins] (exactly
     the per-unit counts summed over each bin's units): transfers and later work then scale with
     the bins, not the units."""
     chunk = _cap(chunk, resamples, n)
     extra = {}
     if bins is not None:
-        extra = {"bins": jnp.asarray(bins, jnp.int32), "width": int(bins[-1]) + 1 if len(bins) else 0}
+        extra = {"bins": jnp.asarray(bins, jnp.int32), "width": int(bins.max(initial=-1)) + 1}
     fn = _counts_chunk_t if units_first else _counts_chunk
     parts = [fn(key, c, n, chunk, **extra) for c in range(-(-resamples // chunk))]  # all dispatched first
     if units_first:
