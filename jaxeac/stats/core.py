@@ -232,7 +232,8 @@ def compare_per_seed(
             if order is not None and x in order and y in order:
                 d = order[x] - order[y]
                 pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
-                row["paired"] = paired_row(d, shared, alpha, pkey, resamples)
+                raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
+                row["paired"] = paired_row(d, shared.units() if raw else None, alpha, pkey, resamples)
             elif paired == "paired":
                 raise UsageError(
                     f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
@@ -293,9 +294,31 @@ def compare_per_seed(
     )
 
 
+class SharedDraw:
+    """One bootstrap draw of a task's n seed ids, shared by its algorithms (the paired bootstrap):
+    as counts per seed [n, R] (`units`, drawn on first use), or, for one algorithm's values x in
+    seed order, the same draws counted per distinct value of x on the device (`per_value`: the
+    ascending distinct values and their counts [D, R]), so the host never holds [n, R] unless a
+    paired row resamples continuous differences."""
+
+    def __init__(self, key, n: int, resamples: int, chunk: int):
+        self.key, self.n, self.resamples, self.chunk = key, n, resamples, chunk
+        self._units = None
+
+    def units(self) -> np.ndarray:
+        if self._units is None:
+            self._units = boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True)
+        return self._units
+
+    def per_value(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        distinct, inverse = np.unique(x, return_inverse=True)
+        return distinct, boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True,
+                                     bins=inverse.astype(np.int32))
+
+
 def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
     """Where the algorithms of a task share seed ids: their values in one seed order, and one
-    draw of those seeds (the paired bootstrap); else (None, None)."""
+    draw of those seeds (a `SharedDraw`, the paired bootstrap); else (None, None)."""
     if paired == "unpaired" or per.seeds is None:
         return None, None
     ids = {a: per.seeds[task][a] for a in used}
@@ -310,15 +333,15 @@ def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
     n = ref.size
     if resampling_path(n, n) != RAW:
         return None, order
-    return boot_counts(key, n, resamples, chunk=chunk, units_first=True), order
+    return SharedDraw(key, n, resamples, chunk), order
 
 
 def _for_aggregate(per: PerSeed, task, tkey, groups, shared, order, resamples, chunk, keep):
     """The task's draws for the aggregate across tasks: the shared draw where every algorithm ran
-    the same seed ids, else each group's own (drawn again from its key when not kept, by raw
-    draws where its path has none)."""
+    the same seed ids (counted per value of each), else each group's own (drawn again from its
+    key when not kept, by raw draws where its path has none)."""
     if shared is not None and len(order) == len(per.algos):
-        return {a: (order[a], shared) for a in per.algos}, True
+        return {a: (lambda a=a: shared.per_value(order[a])) for a in per.algos}, True
 
     def one(j, a):
         g = groups[a] if keep else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples, chunk)
