@@ -232,7 +232,6 @@ from jaxeac.stats import _rng, asymptotic, device_sums, large  # noqa: E402
 from jaxeac.stats import closed_form as cf  # noqa: E402
 from jaxeac.stats import events as ev  # noqa: E402
 from jaxeac.stats.curves import curve_results, curve_results_large  # noqa: E402
-from jaxeac.stats.measure_large import measure_large  # noqa: E402
 from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation  # noqa: E402
 
 BIG = 200_000  # seeds per method for the checks against exact references (large path: > LARGE_N)
@@ -408,9 +407,9 @@ def test_normal_permutation_p_matches_exact_permutation():
     y = rng.gamma(2.0, 1.0, BIG)
     se = np.sqrt(x.var(ddof=1) / BIG + y.var(ddof=1) / BIG)
     y = np.round((y + 2.0 * se - (y.mean() - x.mean())) * 500) / 500  # Welch t near 2: p near 0.05
-    res = measure_large(x, y, jax.random.key(2), resamples=10, alpha=0.05, bootstrap=False)
-    assert res["distinct_values"] > large.MAX_DISTINCT
+    res = permutation_test(x, y, jax.random.key(2), resamples=10)
     t = large.ValueTable(x, y)
+    assert t.distinct > large.MAX_DISTINCT
     c = np.r_[x, y].mean()
     v = t.values - c
     R = 4000
@@ -420,9 +419,9 @@ def test_normal_permutation_p_matches_exact_permutation():
     from jaxeac.stats.closed_form import welch_t_stat
 
     t_star = welch_t_stat(BIG, tot1 - s1, tot2 - s2, BIG, s1, s2)
-    p_exact = (1 + (np.abs(t_star) >= abs(res["t_welch"])).sum()) / (R + 1)
+    p_exact = (1 + (np.abs(t_star) >= abs(res.statistic)).sum()) / (R + 1)
     assert 0.005 < p_exact < 0.5
-    assert abs(res["p_permutation"] - p_exact) < 4 * np.sqrt(p_exact * (1 - p_exact) / R) + 1e-3
+    assert abs(res.pvalue - p_exact) < 4 * np.sqrt(p_exact * (1 - p_exact) / R) + 1e-3
 
 
 def test_gaussian_curve_bands_and_max_t_match_the_seed_resampling():

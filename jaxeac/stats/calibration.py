@@ -24,9 +24,8 @@ from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, is_binary
 from jaxeac.stats.device_sums import covariance, curve_moments, dispatch_subset_sums, gaussian_max_abs
 from jaxeac.stats.events import logrank_counts, logrank_masks, wilson_ci
-from jaxeac.stats.measure_large import perm_p
 from jaxeac.stats.measures import Coded, as_values, event_counts, value_counts
-from jaxeac.stats.resample import dispatch_subsets
+from jaxeac.stats.resample import dispatch_subsets, perm_p
 
 
 def _rate(p, alpha):

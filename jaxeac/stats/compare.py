@@ -27,14 +27,20 @@ import numpy as np
 from jaxeac.errors import UsageError
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key
+from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts
+from jaxeac.stats.asymptotic import abc_intervals, normal_permutation_p
 from jaxeac.stats.bca import bca_two_sample
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
 from jaxeac.stats.device_sums import curve_moments
-from jaxeac.stats.measure_large import measure_large, permutation_welch_p
+from jaxeac.stats.groups import Group, two_sample_ci
 from jaxeac.stats.measures import as_values, fill_values
-from jaxeac.stats.resample import dispatch_bootstrap, dispatch_permutation, permutation_sums
+from jaxeac.stats.resample import (
+    dispatch_bootstrap,
+    dispatch_permutation,
+    permutation_sums,
+    permutation_welch_p,
+)
 
 POWER_DS = (0.2, 0.5, 0.8)
 
@@ -65,17 +71,27 @@ def permutation_test(
     """
     x = cf.check_sample(x_baseline, "x_baseline")
     y = cf.check_sample(x_treatment, "x_treatment")
-    if large.is_large(x.size, y.size):
-        res = measure_large(x, y, key, resamples=resamples, alpha=0.05, bootstrap=False, iqm=False)
-        return cf.TestResult(res["t_welch"], res["p_permutation"])
     c = np.concatenate([x, y]).mean()
-    x, y = x - c, y - c
-    z = np.stack([np.r_[x, y], np.r_[x, y] ** 2], 1)
+    xc, yc = x - c, y - c
+    t_obs = float(welch_t_stat(x.size, xc.sum(), (xc**2).sum(), y.size, yc.sum(), (yc**2).sum()))
+    if large.is_large(x.size, y.size):
+        k_p = jax.random.split(as_key(key), 3)[2]
+        return cf.TestResult(t_obs, _permutation_large(large.ValueTable(x, y), t_obs, c, k_p, resamples))
+    z = np.stack([np.r_[xc, yc], np.r_[xc, yc] ** 2], 1)
     pt = permutation_sums(as_key(key), z, y.size, resamples, chunk=chunk)
     tot = z.sum(0)
-    t_obs = welch_t_stat(x.size, x.sum(), (x**2).sum(), y.size, y.sum(), (y**2).sum())
-    p = permutation_welch_p(x.size, y.size, t_obs, *tot[:2], pt[:, 0], pt[:, 1])
-    return cf.TestResult(float(t_obs), p)
+    return cf.TestResult(t_obs, permutation_welch_p(x.size, y.size, t_obs, *tot[:2], pt[:, 0], pt[:, 1]))
+
+
+def _permutation_large(table: large.ValueTable, t_obs: float, centre: float, key, resamples: int) -> float:
+    """The permutation p above `large.LARGE_N` seeds: multivariate hypergeometric relabellings per
+    distinct value (exact) where the values are few, else its normal limit (`jaxeac.stats.large`)."""
+    if not table.exact:
+        return float(normal_permutation_p(t_obs))
+    v, pooled = table.values - centre, table.kb + table.kt
+    h = hypergeometric_counts(host_rng(key), pooled, table.nt, resamples)
+    tot = (pooled @ v, pooled @ (v * v))
+    return permutation_welch_p(table.nb, table.nt, t_obs, *tot, *large.moment_sums(h, v))
 
 
 def _rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, higher_is_better: bool, power: dict) -> dict:
@@ -239,6 +255,13 @@ def _analyse(
     return {"measures": out, "curves": curve, "resample_seconds": t_resample, "pieces": pieces}
 
 
+def _iqm_normal(z: np.ndarray, centre: float, alpha: float) -> tuple[float, float, float]:
+    """The IQM of the raw values z + centre and its interval on the bootstrap's normal limit."""
+    est = cf.iqm_sorted(np.sort(z))
+    lo, hi = large.iqm_interval(est, large.ASYMPTOTIC, alpha, x=z)
+    return est + centre, lo + centre, hi + centre
+
+
 def _analyse_large(
     mb: dict, mt: dict, key, *, curves, resamples: int, alpha: float, higher_is_better, moments=None
 ) -> dict:
@@ -265,27 +288,31 @@ def _analyse_large(
             table = large.ValueTable(mb[name], mt[name])
             pooled -= c
             t2 = time.perf_counter()
-            res = measure_large(
-                xr,
-                yr,
-                tuple(jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)),
-                resamples=resamples,
-                alpha=alpha,
-                bootstrap=True,
-                iqm=j == 0,
-                centre=c,
-                table=table,
-                centred=True,
-            )
+            keys = [jax.random.fold_in(k, j) for k in (k_b, k_t, k_p)]
+            sums = (xr.sum(), (xr**2).sum(), yr.sum(), (yr**2).sum())
+            t_obs = float(welch_t_stat(nb, *sums[:2], nt, *sums[2:]))
+            p = _permutation_large(table, t_obs, c, keys[2], resamples)
+            path = large.path_above(table.distinct)  # the one rule (`large.resampling_path`)
+            if path == large.PER_VALUE:  # the engine's groups: counts per distinct value, exact
+                groups = [Group(None, k, resamples, counted=(table.values[kk > 0], kk[kk > 0]))
+                          for k, kk in ((keys[0], table.kb), (keys[1], table.kt))]
+                diff, g = (two_sample_ci(stat, *groups, alpha) for stat in ("mean_diff", "hedges_g"))
+                iqm = [grp.iqm(alpha) for grp in groups] if j == 0 else None
+                methods = {"bootstrap": "bootstrap_per_value", "permutation": "permutation_per_value"}
+            else:
+                diff, g = abc_intervals(("mean_diff", "hedges_g"), xr, yr, alpha).values()
+                iqm = [_iqm_normal(z, c, alpha) for z in (xr, yr)] if j == 0 else None
+                methods = {"bootstrap": "abc", "permutation": "normal_permutation"}
+                methods |= {"iqm": "normal_bca"} if j == 0 else {}
             del pooled, xr, yr
             t3 = time.perf_counter()
         ranks = [float(v[0]) for v in cf.brunner_munzel_counts(table.kb, table.kt, alpha)]
-        fields = _row(name, hib, nb, nt, means, res["sums"], ranks, alpha)
-        _resampled(fields, res["diff"], res["hedges_g"], res["p_permutation"])
-        if j == 0:
-            for side in ("baseline", "treatment"):
-                _iqm(fields, side, *res[f"iqm_{side}"])
-        record = {"distinct_values": res["distinct_values"], "path": res["path"], **res["methods"]}
+        fields = _row(name, hib, nb, nt, means, sums, ranks, alpha)
+        _resampled(fields, diff, g, p)
+        for side, res in zip(("baseline", "treatment"), iqm or (), strict=False):
+            _iqm(fields, side, *res)
+        record = {"distinct_values": table.distinct, "path": path,
+                  **{k: large.REFERENCES[v] for k, v in methods.items()}}
         return fields, record, t2 - t1, t3 - t2
 
     # the measures side by side while their temporaries fit `large.HOST_BUDGET`: NumPy's samplers

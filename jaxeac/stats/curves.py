@@ -19,7 +19,7 @@ from jaxeac.errors import UsageError
 from jaxeac.stats._rng import as_key, host_rng
 from jaxeac.stats.closed_form import mean_var, welch_t_stat
 from jaxeac.stats.device_sums import covariance, curve_moments, gaussian_draws, gaussian_max_abs
-from jaxeac.stats.resample import bootstrap_sums, permutation_sums
+from jaxeac.stats.resample import bootstrap_sums, perm_p, permutation_sums
 
 
 def _sup_t(star, est, se, alpha):
@@ -109,10 +109,7 @@ def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_meth
     cb_crit, ct_crit, cd_crit = crits
     diff = mt - mb
     sed = np.sqrt(seb**2 + set_**2)
-    thr = np.abs(t_obs)
-    with np.errstate(invalid="ignore"):
-        thr = np.where(np.isfinite(thr), thr - 1e-6 * np.maximum(thr, 1e-12), thr)
-    p_adj = (1 + (max_star[:, None] >= thr[None]).sum(0)) / (max_star.size + 1)
+    p_adj = perm_p(t_obs, max_star[:, None])
     sig = p_adj <= alpha
     trial = np.arange(1, T + 1)
     sustained = None

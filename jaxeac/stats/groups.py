@@ -31,25 +31,27 @@ class Group:
     path (raw draws of the units, counted per value on the device, or counts per value); their
     cumulative counts and sums are computed once, on first use."""
 
-    def __init__(self, x: np.ndarray, key, resamples: int, chunk: int = 1000, *, in_order: bool = False):
-        """`in_order`: raw draws index the units in the order given (by default: sorted)."""
-        x = np.asarray(x, np.float64)
-        distinct, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-        self.x = np.sort(x)
-        self.n = self.x.size
-        self.path = resampling_path(self.n, distinct.size)
+    def __init__(self, x, key, resamples: int, chunk: int = 1000, *, in_order: bool = False, counted=None):
+        """`in_order`: raw draws index the units in the order given (by default: sorted). `counted`:
+        (ascending distinct values, their counts) in place of x: exact counts per value at any n,
+        without a per-unit copy (then `x` is None)."""
+        if counted is None:
+            x = np.asarray(x, np.float64)
+            distinct, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+            self.x = np.sort(x)
+            self.path = resampling_path(x.size, distinct.size)
+        else:
+            (distinct, counts), self.x, self.path = counted, None, large.PER_VALUE
+        self.values, self.k, self.CT = distinct, counts, None
+        self.n = int(counts.sum())
         if self.path == large.RAW:  # the raw draws of the units, counted per distinct value (same numbers)
-            self.values, self.k = distinct, counts
             bins = inverse.reshape(-1) if in_order else np.repeat(np.arange(distinct.size), counts)
             self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True,
                                   bins=bins.astype(np.int32))
         elif self.path == large.PER_VALUE:
-            self.values, self.k = distinct, counts
-            c = multinomial_counts(host_rng(key), counts, resamples)
-            self.CT = np.ascontiguousarray(c.T, np.float32)
-        else:
-            self.values, self.k, self.CT = distinct, counts, None
-        self.mean = float(self.x.mean())
+            c = multinomial_counts(host_rng(key), counts, resamples)  # exact in float32 below 2^24 units
+            self.CT = np.ascontiguousarray(c.T, np.float32 if self.n < 1 << 24 else np.float64)
+        self.mean = float(self.x.mean()) if self.x is not None else float(counts @ distinct / self.n)
         self._cum = self._sums = None
 
     @property
@@ -66,7 +68,10 @@ class Group:
         return self._sums
 
     def iqm(self, alpha: float) -> list[float]:
-        est = cf.iqm_sorted(self.x)
+        if self.x is None:
+            est = float(large.iqm_from_counts(self.k[None], self.values)[0])
+        else:
+            est = cf.iqm_sorted(self.x)
         star = None if self.CT is None else large.iqm_from_counts(self.CT, self.values, units_first=True,
                                                                   cum=self.cum[1:])
         return [est, *large.iqm_interval(est, self.path, alpha, x=self.x, star=star, values=self.values,

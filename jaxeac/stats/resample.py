@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.stats._rng import random_subsets, uniform_index
+from jaxeac.stats.closed_form import welch_t_stat
 
 # chunk x units per draw: ~80 MB per [chunk, n] float32 buffer; keeps the flat int32 index < 2^31
 MAX_CHUNK_ELEMENTS = 20_000_000
@@ -51,8 +52,8 @@ def _counts(key, c, n: int, chunk: int, bins=None, width: int = 0):
 
 
 _counts_chunk = jax.jit(_counts, static_argnames=("n", "chunk", "width"))
-_counts_chunk_t = jax.jit(lambda key, c, n, chunk, bins=None, width=0: _counts(key, c, n, chunk, bins, width).T,
-                          static_argnames=("n", "chunk", "width"))
+_counts_chunk_t = jax.jit(lambda key, c, n, chunk, bins=None, width=0:  # units first
+                          _counts(key, c, n, chunk, bins, width).T, static_argnames=("n", "chunk", "width"))
 
 
 def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: bool = False,
@@ -195,3 +196,18 @@ def dispatch_subsets(key, n: int, k: int, reps: int):
     """Start drawing `reps` uniform k-of-n subsets; returns a function giving bool [reps, n]."""
     out = _subsets(key, n, k, reps)
     return lambda: np.asarray(out).T
+
+
+def perm_p(t_obs, t_star):
+    """Two-sided Monte-Carlo permutation p = (1 + #{|t*| ≥ |t|}) / (P + 1) (Phipson & Smyth 2010),
+    |t| less a relative 1e-6, so sums of an equal labelling formed in another order count as ties."""
+    a = np.abs(np.asarray(t_obs, np.float64))
+    with np.errstate(invalid="ignore"):
+        a = np.where(np.isfinite(a), a - 1e-6 * np.maximum(a, 1e-12), a)
+    return (1 + (np.abs(t_star) >= a).sum(0)) / (t_star.shape[0] + 1)
+
+
+def permutation_welch_p(nb: int, nt: int, t_obs, tot1, tot2, s1, s2) -> float:
+    """The studentised permutation p of one measure (Janssen 1997), its one definition: Welch's t
+    of each relabelling, from its treatment sums s1, s2 [P] and the pooled totals, against t_obs."""
+    return float(perm_p(t_obs, welch_t_stat(nb, tot1 - s1, tot2 - s2, nt, s1, s2)[:, None])[0])
