@@ -74,7 +74,7 @@ from jaxeac.stats.asymptotic import _column_sums, normal_bca
 from jaxeac.stats.bca import bca_interval, jackknife_iqm
 from jaxeac.stats.device_sums import BLOCK, _gram, _subset_sums, _unpack_bits
 from jaxeac.stats.measures import Coded, as_values, joint_counts
-from jaxeac.stats.resample import cumulative
+from jaxeac.stats.resample import iqm_from_counts
 
 #: Above this many seeds in either method the large-N path is used.
 LARGE_N = 20_000
@@ -243,44 +243,6 @@ def stacked_means(columns, n: int, block: int = 1 << 16) -> np.ndarray:
 def moment_sums(c: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sums of values and squares of each row of counts c [R, D]."""
     return c @ values, c @ (values * values)
-
-
-def iqm_from_counts(c: np.ndarray, values: np.ndarray, *, units_first: bool = False, cum=None) -> np.ndarray:
-    """IQM (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of each resample in
-    counts per ascending value c [R, D] ([D, R] with `units_first`, then `cum` may give its
-    inclusive cumulative counts): (F(n − g) − F(g)) / (n − 2g), F(k) the sum of the k smallest,
-    g = n // 4."""
-    ct = np.asarray(c) if units_first else np.asarray(c).T
-    n = int(round(float(ct[:, 0].sum())))
-    g = n // 4
-    if units_first:  # counts: exact in float32 too
-        cum = cumulative(ct) if cum is None else cum
-        cum_v = cumulative(ct * values[:, None])
-    else:
-        cum = np.cumsum(ct, axis=0)
-        cum_v = np.cumsum(ct * values[:, None], axis=0)
-    cols = np.arange(ct.shape[1])
-
-    def smallest(k):
-        j = np.minimum(rows_below(cum, k), ct.shape[0] - 1)  # value holding the k-th smallest
-        before = np.where(j > 0, cum[np.maximum(j - 1, 0), cols], 0.0)
-        before_v = np.where(j > 0, cum_v[np.maximum(j - 1, 0), cols], 0.0)
-        return before_v + (k - before) * values[j]
-
-    return (smallest(n - g) - smallest(g)) / (n - 2 * g)
-
-
-def rows_below(cum: np.ndarray, k, *, strict: bool = True) -> np.ndarray:
-    """Per column of cumulative counts cum [D, R] (nondecreasing down each column): how many
-    rows hold less than k (at most k unless `strict`), by bisection: O(R log D)."""
-    cols = np.arange(cum.shape[1])
-    lo, hi = np.zeros(cum.shape[1], np.int64), np.full(cum.shape[1], cum.shape[0], np.int64)
-    while np.any(lo < hi):
-        mid = (lo + hi) // 2
-        c = cum[np.minimum(mid, cum.shape[0] - 1), cols]
-        below = (c < k if strict else c <= k) & (lo < hi)
-        lo, hi = np.where(below, mid + 1, lo), np.where(below | (lo >= hi), hi, mid)
-    return lo
 
 
 def jackknife_iqm_counts(counts: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -87,27 +87,42 @@ def cumulative(ct: np.ndarray, *, zero_row: bool = False) -> np.ndarray:
     return out if zero_row else out[1:]
 
 
-def _trimmed_means(counts: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """IQM (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of each resample from its
-    counts [C, n] over the ascending values v, in float64: the kept positions [g, n − g) of the
-    sorted resample sum to F(n − g) − F(g), F(k) the sum of the k smallest, g = n // 4. Units of
-    one value are merged first (exact integer counts), so the work per resample is O(values)."""
-    n = v.size
+def iqm_from_counts(c: np.ndarray, values: np.ndarray, *, units_first: bool = False, cum=None) -> np.ndarray:
+    """IQM (25 % trimmed mean, as `scipy.stats.trim_mean(x, 0.25)`) of each resample in
+    counts per ascending value c [R, D] ([D, R] with `units_first`, then `cum` may give its
+    inclusive cumulative counts): (F(n − g) − F(g)) / (n − 2g), F(k) the sum of the k smallest,
+    g = n // 4."""
+    ct = np.asarray(c) if units_first else np.asarray(c).T
+    n = int(round(float(ct[:, 0].sum())))
     g = n // 4
-    start = np.flatnonzero(np.r_[True, v[1:] != v[:-1]])
-    if start.size < n:
-        counts, v = np.add.reduceat(counts, start, axis=1), v[start]
-    cum = np.cumsum(counts, axis=1, dtype=np.float64)
-    cum_v = np.cumsum(counts * v, axis=1)
-    rows = np.arange(counts.shape[0])
+    if units_first:  # counts: exact in float32 too
+        cum = cumulative(ct) if cum is None else cum
+        cum_v = cumulative(ct * values[:, None])
+    else:
+        cum = np.cumsum(ct, axis=0)
+        cum_v = np.cumsum(ct * values[:, None], axis=0)
+    cols = np.arange(ct.shape[1])
 
-    def smallest(k):  # value j holds the k-th smallest; the values before it are taken whole
-        j = np.minimum((cum < k).sum(1), v.size - 1)
-        before = np.where(j > 0, cum[rows, j - 1], 0.0)
-        before_v = np.where(j > 0, cum_v[rows, j - 1], 0.0)
-        return before_v + (k - before) * v[j]
+    def smallest(k):
+        j = np.minimum(rows_below(cum, k), ct.shape[0] - 1)  # value holding the k-th smallest
+        before = np.where(j > 0, cum[np.maximum(j - 1, 0), cols], 0.0)
+        before_v = np.where(j > 0, cum_v[np.maximum(j - 1, 0), cols], 0.0)
+        return before_v + (k - before) * values[j]
 
     return (smallest(n - g) - smallest(g)) / (n - 2 * g)
+
+
+def rows_below(cum: np.ndarray, k, *, strict: bool = True) -> np.ndarray:
+    """Per column of cumulative counts cum [D, R] (nondecreasing down each column): how many
+    rows hold less than k (at most k unless `strict`), by bisection: O(R log D)."""
+    cols = np.arange(cum.shape[1])
+    lo, hi = np.zeros(cum.shape[1], np.int64), np.full(cum.shape[1], cum.shape[0], np.int64)
+    while np.any(lo < hi):
+        mid = (lo + hi) // 2
+        c = cum[np.minimum(mid, cum.shape[0] - 1), cols]
+        below = (c < k if strict else c <= k) & (lo < hi)
+        lo, hi = np.where(below, mid + 1, lo), np.where(below | (lo >= hi), hi, mid)
+    return lo
 
 
 def _exact_columns(z: np.ndarray) -> np.ndarray:
@@ -140,8 +155,10 @@ def _sums(draws, z: np.ndarray, exact: np.ndarray, resamples: int, iqm: bool = F
         if not exact.all():
             out[:, ~exact] = w.astype(np.float64) @ z[:, ~exact]
         sums.append(out)
-        if iqm:
-            q.append(_trimmed_means(w, z[:, 0]))
+        if iqm:  # units of one value merged first (exact integer counts): O(values) per resample
+            start = np.flatnonzero(np.r_[True, z[1:, 0] != z[:-1, 0]])
+            q.append(iqm_from_counts(np.add.reduceat(w, start, axis=1) if start.size < w.shape[1] else w,
+                                     z[start, 0]))
     return np.concatenate(sums)[:resamples], np.concatenate(q)[:resamples] if iqm else None
 
 
