@@ -67,11 +67,6 @@ def bca_interval(theta_hat: float, theta_star, jackknife, alpha: float = 0.05) -
     return float(lo), float(hi)
 
 
-def jackknife_moments(x: np.ndarray):
-    """Leave-one-out (n, sum, sum of squares) of a centred sample."""
-    return x.size - 1, x.sum() - x, (x**2).sum() - x**2
-
-
 def jackknife_iqm(x: np.ndarray) -> np.ndarray:
     """Leave-one-out IQMs in O(n log n) from prefix sums of the sorted sample."""
     order = np.argsort(x, kind="stable")
@@ -97,27 +92,18 @@ def _two_sample_stat(statistic, n1, s1, ss1, n2, s2, ss2):
     return hedges_from_moments(n1, s1, ss1, n2, s2, ss2)
 
 
-def bca_two_sample(statistic, x, y, sb1, sb2, st1, st2, alpha) -> Estimate:
-    nx, ny = x.size, y.size
+def bca_two_sample_counts(statistic, vb, kb, vt, kt, sb1, sb2, st1, st2, alpha) -> Estimate:
+    """mean(t) − mean(b) ("mean_diff") or Hedges' g with its BCa interval, from each sample's
+    distinct values and their counts (v*, k*; units one by one: counts of 1) and the bootstrap sums
+    of values and squares of each (sb*, st* [R]): the estimate and the jackknife in O(values)."""
+    nb, nt = kb.sum(), kt.sum()
+    b1, b2, t1, t2 = kb @ vb, kb @ vb**2, kt @ vt, kt @ vt**2
     # A few seeds per method: resamples and leave-one-out samples without spread give g = ±inf
     # or NaN (0/0), which the interval below takes as they are; numpy need not warn of them.
     with np.errstate(divide="ignore", invalid="ignore"):
-        est = float(_two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), ny, y.sum(), (y**2).sum()))
-        star = _two_sample_stat(statistic, nx, sb1, sb2, ny, st1, st2)
-        jx = _two_sample_stat(statistic, *jackknife_moments(x), ny, y.sum(), (y**2).sum())
-        jy = _two_sample_stat(statistic, nx, x.sum(), (x**2).sum(), *jackknife_moments(y))
-        lo, hi = bca_interval(est, star, [jx, jy], alpha)
-    return Estimate(est, lo, hi, 1 - alpha)
-
-
-def bca_two_sample_counts(statistic, vb, kb, vt, kt, sb1, sb2, st1, st2, alpha) -> Estimate:
-    """`bca_two_sample` from distinct values and their counts (v*, k*) per sample: the
-    estimate and the jackknife in O(distinct values) (the large-N path)."""
-    nb, nt = kb.sum(), kt.sum()
-    b1, b2, t1, t2 = kb @ vb, kb @ vb**2, kt @ vt, kt @ vt**2
-    est = float(_two_sample_stat(statistic, nb, b1, b2, nt, t1, t2))
-    star = _two_sample_stat(statistic, nb, sb1, sb2, nt, st1, st2)
-    jx = _two_sample_stat(statistic, nb - 1, b1 - vb, b2 - vb**2, nt, t1, t2)
-    jy = _two_sample_stat(statistic, nb, b1, b2, nt - 1, t1 - vt, t2 - vt**2)
-    lo, hi = bca_interval(est, star, [(jx, kb), (jy, kt)], alpha)
+        est = float(_two_sample_stat(statistic, nb, b1, b2, nt, t1, t2))
+        star = _two_sample_stat(statistic, nb, sb1, sb2, nt, st1, st2)
+        jx = _two_sample_stat(statistic, nb - 1, b1 - vb, b2 - vb**2, nt, t1, t2)
+        jy = _two_sample_stat(statistic, nb, b1, b2, nt - 1, t1 - vt, t2 - vt**2)
+        lo, hi = bca_interval(est, star, [(jx, kb), (jy, kt)], alpha)
     return Estimate(est, lo, hi, 1 - alpha)

@@ -29,7 +29,7 @@ from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
 from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts
 from jaxeac.stats.asymptotic import abc_intervals, normal_permutation_p
-from jaxeac.stats.bca import bca_two_sample
+from jaxeac.stats.bca import bca_two_sample_counts
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, curve_results, curve_results_large, is_binary
 from jaxeac.stats.device_sums import curve_moments
@@ -43,6 +43,7 @@ from jaxeac.stats.resample import (
 )
 
 POWER_DS = (0.2, 0.5, 0.8)
+STATISTICS = ("mean_diff", "hedges_g")  # with a BCa (or ABC) interval
 
 
 def _as_measures(x, name: str) -> dict:
@@ -218,11 +219,11 @@ def _analyse(
     t_closed = t_closed - t0 - t_dispatch
     t1 = time.perf_counter()
     tot = zb.sum(0) + zt.sum(0)
+    one_b, one_t = np.ones(nb), np.ones(nt)  # units one by one
     for j, name in enumerate(names):
         x, y = xb[:, j], xt[:, j]
         boot = (boot_b[:, j], boot_b[:, M + j], boot_t[:, j], boot_t[:, M + j])
-        diff = bca_two_sample("mean_diff", x, y, *boot, alpha)
-        g = bca_two_sample("hedges_g", x, y, *boot, alpha)
+        diff, g = (bca_two_sample_counts(s, x, one_b, y, one_t, *boot, alpha) for s in STATISTICS)
         t_obs = welch_t_stat(nb, x.sum(), (x**2).sum(), nt, y.sum(), (y**2).sum())
         p = permutation_welch_p(nb, nt, t_obs, tot[j], tot[M + j], perm[:, j], perm[:, M + j])
         _resampled(out[name], diff, g, p)
@@ -296,11 +297,11 @@ def _analyse_large(
             if path == large.PER_VALUE:  # the engine's groups: counts per distinct value, exact
                 groups = [Group(None, k, resamples, counted=(table.values[kk > 0], kk[kk > 0]))
                           for k, kk in ((keys[0], table.kb), (keys[1], table.kt))]
-                diff, g = (two_sample_ci(stat, *groups, alpha) for stat in ("mean_diff", "hedges_g"))
+                diff, g = (two_sample_ci(stat, *groups, alpha) for stat in STATISTICS)
                 iqm = [grp.iqm(alpha) for grp in groups] if j == 0 else None
                 methods = {"bootstrap": "bootstrap_per_value", "permutation": "permutation_per_value"}
             else:
-                diff, g = abc_intervals(("mean_diff", "hedges_g"), xr, yr, alpha).values()
+                diff, g = abc_intervals(STATISTICS, xr, yr, alpha).values()
                 iqm = [_iqm_normal(z, c, alpha) for z in (xr, yr)] if j == 0 else None
                 methods = {"bootstrap": "abc", "permutation": "normal_permutation"}
                 methods |= {"iqm": "normal_bca"} if j == 0 else {}
