@@ -273,10 +273,6 @@ def a12(x_baseline, x_treatment, alpha: float = 0.05) -> Estimate:
     return Estimate(float(phat[0]), float(lo[0]), float(hi[0]), 1 - alpha)
 
 
-
-
-
-
 # ---------------------------------------------------------------- power, Holm
 def power_ttest(d: float, n: int, alpha: float = 0.05) -> float:
     """Power of the two-sided two-sample t-test with n per group (noncentral t; Cohen 1988)."""

@@ -10,9 +10,10 @@ CI, and the seeds needed for 80 % power. Holm (1979) adjusts the declared
 family of measures. The AC-versus-AC calibration is `jaxeac.stats.calibration`.
 
 Which path a measure's resampling takes is `large.resampling_path`'s one rule: above
-`large.LARGE_N` seeds per method the same results come from `_analyse_large`: resampling per
-distinct value, exact, where a measure takes few values, and named asymptotically exact
-methods elsewhere; see `jaxeac.stats.large` for which, why and the references.
+`large.LARGE_N` seeds per method the same results come from `_analyse_large`: the engine's
+groups (`jaxeac.stats.groups`, counts per distinct value, exact) where a measure takes few
+values, and named asymptotically exact methods elsewhere; see `jaxeac.stats.large` for which,
+why and the references.
 """
 
 from __future__ import annotations

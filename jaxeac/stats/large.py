@@ -251,8 +251,6 @@ def jackknife_iqm_counts(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
     return iqm_from_counts(drop, values)
 
 
-
-
 def iqm_interval(est: float, path: str, alpha: float, *, x=None, star=None, values=None, counts=None):
     """The IQM's interval on `path` (`resampling_path`), its one definition: BCa (Efron 1987) of the
     replicates `star` with the jackknife of the units x (`RAW`) or of a unit of each distinct value

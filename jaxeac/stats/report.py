@@ -18,7 +18,6 @@ def _pct(stats: dict) -> str:
     return f"{100 * level:.6g} %"
 
 
-
 def plain_words(stats: dict) -> str:
     """A paragraph in plain words on the primary measure and the curves."""
     pr = stats["primary"]
