@@ -104,6 +104,26 @@ def test_evaluation_at_a_selection_is_a_plain_run_at_that_setting(tuned):
     np.testing.assert_array_equal(both[0], np.asarray(preset.success).sum(1))
 
 
+def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_path, monkeypatch):
+    """On accelerators the tuning runs beside the study's runs and the evaluation beside its
+    statistics (`GROUPS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`); forced on here, every number of
+    study.json but the timings is the CPU path's."""
+    from jaxeac.experiments import grid, study
+
+    monkeypatch.setitem(study.GROUPS_SIDE_BY_SIDE, "cpu", True)
+    monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    out, settings, _, _ = tuned
+    tuning = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
+                          key=None, eval_key=0, trials=20, out=tmp_path)
+    run_study(settings, tmp_path, progress=False, tuning=tuning)
+
+    def numbers(folder):
+        saved = json.loads((folder / "study.json").read_text())
+        return {k: v for k, v in saved.items() if k not in ("timeline", "environment", "seconds")}
+
+    assert numbers(tmp_path) == numbers(out)
+
+
 def test_tuned_report_and_json(tuned):
     out, settings, tuning, result = tuned
     saved = json.loads((out / "study.json").read_text())

@@ -312,7 +312,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
             algos = list(settings.algos)
             evaluated = in_background(lambda: tuner.evaluate(
-                select(tuning, tuned.result(), list(tasks), algos, first.trials), kept))
+                select(tuning, tuned.result(), list(tasks), algos, first.trials), kept), "jaxeac-evaluation")
         with said("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
                                                       key=settings.key)
