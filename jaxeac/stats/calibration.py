@@ -134,13 +134,8 @@ def calibrate(
         sq = None if binary else slice(2 * M + T, 2 * M + 2 * T)
         max_ref = np.abs(tstats(ref_sums, cols, sq)).max(1)
         max_split = np.abs(tstats(split_sums, cols, sq)).max(1)
-        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
+        rates["curve_maxT"] = {"any_trial": _rate(perm_p(max_split, max_ref[:, None]), alpha)}
     return _calibration_record(splits, resamples, h, alpha, rates)
-
-
-def _max_t_p(max_ref, max_split):
-    """Per split, the max-T p-value of its largest |t| against the reference maxima."""
-    return (1 + (max_ref[None] >= max_split[:, None] * (1 - 1e-6)).sum(1)) / (max_ref.size + 1)
 
 
 def _calibration_record(splits, resamples, h, alpha, rates, **extra) -> dict:
@@ -240,7 +235,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
                 mom = curve_moments(c)()
         rng = host_rng(jax.random.fold_in(key, large.CURVE_STREAM + 1))
         max_ref = gaussian_max_abs(rng, covariance(mom), resamples)
-        rates["curve_maxT"] = {"any_trial": _rate(_max_t_p(max_ref, max_split), alpha)}
+        rates["curve_maxT"] = {"any_trial": _rate(perm_p(max_split, max_ref[:, None]), alpha)}
         methods["curve_maxT"] = large.REFERENCES["max_t_gaussian"]
     return _calibration_record(
         splits, resamples, h, alpha, rates,
