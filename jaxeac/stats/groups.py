@@ -36,16 +36,15 @@ class Group:
         (ascending distinct values, their counts) in place of x: exact counts per value at any n,
         without a per-unit copy (then `x` is None)."""
         if counted is None:
-            x = np.asarray(x, np.float64)
-            distinct, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
-            self.x = np.sort(x)
-            self.path = resampling_path(x.size, distinct.size)
+            self.x = np.sort(np.asarray(x, np.float64))
+            distinct, counts = np.unique(self.x, return_counts=True)
+            self.path = resampling_path(self.x.size, distinct.size)
         else:
             (distinct, counts), self.x, self.path = counted, None, large.PER_VALUE
         self.values, self.k, self.CT = distinct, counts, None
         self.n = int(counts.sum())
         if self.path == large.RAW:  # the raw draws of the units, counted per distinct value (same numbers)
-            bins = inverse.reshape(-1) if in_order else np.repeat(np.arange(distinct.size), counts)
+            bins = np.searchsorted(distinct, x) if in_order else np.repeat(np.arange(distinct.size), counts)
             self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True,
                                   bins=bins.astype(np.int32))
         elif self.path == large.PER_VALUE:
