@@ -37,6 +37,7 @@ from jaxeac.running.loops import (
     trace_run,
 )
 from jaxeac.running.outputs import KEEP_LOGS
+from jaxeac.running.programs import load_or_build
 from jaxeac.running.threads import OnceCache
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
@@ -178,7 +179,12 @@ def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: 
     thread, waits for the first (`prepare_diagnostics` compiles ahead of the runs)."""
     shapes = tuple(str(jax.typeof(x)) for x in jax.tree.leaves(args[2:4]))  # the rates' and best's
     key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, shapes)
-    return _EXECUTABLES.get(key, lambda: _program(env, cfg, has_best, n_devices).lower(*args).compile())[0]
+
+    def build():
+        return _program(env, cfg, has_best, n_devices).lower(*args).compile()
+
+    identity = (program_key(env), cfg, has_best, [d.id for d in jax.local_devices()[:n_devices]])
+    return _EXECUTABLES.get(key, lambda: load_or_build("diagnostics", identity, args, build)[0])[0]
 
 
 def _checked_seeds(seeds) -> np.ndarray:
