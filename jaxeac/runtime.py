@@ -24,7 +24,8 @@ The settings, each with its reason:
   bowling: MJX's float32 physics ran at 0.72x with them.
 - ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: JAX's up-front reservation of 75 % of a GPU also held
   ~1.5 GiB of host memory and doubled a 10^6-seed run's peak; growing as needed ran as fast.
-- JAX's persistent compilation cache (`use_compilation_cache`): a rerun loads its programs.
+- JAX's persistent compilation cache (`use_compilation_cache`): a rerun loads its programs (the
+  run's and E8's whole, without tracing them again: `jaxeac.running.programs`).
 - `trim_host_memory`: what XLA's compiler and pyarrow freed goes back to the system.
 - `start_device`: a GPU's context starts on a thread while the host reads files.
 """
@@ -55,9 +56,9 @@ PREALLOCATE_VARIABLE = "XLA_PYTHON_CLIENT_PREALLOCATE"
 GPU_PREALLOCATE = "false"
 
 CACHE_VARIABLE = "JAXEAC_COMPILATION_CACHE"
-#: Programs that compile faster than this are not worth a file (XLA's default of 1 s would
-#: leave out the statistics' programs, 0.2-0.9 s each on a GPU).
-MIN_COMPILE_SECONDS = 0.2
+#: Programs that compile faster than this are not kept (XLA's default: 1 s). 0, every program: at
+#: 0.2 s a warm rerun of a two-task study compiled 18 small programs again (1.6 s of XLA, 2-core CPU).
+MIN_COMPILE_SECONDS = 0.0
 
 #: What a run folder's summary.json states (`versions`), in this order.
 RUN_PACKAGES = ("jaxeac", "python", "jax", "jaxlib", "numpy", "optax", "mujoco", "matplotlib", "platform")
