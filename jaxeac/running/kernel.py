@@ -278,7 +278,7 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
 
 
 
-_PROBED: dict = {}  # (env, config, platform) -> `backend_problem`'s answer, once per process
+_PROBED: dict = {}  # (program key, config, platform) -> `backend_problem`'s answer, once per process
 _PROBING: list = []  # the probe under way (its tracing resolves the config again)
 
 
@@ -298,9 +298,11 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
                 f"(jax.experimental.pallas.triton: {_first_line(exc)})")
     if not lower:
         return None
+    from jaxeac.running.loops import program_key
+
     platform = jax.default_backend() if jax.default_backend() == "gpu" else "cuda"
     try:
-        key = (env, cfg, platform)
+        key = (program_key(env), cfg, platform)  # the tasks of one tabular layout: one answer
         hash(key)
     except TypeError:  # an unhashable env or rate: probed every time
         key = None
