@@ -66,14 +66,15 @@ def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: 
     the per-unit counts summed over each bin's units): transfers and later work then scale with
     the bins, not the units."""
     chunk = _cap(chunk, resamples, n)
-    extra = {}
-    if bins is not None:
-        extra = {"bins": jnp.asarray(bins, jnp.int32), "width": int(bins.max(initial=-1)) + 1}
+    extra, width = {}, n
+    if bins is not None:  # bins padded to a power of two: one program per bucket, not per width
+        width = int(bins.max(initial=-1)) + 1
+        extra = {"bins": jnp.asarray(bins, jnp.int32), "width": max(16, 1 << max(width - 1, 0).bit_length())}
     fn = _counts_chunk_t if units_first else _counts_chunk
     parts = [fn(key, c, n, chunk, **extra) for c in range(-(-resamples // chunk))]  # all dispatched first
     if units_first:
-        return np.concatenate([np.asarray(p) for p in parts], axis=1)[:, :resamples]
-    return np.concatenate([np.asarray(p) for p in parts])[:resamples]
+        return np.concatenate([np.asarray(p)[:width] for p in parts], axis=1)[:, :resamples]
+    return np.concatenate([np.asarray(p)[:, :width] for p in parts])[:resamples]
 
 
 def cumulative(ct: np.ndarray, *, zero_row: bool = False) -> np.ndarray:
