@@ -88,3 +88,21 @@ def test_names_hold_across_processes_or_refuse():
         programs.name_of(object())
     with pytest.raises(programs.Unnamed):
         programs.name_of(lambda t: t)  # a schedule: named by nothing that holds in another process
+
+
+def test_an_answer_is_computed_once_across_processes(tmp_path, monkeypatch):
+    from jaxeac.running.config import RunConfig
+
+    monkeypatch.setattr(programs, "folder", lambda: tmp_path)
+    cfg = RunConfig(trials=3, agent=__import__("jaxeac").algorithm("eac"))
+    calls = []
+
+    def probe():
+        calls.append(1)
+        return "cannot lower"
+
+    assert programs.remembered("probe", (cfg, "gpu"), probe) == "cannot lower"
+    assert programs.remembered("probe", (cfg, "gpu"), probe) == "cannot lower"  # read from its file
+    assert programs.remembered("probe", (cfg, "cuda"), lambda: None) is None
+    assert len(calls) == 1 and len(list(tmp_path.glob("*.json"))) == 2
+    assert programs.remembered("probe", (object(),), lambda: "unnamed: computed") == "unnamed: computed"

@@ -53,6 +53,7 @@ from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.protocol import KernelTables
 from jaxeac.rng import action_uniform
 from jaxeac.running.carry import flat_init, visit_fields, visit_word
+from jaxeac.running.programs import remembered
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
 
@@ -311,12 +312,17 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
     if _PROBING:  # the probe's own tracing resolves its config again
         return None
     _PROBING.append(key)
-    try:
-        _lower(env, cfg, platform)
-        problem = None
-    except Exception as exc:  # noqa: BLE001 - whatever the backend raises is the reason
-        problem = (f"Pallas's Triton backend could not lower the fused kernel in JAX {jax.__version__} "
-                   f"({type(exc).__name__}: {_first_line(exc)})")
+
+    def probe() -> str | None:
+        try:
+            _lower(env, cfg, platform)
+        except Exception as exc:  # noqa: BLE001 - whatever the backend raises is the reason
+            return (f"Pallas's Triton backend could not lower the fused kernel in JAX {jax.__version__} "
+                    f"({type(exc).__name__}: {_first_line(exc)})")
+        return None
+
+    try:  # a rerun reads the answer an earlier process found (`jaxeac.running.programs`)
+        problem = probe() if key is None else remembered("kernel-probe", key, probe)
     finally:
         _PROBING.pop()
     if key is not None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import hashlib
+import json
 import os
 import pickle
 import sys
@@ -164,6 +165,30 @@ def load_or_build(kind: str, identity, args, build: Callable[[], jax.stages.Comp
     return program, False
 
 
+def remembered(kind: str, identity, compute: Callable[[], str | None]) -> str | None:
+    """`compute()`, a text or None that `identity`, the package's source, the versions and the
+    settings decide, computed once across processes where the cache is on: kept as a file in
+    `folder` (a probe of what this JAX can lower, say)."""
+    where = folder()
+    name = program_name(kind, identity, ()) if where is not None else None
+    if name is None:
+        return compute()
+    path = where / f"{name}.json"
+    try:
+        return json.loads(path.read_text())["answer"]
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    answer = compute()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        part = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.part")
+        part.write_text(json.dumps({"answer": answer}))
+        os.replace(part, path)
+    except OSError:
+        pass
+    return answer
+
+
 def _load(path: Path):
     from jax.experimental.serialize_executable import deserialize_and_load
 
@@ -202,9 +227,9 @@ def _keep(path: Path, program) -> None:
 
 
 def _prune(where: Path) -> None:
-    """Remove the least recently used files beyond `MAX_FILES`."""
+    """Remove the least recently used files (programs and answers) beyond `MAX_FILES`."""
     try:
-        files = [(p.stat().st_mtime, p) for p in where.glob("*.bin")]
+        files = [(p.stat().st_mtime, p) for p in where.iterdir() if p.suffix in (".bin", ".json")]
     except OSError:
         return
     if len(files) <= MAX_FILES:
