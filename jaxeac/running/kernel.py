@@ -35,6 +35,7 @@ SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
 from __future__ import annotations
 
 import functools
+import threading
 
 import jax
 import jax.numpy as jnp
@@ -280,7 +281,7 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
 
 
 _PROBED: dict = {}  # (program key, config, platform) -> `backend_problem`'s answer, once per process
-_PROBING: list = []  # the probe under way (its tracing resolves the config again)
+_PROBING = threading.local()  # `.key`: this thread's probe under way (its tracing resolves the config again)
 
 
 def backend_problem(env, cfg, *, lower: bool) -> str | None:
@@ -290,7 +291,8 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
     The kernel needs Pallas's Triton backend (`jax.experimental.pallas.triton`), which JAX
     deprecated in 0.11 and will remove. Checked: that the backend imports, and with `lower`
     that it lowers this kernel for a GPU (on `LANES_PER_PROGRAM` lanes, from shapes alone; on a
-    CPU-only JAX too, for CUDA). Answers are kept for the process.
+    CPU-only JAX too, for CUDA). Answers are kept per program key and config, for the process
+    and, with the compilation cache on, for later ones (`jaxeac.running.programs.remembered`).
     """
     try:
         from jax.experimental.pallas import triton  # noqa: F401
@@ -309,9 +311,9 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
         key = None
     if key in _PROBED:
         return _PROBED[key]
-    if _PROBING:  # the probe's own tracing resolves its config again
+    if getattr(_PROBING, "key", None) is not None:  # the probe's own tracing resolves its config again
         return None
-    _PROBING.append(key)
+    _PROBING.key = (key,)  # per thread: another thread's probe is no answer for this one
 
     def probe() -> str | None:
         try:
@@ -324,7 +326,7 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
     try:  # a rerun reads the answer an earlier process found (`jaxeac.running.programs`)
         problem = probe() if key is None else remembered("kernel-probe", key, probe)
     finally:
-        _PROBING.pop()
+        _PROBING.key = None
     if key is not None:
         _PROBED[key] = problem
     return problem
