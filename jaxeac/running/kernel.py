@@ -301,11 +301,10 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
                 f"(jax.experimental.pallas.triton: {_first_line(exc)})")
     if not lower:
         return None
-    from jaxeac.running.loops import program_key
-
     platform = jax.default_backend() if jax.default_backend() == "gpu" else "cuda"
     try:
-        key = (program_key(env), cfg, platform)  # the tasks of one tabular layout: one answer
+        program_key = getattr(env, "program_key", None)  # as `jaxeac.running.loops.program_key`
+        key = (program_key() if program_key is not None else env, cfg, platform)  # one answer per layout
         hash(key)
     except TypeError:  # an unhashable env or rate: probed every time
         key = None
