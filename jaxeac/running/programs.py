@@ -8,7 +8,8 @@ on one H100, every program in JAX's cache, still spent 416 s of compile summed o
 a program by what it is built from instead: what its maker's in-process cache keys it by (the
 environment's `program_key`, the resolved `RunConfig`, the devices), its inputs' types and
 placements, the package's source, the versions, XLA's flags and JAX's settings. It keeps the
-serialized executable in a folder of JAX's cache folder (`FOLDER`), on when that cache is on.
+serialized executable in a folder of JAX's cache folder (`FOLDER`), on when that cache is on and
+the backend is a GPU (`KEPT_PLATFORMS`).
 
 Whatever cannot be named the same way in another process (an object known by its address, a
 schedule function) is not stored: that program is built as before. A file that cannot be loaded
@@ -106,11 +107,20 @@ def inputs_name(args) -> str:
     return ";".join(parts)
 
 
+#: Platforms whose executables are kept. Not the CPU: an XLA:CPU executable loaded in another
+#: process can lack kernels its writer's process had compiled before it (`jaxeac reproduce --quick`
+#: run twice: "NOT_FOUND: Function wrapped_iota not found" on the second run).
+KEPT_PLATFORMS = ("gpu",)
+
+
 def folder() -> Path | None:
     """Where programs are kept: `FOLDER` in JAX's persistent cache folder, None while that cache is
-    off (``JAXEAC_COMPILATION_CACHE=off``) or not a local folder."""
+    off (``JAXEAC_COMPILATION_CACHE=off``) or not a local folder, or where the default backend is
+    not one of `KEPT_PLATFORMS`."""
     where = jax.config.jax_compilation_cache_dir
     if not where or not jax.config.jax_enable_compilation_cache or "://" in str(where):
+        return None
+    if jax.default_backend() not in KEPT_PLATFORMS:
         return None
     return Path(where) / FOLDER
 
