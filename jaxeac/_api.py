@@ -211,10 +211,11 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
                          "e.g. 0.95 for 95 % intervals")
     runtime.configure()
     from jaxeac.stats.engine import compare as engine_compare
+    from jaxeac.stats.inputs import is_frame
 
     b, t = names
     if treatment is None:
-        if hasattr(baseline, "columns"):  # a tidy table (a pandas DataFrame): every pair, every task
+        if is_frame(baseline):  # a tidy table (a pandas DataFrame): every pair, every task
             return engine_compare(baseline, resamples=resamples, level=float(level), key=key)
         if not isinstance(baseline, str | os.PathLike):
             raise TypeError("compare(folder) takes a run folder's path; "

@@ -13,7 +13,7 @@ exists with the same fingerprint; a rerun with the same settings skips finished 
 
 `reproduce` runs the steps, then hands their records to `claims` and `report`.
 
-Longer than the package's ~400-line aim (about 540 lines): the four steps and `reproduce`,
+Longer than the package's ~400-line aim (about 580 lines): the four steps and `reproduce`,
 which runs and resumes them, share one convention for run folders and step markers
 (`finished_run`, `_marker`, `_fingerprint`); a separate driver module would split it in two.
 """
