@@ -294,7 +294,7 @@ def load(folder) -> Run:
                     for a, r in loaded.items()}
         success = {a: r.success for a, r in loaded.items()}
         return Run(path, summary.get("experiment", "grid"), algos, trials, summary, per_seed, success)
-    from jaxeac.stats.rundir import load_run_dir
+    from jaxeac.rundir import load_run_dir
 
     per_seed, success = {}, {}
     for other in algos[1:] or algos[:1]:

@@ -78,7 +78,7 @@ def _statistics_beside_figures(seeds: int) -> bool:
 
 def _grid_run_data(run, out, sequential: dict | None = None):
     """The comparison's view (`RunData`) of a grid run in memory: its success curves."""
-    from jaxeac.stats.rundir import RunData
+    from jaxeac.rundir import RunData
 
     return RunData(Path(out), "grid", "successes", tuple(run.settings.algos), run.settings.trials,
                    {a: r.success for a, r in run.results.items()}, {}, {}, sequential)

@@ -9,6 +9,7 @@ explicit `key` (an int seed or a `jax.random` key). Which resampling path each p
 `jaxeac.stats.large.LARGE_N` seeds) is the one rule `jaxeac.stats.large.resampling_path`.
 """
 
+from jaxeac.rundir import load_run_dir
 from jaxeac.stats.bca import bca_interval
 from jaxeac.stats.calibration import calibrate
 from jaxeac.stats.closed_form import (
@@ -29,7 +30,6 @@ from jaxeac.stats.events import logrank, newcombe_diff, risk_ratio_ci, wilson_ci
 from jaxeac.stats.groups import bca_ci, iqm_ci
 from jaxeac.stats.measures import per_seed_measures
 from jaxeac.stats.run import compare_experiment, compare_run_dir
-from jaxeac.stats.rundir import load_run_dir
 
 __all__ = [
     "Estimate",

@@ -8,7 +8,6 @@ folder's per-seed table: paired where the seeds share keys (R1).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from jaxeac.stats.core import compare_per_seed
@@ -49,13 +48,6 @@ def settings_text(summary: dict) -> str:
     if summary.get("key") is not None:
         parts.append(f"key {summary['key']}")
     return "; ".join(p for p in parts if p)
-
-
-def read_summary(run_dir) -> dict:
-    try:
-        return json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
 
 
 def run_family(run_dir, summary: dict, baseline: str, primary: str, *, level: float, resamples: int,

@@ -18,6 +18,7 @@ import numpy as np
 from jaxeac.bits import SuccessBits, as_bool
 from jaxeac.errors import UsageError
 from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.rundir import RunData, load_run_dir, read_summary
 from jaxeac.runtime import start_device, trim_host_memory, versions
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import events as ev
@@ -26,7 +27,7 @@ from jaxeac.stats._rng import as_key, key_record
 from jaxeac.stats.calibration import calibrate, dispatch_calibration
 from jaxeac.stats.compare import _analyse
 from jaxeac.stats.device_sums import curve_moments
-from jaxeac.stats.family import read_summary, run_family, settings_text, subject
+from jaxeac.stats.family import run_family, settings_text, subject
 from jaxeac.stats.figures import FIGURES, write_figures
 from jaxeac.stats.measures import (
     MEASURES,
@@ -42,7 +43,6 @@ from jaxeac.stats.measures import (
 from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
 from jaxeac.stats.paired import paired_analysis
 from jaxeac.stats.report import output_suffix, progress_bar, render_markdown
-from jaxeac.stats.rundir import RunData, load_run_dir
 
 SCHEMA = "jaxeac.stats/1"
 #: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).

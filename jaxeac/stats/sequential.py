@@ -44,6 +44,7 @@ import numpy as np
 from scipy import optimize, special
 
 from jaxeac.errors import UsageError
+from jaxeac.rundir import DECISIONS
 
 #: α-spending functions per side: f(t, α) with f(0) = 0 and f(1) = α/2.
 SPENDING: dict[str, Callable[[float, float], float]] = {
@@ -184,7 +185,6 @@ class SequentialDesign:
                 "boundaries_z": self.boundaries().tolist()}
 
 
-DECISIONS = ("difference", "no difference", "undecided", "continue")
 
 
 def look(baseline: np.ndarray, treatment: np.ndarray, boundary: float, effect: float, last: bool,

@@ -2,14 +2,16 @@
 release 0.1, read with the cross-checks that name a damaged file.
 
 A run directory holds `summary.json`, `per_seed.csv` and `curves.npz` (written by
-the grid and bowling runners), or `results.parquet`. The per-seed measures computed from
-what it holds are `jaxeac.stats.measures`.
+the grid and bowling runners), or `results.parquet`. Reading files is input and output, so this is
+the base layer's: the comparison (`jaxeac.stats.run`) and `jaxeac.load` both read folders through
+it. The per-seed measures computed from what it holds are `jaxeac.stats.measures`.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +38,9 @@ class RunData:
     sequential: dict | None = None  # a sequential run's design, looks and decision (summary.json)
 
 
+#: The decisions of a sequential record's looks (`jaxeac.stats.sequential.look`), the last while
+#: more batches are to come; a finished comparison ends with one of the first three.
+DECISIONS = ("difference", "no difference", "undecided", "continue")
 #: per_seed.csv columns jaxeac writes as numbers (a value that is not one is a damaged file).
 NUMERIC_COLUMNS = ("seed", "successes", "return", "steps", "first_success")
 
@@ -74,6 +79,15 @@ def _read_per_seed(path: Path) -> dict:
                                      "whole number as a run writes; re-run the experiment to rewrite it")
         table[algo] = cols
     return table
+
+
+def read_summary(run_dir) -> dict:
+    """summary.json as a dict, or {} where it is missing or unreadable (the report's title and
+    family then do without it)."""
+    try:
+        return json.loads((Path(run_dir) / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
 
 
 def load_run_dir(run_dir, baseline: str = "ac", treatment: str = "eac") -> RunData:
@@ -185,8 +199,6 @@ def _load_columnar(path: Path, experiment, primary, algos, trials, pair) -> RunD
 def sequential_record(summary: dict, where: Path) -> dict | None:
     """summary.json's ``sequential`` record (a sequential run's design, looks and decision), checked
     so the report can rely on it; absent: None; damaged: one `UsageError` naming the file."""
-    from jaxeac.stats.sequential import DECISIONS
-
     if "sequential" not in summary:
         return None
     seq = summary["sequential"]
@@ -218,8 +230,3 @@ def sequential_record(summary: dict, where: Path) -> dict | None:
         raise UsageError(f"{where}: its 'sequential' record is damaged (not the design, looks and decision "
                          "a sequential run writes); re-run the experiment")
     return seq
-
-
-#: Per byte value: its lowest set bit (8 if none).
-
-
