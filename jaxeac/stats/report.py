@@ -1,5 +1,5 @@
-"""report.md for `jaxeac compare` (SPEC §6), its file names and progress bar; the figures are drawn
-in `jaxeac.stats.figures`."""
+"""report.md for `jaxeac compare` (SPEC §6), its file names and progress bar; the figures it shows
+(`FIGURES`) are drawn by `jaxeac.plots.comparison_figures`."""
 
 from __future__ import annotations
 
@@ -9,7 +9,13 @@ from pathlib import Path
 
 from jaxeac.fmt import compact, compact_interval, p_is, p_sig, size_word
 from jaxeac.stats.family import family_comparison
-from jaxeac.stats.figures import FIGURES  # noqa: F401 (the figures' file names, also here)
+
+#: The comparison's figures: their file names in a run folder (a second comparison's get a suffix).
+FIGURES = {
+    "curves": "compare_curves.png",
+    "distributions": "compare_distributions.png",
+    "improvement": "compare_improvement.png",
+}
 
 
 def _pct(stats: dict) -> str:

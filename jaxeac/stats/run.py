@@ -28,7 +28,6 @@ from jaxeac.stats.calibration import calibrate, dispatch_calibration
 from jaxeac.stats.compare import _analyse
 from jaxeac.stats.device_sums import curve_moments
 from jaxeac.stats.family import run_family, settings_text, subject
-from jaxeac.stats.figures import FIGURES, write_figures
 from jaxeac.stats.measures import (
     MEASURES,
     as_values,
@@ -42,7 +41,7 @@ from jaxeac.stats.measures import (
 )
 from jaxeac.stats.paired import DESIGN as PAIRED_DESIGN
 from jaxeac.stats.paired import paired_analysis
-from jaxeac.stats.report import output_suffix, progress_bar, render_markdown
+from jaxeac.stats.report import FIGURES, output_suffix, progress_bar, render_markdown
 
 SCHEMA = "jaxeac.stats/1"
 #: Random halves of the baseline's seeds in the calibration (each test's false-positive rate).
@@ -382,11 +381,10 @@ def compare_run_dir(
     stats["files"] = {"stats": f"stats{suffix}.json", "report": f"report{suffix}.md", "figures": figures}
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()
+    from jaxeac.plots import comparison_figures  # the figures' layer, imported only to draw them
+
     with staged_dir(run_dir) as stage:
-        write_figures(stats, plot, stage)
-        for k, name in FIGURES.items():  # a second comparison's figures beside the first's
-            if (stage / name).exists() and name != figures[k]:
-                (stage / name).rename(stage / figures[k])
+        comparison_figures(stats, plot, stage, figures)  # a second comparison's beside the first's
         stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
