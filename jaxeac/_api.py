@@ -210,8 +210,8 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
         raise ValueError(f"level is the confidence level, in [0.5, 1) (got {level!r}); "
                          "e.g. 0.95 for 95 % intervals")
     runtime.configure()
+    from jaxeac.perseed import is_frame
     from jaxeac.stats.engine import compare as engine_compare
-    from jaxeac.stats.inputs import is_frame
 
     b, t = names
     if treatment is None:
@@ -225,7 +225,7 @@ def compare(baseline, treatment=None, *, key=0, resamples: int = 10_000, level: 
     if paired not in ("auto", True, False):
         raise ValueError(f"paired must be 'auto', True or False (got {paired!r})")
     xb, xt = _values(baseline, "baseline"), _values(treatment, "treatment")
-    from jaxeac.stats.inputs import PerSeed
+    from jaxeac.perseed import PerSeed
 
     same = [getattr(x, "seeds", None) for x in (baseline, treatment)]
     if paired is True and xb.size != xt.size:

@@ -11,9 +11,9 @@ import pytest
 from scipy import stats
 
 from jaxeac.cli import main
+from jaxeac.perseed import PerSeed
 from jaxeac.stats.bca import bca_interval, jackknife_iqm
 from jaxeac.stats.engine import compare
-from jaxeac.stats.inputs import PerSeed
 from jaxeac.stats.resample import boot_counts, bootstrap_sums
 
 PINNED = Path(__file__).parent / "data" / "stats_10k_before.json"
@@ -239,7 +239,7 @@ def test_tables_refused_before_reading(tmp_path, capsys):
     """A text table over the size limit is refused from its size alone (nothing read), a first
     line too long to be a header is quoted only in a short excerpt, and resamples too few for
     the level's tails are refused."""
-    from jaxeac.stats.inputs import MAX_TEXT_BYTES
+    from jaxeac.perseed import MAX_TEXT_BYTES
 
     big = tmp_path / "big.csv"
     with open(big, "wb") as fh:  # sparse: a header, then a hole past the limit

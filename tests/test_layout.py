@@ -168,7 +168,8 @@ def _imports() -> list[Import]:
 #: ``jaxeac.stats`` and ``jaxeac.plots`` share a layer (both read a run's results).
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("base", ("jaxeac.errors", "jaxeac.pytree", "jaxeac.rng", "jaxeac.io", "jaxeac.fmt", "jaxeac.paper",
-              "jaxeac.runtime", "jaxeac.bits", "jaxeac.results", "jaxeac.style", "jaxeac.rundir")),
+              "jaxeac.runtime", "jaxeac.bits", "jaxeac.results", "jaxeac.style", "jaxeac.rundir",
+              "jaxeac.perseed", "jaxeac.sb3")),
     ("algorithm", ("jaxeac.algorithm",)),
     ("envs", ("jaxeac.envs",)),
     ("running", ("jaxeac.running",)),

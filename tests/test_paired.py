@@ -156,8 +156,8 @@ def test_pairing_of_a_table(tmp_path, capsys):
 def test_one_resampling_rule_for_paired_differences(rng):
     """Run folders and the engine take a paired interval's path from `large.resampling_path`
     (paired: counts per distinct difference wherever they are few, at any n) and record it."""
+    from jaxeac.perseed import PerSeed
     from jaxeac.stats.engine import compare
-    from jaxeac.stats.inputs import PerSeed
 
     assert large.resampling_path(50, 10, paired=True) == large.PER_VALUE
     assert large.resampling_path(50, 10) == large.RAW  # unpaired groups: raw draws up to LARGE_N

@@ -10,10 +10,10 @@ import pytest
 from scipy import stats
 
 from jaxeac.cli import main
+from jaxeac.perseed import read_npz, read_tidy
+from jaxeac.sb3 import read_sb3
 from jaxeac.stats import a12, holm, iqm
 from jaxeac.stats.engine import compare
-from jaxeac.stats.inputs import read_npz, read_tidy
-from jaxeac.stats.sb3 import read_sb3
 from jaxeac.stats.tasks import prob_improvement
 
 FAST = ["--resamples", "400"]

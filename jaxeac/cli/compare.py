@@ -136,7 +136,7 @@ def table_stem(baseline, treatment) -> str:
 
 def read_reference(path) -> dict:
     """--reference-scores FILE: a CSV with columns task, low, high."""
-    from jaxeac.stats.inputs import _frame, _labels, _numeric
+    from jaxeac.perseed import _frame, _labels, _numeric
 
     frame = _frame(Path(path))
     frame.columns = [str(c).strip() for c in frame.columns]
@@ -155,8 +155,8 @@ def compare_table_command(args: argparse.Namespace, alpha: float) -> int:
     import json
 
     from jaxeac.io import staged_dir
+    from jaxeac.perseed import default_out
     from jaxeac.stats.engine import compare
-    from jaxeac.stats.inputs import default_out
 
     if args.dir is not None:
         raise UsageError(f"pass either a run folder ({args.dir}) or --table, not both")

@@ -360,8 +360,8 @@ def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, res
     Returns ({task: {"algorithms": {algo: n, mean, iqm, iqm_ci95}}}, the rows (each algorithm but ac
     against ac per task: difference of means with a BCa CI, Welch's p, Hedges' g, IQMs, P(X > ac);
     ``p_holm``: Holm over Welch's p of every row), the aggregate or None for one task)."""
+    from jaxeac.perseed import PerSeed
     from jaxeac.stats.engine import compare
-    from jaxeac.stats.inputs import PerSeed
 
     values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
     seeds = {t: {a: _seed_ids(x.size) for a, x in per.items()} for t, per in values.items()}

@@ -189,8 +189,8 @@ def across_tasks(
     those seeds serves all of them (paired)."""
     if len(samples) < 2:
         return None
+    from jaxeac.perseed import PerSeed
     from jaxeac.stats.engine import compare
-    from jaxeac.stats.inputs import PerSeed
 
     values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
     seeds = {t: {a: np.arange(x.size).astype(str) for a, x in per.items()} for t, per in values.items()}

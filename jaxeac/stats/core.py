@@ -3,7 +3,7 @@
 ``compare_per_seed(data, ...)`` (the whole of `jaxeac.stats.engine.compare` but run folders) takes a
 tidy table (with optional ``task`` and ``trial`` columns), SB3 monitor folders, rliable-style arrays
 or arrays in a notebook
-(`jaxeac.stats.inputs`), a declared family (all pairs, or each algorithm against `baseline`),
+(`jaxeac.perseed`, `jaxeac.sb3`), a declared family (all pairs, or each algorithm against `baseline`),
 pairing (``"auto"``: paired where both algorithms ran the same seed ids of a task) and a
 confidence `level`, and returns one `Comparison` (`jaxeac.stats.result`): a row per task and
 pair, a row per task and algorithm, and the aggregate across tasks (`jaxeac.stats.tasks`).
@@ -31,14 +31,14 @@ import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.perseed import PerSeed, check_scale, excerpt, from_arrays, is_frame, read_npz, read_tidy
+from jaxeac.sb3 import read_sb3
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats._rng import as_key
 from jaxeac.stats.groups import Group, pair_row, paired_row
-from jaxeac.stats.inputs import PerSeed, check_scale, excerpt, from_arrays, is_frame, read_npz, read_tidy
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
 from jaxeac.stats.resample import boot_counts
 from jaxeac.stats.result import Comparison
-from jaxeac.stats.sb3 import read_sb3
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
 PAIRED_STREAM = 1 << 20

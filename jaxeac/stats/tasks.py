@@ -20,9 +20,9 @@ import math
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.perseed import PerSeed, excerpt
 from jaxeac.stats import large
 from jaxeac.stats.closed_form import a12_counts, iqm_sorted
-from jaxeac.stats.inputs import PerSeed, excerpt
 from jaxeac.stats.resample import cumulative
 
 NORMALIZATIONS = ("minmax", "baseline", "none")

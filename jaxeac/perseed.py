@@ -20,8 +20,9 @@ and algorithm, never silently; text that is no number and infinite values are er
 Malformed input raises `UsageError` (a `ValueError`) naming the row, column, file or
 algorithm, quoting at most a short printable excerpt, before anything is written.
 
-SB3 monitor folders are read by `jaxeac.stats.sb3`; `jaxeac.stats.engine.read_any` picks the
-reader of a path.
+SB3 monitor folders are read by `jaxeac.sb3`; `jaxeac.stats.core.read_any` picks the reader of a
+path. Reading files is input and output, so these readers are the base layer's: the statistics
+and the public face (`jaxeac.compare`) both take what they read.
 """
 
 from __future__ import annotations

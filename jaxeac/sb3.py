@@ -1,4 +1,4 @@
-"""Per-seed values of Stable-Baselines3 runs (a source of `jaxeac.stats.inputs`): a folder of
+"""Per-seed values of Stable-Baselines3 runs (a source of `jaxeac.perseed`): a folder of
 monitor files, ``ALGO/SEED/monitor.csv`` or ``ALGO_SEED.monitor.csv``; each seed's value is the
 mean episode reward over the last 10 % of its file's episodes (at least one), so seeds with
 different episode counts are comparable. A file without episodes is a failed seed (excluded
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxeac.errors import UsageError
-from jaxeac.stats.inputs import ONE_TASK, PerSeed, _check_file, _numeric, excerpt
+from jaxeac.perseed import ONE_TASK, PerSeed, _check_file, _numeric, excerpt
 
 #: Share of the last episodes whose mean reward is the per-seed value of an SB3 run.
 SB3_LAST_SHARE = 0.10
