@@ -39,10 +39,16 @@ def _prefix_popcounts() -> np.ndarray:
 _PREFIX = _prefix_popcounts()
 
 
+#: `cumulative_counts` counts at most this many seed-trials directly (the packed histogram's fixed
+#: cost, about 0.1 s a call, is 80x the direct count at 1,000 x 200; at 10^5 x 200 it is 5x faster)
+DIRECT_CELLS = 1 << 20
+
+
 def cumulative_counts(success, chunk: int = 1 << 14) -> np.ndarray:
     """int64 [T, T + 1]: per trial t, how many seeds have v successes in trials 1..t (exact).
 
-    `success`: bool [N, T] or `SuccessBits`. Works on the packed bits, eight trials a byte: a
+    `success`: bool [N, T] or `SuccessBits`. Up to `DIRECT_CELLS` seed-trials, one histogram of
+    (trial, running count). Beyond, it works on the packed bits, eight trials a byte: a
     seed's count after trial 8b + j is its count before byte b plus the set bits among byte b's
     lowest j + 1, so one histogram of (byte position, count before it, byte value) per block of
     `chunk` seeds, on host threads, gives every trial's counts: N·T/8 entries instead of N·T,
@@ -51,8 +57,12 @@ def cumulative_counts(success, chunk: int = 1 << 14) -> np.ndarray:
 
     from jaxeac.bits import SuccessBits
 
+    n, t = success.shape
+    if n * t <= DIRECT_CELLS:  # one cumsum and one histogram of (trial, count): 1.2 ms at 1,000 x 200
+        cells = success.rows() if isinstance(success, SuccessBits) else np.asarray(success, bool)
+        at = np.arange(t, dtype=np.int64) * (t + 1) + np.cumsum(cells, axis=1, dtype=np.int64)
+        return np.bincount(at.ravel(), minlength=t * (t + 1)).reshape(t, t + 1)
     bits = success if isinstance(success, SuccessBits) else SuccessBits.pack(success)
-    n, t = bits.shape
     nb = bits.bits.shape[1]
     width = nb * (t + 1) * 256  # bins: (byte position, count before it, byte value)
     start_of = (np.arange(nb, dtype=np.int64) * (t + 1) * 256)[None, :]

@@ -9,6 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxeac.errors import UsageError
+from jaxeac import plots
 from jaxeac.plots import count_percentile, cumulative_counts
 from jaxeac.results import (
     CSV_SEEDS,
@@ -282,10 +283,13 @@ def test_figure_band_from_counts_matches_numpy(rng):
             np.testing.assert_allclose(count_percentile(counts, q), np.percentile(cum, q, axis=0), atol=1e-12)
 
 
-def test_cumulative_counts_from_bytes_match_the_literal_count(rng):
-    """The figure's counts come from the packed bits a byte at a time; each must equal the
-    literal count of seeds per cumulative value, trial by trial (T not a multiple of 8, T > 255,
-    all failures, all successes, blocks of one seed)."""
+@pytest.mark.parametrize("direct_cells", [0, 1 << 20])  # the packed bytes' path, and the direct one
+def test_cumulative_counts_from_bytes_match_the_literal_count(rng, monkeypatch, direct_cells):
+    """The figure's counts come from the packed bits a byte at a time (or, for few seeds, one
+    histogram of running counts); each must equal the literal count of seeds per cumulative
+    value, trial by trial (T not a multiple of 8, T > 255, all failures, all successes, blocks
+    of one seed)."""
+    monkeypatch.setattr(plots, "DIRECT_CELLS", direct_cells)
     for n, t, p in [(1, 1, 0.5), (9, 7, 0.5), (40, 8, 0.3), (33, 17, 0.9), (25, 300, 0.6),
                     (6, 9, 0.0), (6, 9, 1.0)]:
         success = rng.random((n, t)) < p
