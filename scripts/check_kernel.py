@@ -24,7 +24,8 @@ from jaxeac.runtime import configure
 
 configure("grid", start_jax=False)  # before JAX starts, as `jaxeac` does
 
-ALGOS = ("ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only")
+ALGOS = ("ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only",
+         "q_learning", "sarsa")
 
 
 def main() -> int:

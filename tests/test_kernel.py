@@ -26,7 +26,8 @@ from jaxeac.running.kernel import LANES_PER_PROGRAM, advance_chances
 from jaxeac.running.loops import flat_init, flat_slot
 
 ENV = GridWorld(get_map("paper"), 40)
-ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only"]
+ALGOS = ["ac", "eac", "eac_within_trial", "eac_learn_on_memory", "eac_success_only", "eac_failure_only",
+         "q_learning", "sarsa"]
 
 
 def _lanes(cfg, n, trials_done=0, env=ENV):
@@ -87,7 +88,7 @@ def test_kernel_block_equals_c_xla_slots(algo):
 
 
 @pytest.mark.parametrize("task", list(TASKS))
-@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
+@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only", "sarsa"])
 def test_kernel_block_equals_xla_slots_on_tabular_tasks(task, algo):
     """The kernel reads a tabular task's move, reward, ends and r̃ from its tables, and draws a
     stochastic move's outcome, as `TabularEnv` does."""
@@ -97,7 +98,7 @@ def test_kernel_block_equals_xla_slots_on_tabular_tasks(task, algo):
     assert int(want.agent.log.astype(bool).sum()) > LANES_PER_PROGRAM  # trials ended inside the blocks
 
 
-@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only"])
+@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only", "q_learning", "sarsa"])
 @pytest.mark.parametrize("lanes", [None, LANES_PER_PROGRAM])  # a lane per seed (padded), and a queue
 def test_kernel_runs_equal_xla_runs(algo, lanes):
     """Whole runs through `run_seeds`: the same successes and steps per trial for every seed
@@ -110,7 +111,7 @@ def test_kernel_runs_equal_xla_runs(algo, lanes):
 
 
 @pytest.mark.parametrize("task", ["frozenlake", "frozenlake_slippery"])
-@pytest.mark.parametrize("algo", ["ac", "eac"])
+@pytest.mark.parametrize("algo", ["ac", "eac", "q_learning"])
 def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo, task):
     """A whole run of a tabular task fed from a queue (128 lanes): the same per-seed results."""
     env = TASKS[task]
@@ -126,6 +127,9 @@ def test_kernel_choice_and_errors():
     assert resolved_kernel(ENV, eac, "gpu") == "pallas" and resolved_kernel(ENV, eac, "cpu") == "xla"
     for task in ("FourRooms-v0", "FourRooms-stochastic-v0"):
         assert resolved_kernel(make(task), eac, "gpu") == "pallas"
+    for baseline in ("q_learning", "sarsa"):  # X3's baselines run in the kernel too
+        cfg = RunConfig(trials=10, agent=algorithm(baseline, tables="rows"))
+        assert kernel_unsupported(ENV, cfg) is None and resolved_kernel(ENV, cfg, "gpu") == "pallas"
     assert "the grid world and the tabular tasks only" in kernel_unsupported(object(), eac)  # e.g. an adapter
     split = RunConfig(trials=10, agent=algorithm("eac", tables="split"))
     assert resolved_kernel(ENV, split, "gpu") == "xla"  # auto falls back where the kernel cannot run

@@ -146,8 +146,6 @@ def kernel_unsupported(env: Any, cfg: RunConfig) -> str | None:
     if kernel_tables is None or kernel_tables() is None:
         return ("the fused kernel runs the grid world and the tabular tasks only "
                 "(environments whose kernel_tables() gives their tables)")
-    if agent.learner != "actor_critic":
-        return "the fused kernel runs AC and EAC (the value-based baselines run as XLA ops)"
     if agent.tables != "rows":
         return "the fused kernel needs the rows table layout (tables='rows')"
     if agent.uses_memory and not (agent.memory == "dense"

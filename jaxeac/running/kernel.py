@@ -23,8 +23,8 @@ results are compared in BENCHMARKS.md rather than promised equal.
 Supported: every environment that gives its `KernelTables` (`env.kernel_tables()`, the
 protocol of `jaxeac.envs.protocol`): the grid world and every tabular task (the move, reward, end
 flags and, in a stochastic task, the outcome's draw read from its tables), rows
-tables, the packed dense memory or none (AC), both E6 rules, the E2 variant, constant step
-sizes. Anything else runs the XLA loop (`jaxeac.running.config.kernel_unsupported` says why).
+tables, the packed dense memory or none (AC), both E6 rules, the E2 variant, the value-based
+baselines (X3: Q-learning and SARSA, ε-greedy on Q in the same row), constant step sizes. Anything else runs the XLA loop (`jaxeac.running.config.kernel_unsupported` says why).
 JAX deprecated the Triton backend in 0.11: where it cannot be imported or cannot lower this kernel
 (`backend_problem`), `kernel='auto'` runs the XLA loop with one warning and `kernel='pallas'` is an
 error (`jaxeac.running.config.resolved_kernel`). Pallas's Mosaic GPU backend cannot express the
@@ -52,7 +52,7 @@ from jaxeac.algorithm.agent import (
 )
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.protocol import KernelTables
-from jaxeac.rng import action_uniform
+from jaxeac.rng import action_uniform, bootstrap_uniform
 from jaxeac.running.carry import flat_init, visit_fields, visit_word
 from jaxeac.running.programs import remembered
 
@@ -83,6 +83,28 @@ def _sample(logits: list, allowed: list, u):
     return jnp.minimum(action, len(logits) - 1)
 
 
+def _epsilon_greedy(q: list, u, epsilon):
+    """`epsilon_greedy` (X3) on per-action columns: the same operations in the same order (a
+    second copy for the reason `_sample` gives; tests/test_kernel.py holds the two to identical
+    actions)."""
+    explore = u < epsilon
+    v = jnp.where(explore, u / epsilon, (u - epsilon) / (1.0 - epsilon))
+    top = functools.reduce(jnp.maximum, q)
+    allowed = [(explore | (x == top)).astype(jnp.int32) for x in q]
+    count = jnp.maximum(functools.reduce(jnp.add, allowed), 1)
+    k = jnp.minimum((v * count).astype(jnp.int32), count - 1)  # the k-th allowed action, 0-based
+    prefix, action = allowed[0], (allowed[0] <= k).astype(jnp.int32)
+    for x in allowed[1:]:
+        prefix = prefix + x
+        action = action + (prefix <= k).astype(jnp.int32)
+    return jnp.minimum(action, len(q) - 1)
+
+
+def _column(values: list, index):
+    """values[index] for a per-lane index into per-action columns."""
+    return functools.reduce(lambda acc, a: jnp.where(index == a, values[a], acc), range(1, len(values)), values[0])
+
+
 def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs):
     """C chances of `LANES_PER_PROGRAM` lanes (see the module docstring)."""
     from jax.experimental import pallas as pl
@@ -90,9 +112,11 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
 
     agent = cfg.agent
     n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
-    n_in = 6 + len(tables.arrays)
+    value_based = agent.learner != "actor_critic"  # X3's baselines: ε-greedy on Q, with ε an input
+    n_fixed = 7 if value_based else 6
+    n_in = n_fixed + len(tables.arrays)
     (w0_ref, w1_ref, alpha_ref, beta_ref, gamma_ref, temp_ref) = refs[:6]
-    env_refs = dict(zip(tables.arrays, refs[6:n_in], strict=True))  # the env's tables, by name
+    env_refs = dict(zip(tables.arrays, refs[n_fixed:n_in], strict=True))  # the env's tables, by name
     state = dict(zip(names, refs[n_in + len(names):], strict=True))  # the outputs, aliased to the inputs
     lane = pl.program_id(0) * LANES_PER_PROGRAM + jnp.arange(LANES_PER_PROGRAM)
 
@@ -101,57 +125,74 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
 
     words = (w0_ref[lane], w1_ref[lane])
     alpha, beta, gamma, temperature = alpha_ref[lane], beta_ref[lane], gamma_ref[lane], temp_ref[lane]
+    epsilon = refs[6][lane] if value_based else None
     rows, log, rtilde = state["rows"], state["log"], state["rtilde"]
     packed = mem.PackedMemory(words=None, n_actions=n_actions) if agent.uses_memory else None
 
     jumps = "visits" in state  # memory jumps (`flat_slot`)
 
     def chance(_, carry):
-        position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow = carry
+        position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow, next_action = carry
         live = trial_now < n_trials
         trial = jnp.minimum(trial_now, n_trials - 1)
         u = action_uniform(words, trial, c, n_chances)
         s = position
         prefs = [rows[lane, s, a] for a in range(n_actions)]
         value = rows[lane, s, n_actions]
-        logits = [p / temperature for p in prefs]
-        allowed = restricted = remembered = None  # None: no restriction / no such memory
-        if packed is not None:  # E1 (a), (b) from the seed's memory word at s
-            f = packed.unpack(state["memory"][lane, s])
-            succeeded, failed = mem.settled(f.stamp, trial_now, log[lane, jnp.maximum(f.stamp, 0)] > 0)
-            remembered, failed_bits = mem.packed_in_effect(f, succeeded, failed)
-        active, jump = live, None
-        if jumps:  # a known path length from s: the trial ends here without a step
-            # The log is read only where the visit word names a trial (a masked load: memory
-            # traffic bounds this kernel); the visit word is read beside the memory word.
-            visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
-            visit_trial, visit_chance = visit_fields(visit, n_chances)
-            known = (remembered >= 0) & (visit_trial >= 0)
-            walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
-            to_goal = walked - visit_chance
-            jump = live & known & (walked > 0)
-            gate = getattr(tables, "jump_gate", None)  # tables as inputs: exact on this task?
-            if gate is not None and (exact := gate(env_refs, trial)) is not None:
-                jump = jump & exact
-            active = live & ~jump
-        if agent.failure_memory:
-            flags = [(failed_bits >> a) & 1 == 1 for a in range(n_actions)]
-            n_flagged = functools.reduce(lambda n, x: n + x.astype(jnp.int32), flags[1:],
-                                         flags[0].astype(jnp.int32))
-            restricted = restricts(n_flagged, n_actions)
-            allowed = [restricted & ~x | ~restricted for x in flags]
-        action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
-        learn = learns(agent, from_memory, active)
+        if value_based:  # `select_action`: SARSA takes the action it bootstrapped on
+            action = _epsilon_greedy(prefs, u, epsilon)
+            if next_action is not None:
+                action = jnp.where(next_action >= 0, next_action, action)
+            active = learn = live
+            jump = None
+        else:
+            logits = [p / temperature for p in prefs]
+            allowed = restricted = remembered = None  # None: no restriction / no such memory
+            if packed is not None:  # E1 (a), (b) from the seed's memory word at s
+                f = packed.unpack(state["memory"][lane, s])
+                succeeded, failed = mem.settled(f.stamp, trial_now, log[lane, jnp.maximum(f.stamp, 0)] > 0)
+                remembered, failed_bits = mem.packed_in_effect(f, succeeded, failed)
+            active, jump = live, None
+            if jumps:  # a known path length from s: the trial ends here without a step
+                # The log is read only where the visit word names a trial (a masked load: memory
+                # traffic bounds this kernel); the visit word is read beside the memory word.
+                visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
+                visit_trial, visit_chance = visit_fields(visit, n_chances)
+                known = (remembered >= 0) & (visit_trial >= 0)
+                walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
+                to_goal = walked - visit_chance
+                jump = live & known & (walked > 0)
+                gate = getattr(tables, "jump_gate", None)  # tables as inputs: exact on this task?
+                if gate is not None and (exact := gate(env_refs, trial)) is not None:
+                    jump = jump & exact
+                active = live & ~jump
+            if agent.failure_memory:
+                flags = [(failed_bits >> a) & 1 == 1 for a in range(n_actions)]
+                n_flagged = functools.reduce(lambda n, x: n + x.astype(jnp.int32), flags[1:],
+                                             flags[0].astype(jnp.int32))
+                restricted = restricts(n_flagged, n_actions)
+                allowed = [restricted & ~x | ~restricted for x in flags]
+            action, from_memory = memory_choice(agent, _sample(logits, allowed, u), remembered, restricted)
+            learn = learns(agent, from_memory, active)
 
         # G4/G5, E3, X1
         s_next, reward, terminated, reached, bumped = tables.move(env_refs, s, action, words, trial, c)
         truncated = (~terminated) & (env_chance + 1 >= n_chances)
 
-        # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
-        delta = td_error(reward, value, rows[lane, s_next, n_actions], gamma, terminated)
-        actor, critic = learning_increments(delta, learn, alpha, beta)
-        taken = functools.reduce(lambda acc, a: jnp.where(action == a, prefs[a], acc),
-                                 range(1, n_actions), prefs[0])
+        taken = _column(prefs, action)
+        if value_based:  # `value_learn_step`: Q(s', ·) read before the row is written
+            q_next = [rows[lane, s_next, a] for a in range(n_actions)]
+            if next_action is None:  # Q-learning: the greedy value
+                bootstrap = functools.reduce(jnp.maximum, q_next)
+            else:  # SARSA: the ε-greedy next action, kept for the next chance
+                chosen = _epsilon_greedy(q_next, bootstrap_uniform(words, trial, c + 1, n_chances), epsilon)
+                bootstrap = _column(q_next, chosen)
+                next_action = jnp.where(learn, chosen, next_action)
+            delta = td_error(reward, taken, bootstrap, gamma, terminated)
+            actor, critic = learning_increments(delta, learn, 0.0, alpha)
+        else:  # (2)-(4) (`learn_step`, `RowTables.learn`): read V(s') before the row is written
+            delta = td_error(reward, value, rows[lane, s_next, n_actions], gamma, terminated)
+            actor, critic = learning_increments(delta, learn, alpha, beta)
         put(rows.at[lane, s, action], taken + actor)
         put(rows.at[lane, s, n_actions], value + critic)
 
@@ -192,6 +233,8 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
 
         # `end_trial` and the next trial's start (`flat_slot`)
         put(log.at[lane, jnp.minimum(trial_now, n_trials - 1)], log_entry(success, c), ends)
+        if next_action is not None:  # SARSA: a new trial chooses afresh
+            next_action = jnp.where(ends, -1, next_action)
         prev_length = jnp.where(ends, c, prev_length)
         trial_now = trial_now + ends.astype(jnp.int32)
         c = jnp.where(ends, 0, c)
@@ -199,9 +242,10 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
         start = tables.start(env_refs, words, nxt)
         position = jnp.where(ends, start, jnp.where(active, s_next, position))
         env_chance = jnp.where(ends, 0, jnp.where(active, env_chance + 1, env_chance))
-        return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow
+        return position, env_chance, trial_now, c, goal_known, prev_length, anchor, shadow, next_action
 
-    vectors = ("position", "env_chance", "trial", "chance", "goal_known", "prev_length", "anchor", "shadow")
+    vectors = ("position", "env_chance", "trial", "chance", "goal_known", "prev_length", "anchor", "shadow",
+               "next_action")
     carry = tuple(state[k][lane] if k in state else None for k in vectors)
     carry = jax.lax.fori_loop(0, n_chances, chance, carry)
     for k, v in zip(vectors, carry, strict=True):
@@ -245,6 +289,8 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     }
     if agent.memory is not None:
         state["memory"] = agent.memory.words
+    if agent.next_action is not None:
+        state["next_action"] = agent.next_action
     if run.jumps is not None:
         state["visits"], state["anchor"] = run.jumps.visits, run.jumps.anchor
         if run.jumps.shadow is not None:
@@ -258,7 +304,8 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
     consts = (
         words[:, 0], words[:, 1],
         *(jnp.broadcast_to(jnp.asarray(x, f32), (n_lanes,))
-          for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature)),
+          for x in (hyper.alpha, hyper.beta, hyper.gamma, hyper.temperature,
+                    *((hyper.epsilon,) if cfg.agent.learner != "actor_critic" else ()))),
         *(jnp.asarray(x) for x in tables.arrays.values()),
     )
     call = _build(env, cfg, tables, names, [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in state.values()],
@@ -270,6 +317,7 @@ def advance_chances(env, cfg, run, words: jax.Array, hyper, *, interpret: bool):
         tables=agent.tables.replace(rows=new["rows"]), memory=memory, log=new["log"],
         rtilde=new["rtilde"], trial=new["trial"], chance=new["chance"],
         goal_known=new["goal_known"] == 1, prev_length=new["prev_length"],
+        next_action=new.get("next_action"),
     )
     jumps = run.jumps
     if jumps is not None:
