@@ -55,8 +55,8 @@ def test_bca_ties_in_the_replicates_precision():
     """Integer data: the IQM replicates (kept in float64) are those of the same resamples computed
     from their counts, ties with the estimate count one half (before the fix every tie counted as
     below), and scipy's BCa agrees within Monte-Carlo error."""
+    from jaxeac.rng import as_key
     from jaxeac.stats import large
-    from jaxeac.stats._rng import as_key
 
     x = np.random.default_rng(5).binomial(12, 0.5, 80).astype(float)
     key, R = as_key(7), 4000

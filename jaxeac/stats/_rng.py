@@ -24,19 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxeac.rng import as_key
+
 _ROT = ((13, 15, 26, 6), (17, 29, 16, 24))
 _PARITY = 0x1BD11BDA
 _LO16 = 0xFFFF
-
-
-def as_key(key: int | jax.Array) -> jax.Array:
-    """Normalise an int seed, a typed key or a raw uint32[2] key to a typed key."""
-    if isinstance(key, int):
-        return jax.random.key(key)
-    key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
-    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-        return key
-    return jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
 
 
 def warm_key_programs() -> None:

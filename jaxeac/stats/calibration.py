@@ -16,9 +16,10 @@ import jax
 import numpy as np
 
 from jaxeac.bits import SuccessBits
+from jaxeac.rng import as_key
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts
+from jaxeac.stats._rng import host_rng, hypergeometric_counts
 from jaxeac.stats.asymptotic import normal_permutation_p
 from jaxeac.stats.closed_form import welch_t_stat
 from jaxeac.stats.curves import curve_columns, is_binary

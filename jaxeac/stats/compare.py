@@ -26,9 +26,10 @@ import jax
 import numpy as np
 
 from jaxeac.errors import UsageError
+from jaxeac.rng import as_key
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key, host_rng, hypergeometric_counts
+from jaxeac.stats._rng import host_rng, hypergeometric_counts
 from jaxeac.stats.asymptotic import abc_intervals, normal_permutation_p
 from jaxeac.stats.bca import bca_two_sample_counts
 from jaxeac.stats.closed_form import welch_t_stat

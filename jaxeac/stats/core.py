@@ -32,9 +32,9 @@ import numpy as np
 
 from jaxeac.errors import UsageError
 from jaxeac.perseed import PerSeed, check_scale, excerpt, from_arrays, is_frame, read_npz, read_tidy
+from jaxeac.rng import as_key
 from jaxeac.sb3 import read_sb3
 from jaxeac.stats import closed_form as cf
-from jaxeac.stats._rng import as_key
 from jaxeac.stats.groups import Group, pair_row, paired_row
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
 from jaxeac.stats.resample import boot_counts

@@ -16,7 +16,8 @@ import numpy as np
 
 from jaxeac.bits import SuccessBits
 from jaxeac.errors import UsageError
-from jaxeac.stats._rng import as_key, host_rng
+from jaxeac.rng import as_key
+from jaxeac.stats._rng import host_rng
 from jaxeac.stats.closed_form import mean_var, welch_t_stat
 from jaxeac.stats.device_sums import covariance, curve_moments, gaussian_draws, gaussian_max_abs
 from jaxeac.stats.resample import bootstrap_sums, perm_p, permutation_sums

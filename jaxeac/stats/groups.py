@@ -14,9 +14,10 @@ import jax
 import numpy as np
 from scipy import special
 
+from jaxeac.rng import as_key
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key, host_rng, multinomial_counts
+from jaxeac.stats._rng import host_rng, multinomial_counts
 from jaxeac.stats.asymptotic import abc_two_sample
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts
 from jaxeac.stats.large import resampling_path

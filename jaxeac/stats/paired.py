@@ -31,8 +31,9 @@ import jax
 import numpy as np
 from scipy import special
 
+from jaxeac.rng import as_key
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key, host_rng, multinomial_counts
+from jaxeac.stats._rng import host_rng, multinomial_counts
 from jaxeac.stats.asymptotic import normal_bca
 from jaxeac.stats.bca import bca_interval
 

@@ -18,12 +18,13 @@ import numpy as np
 from jaxeac.bits import SuccessBits, as_bool
 from jaxeac.errors import UsageError
 from jaxeac.io import staged_dir, to_jsonable
+from jaxeac.rng import as_key
 from jaxeac.rundir import RunData, load_run_dir, read_summary
 from jaxeac.runtime import start_device, trim_host_memory, versions
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import events as ev
 from jaxeac.stats import large
-from jaxeac.stats._rng import as_key, key_record
+from jaxeac.stats._rng import key_record
 from jaxeac.stats.calibration import calibrate, dispatch_calibration
 from jaxeac.stats.compare import _analyse
 from jaxeac.stats.device_sums import curve_moments
