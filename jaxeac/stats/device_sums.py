@@ -71,24 +71,18 @@ def curve_moments(c) -> dict:
     """
     if isinstance(c, SuccessBits):
         dev = _gram(on_device(c), BLOCK)
-
-        def wait_bits():
-            g, s = (np.asarray(v, np.float64) for v in dev)
-            return {"n": c.shape[0], "s": s, "G": g}
-
-        return wait_bits
-    c = np.asarray(c)
-    if _small_integers(c):
+    elif _small_integers(c := np.asarray(c)):
         dev = _gram(jnp.asarray(c.astype(np.int8) if c.dtype != np.bool_ else c), BLOCK)
+    else:
+        x = c.astype(np.float64)
+        res = {"n": c.shape[0], "s": x.sum(0), "G": x.T @ x}
+        return lambda: res
 
-        def wait():
-            g, s = (np.asarray(v, np.float64) for v in dev)
-            return {"n": c.shape[0], "s": s, "G": g}
+    def wait():
+        g, s = (np.asarray(v, np.float64) for v in dev)
+        return {"n": c.shape[0], "s": s, "G": g}
 
-        return wait
-    x = c.astype(np.float64)
-    res = {"n": c.shape[0], "s": x.sum(0), "G": x.T @ x}
-    return lambda: res
+    return wait
 
 
 def covariance(m: dict) -> np.ndarray:
