@@ -64,52 +64,38 @@ def curve_results(cb, ct, boot_b, boot_t, perm_t, alpha, binary: bool) -> dict:
     boot_b, boot_t: [R, T(+T)] bootstrap sums of curves (and squares unless binary);
     perm_t: [P, T(+T)] treatment sums under permutation of the pooled seeds.
     """
-    nb, nt = cb.shape[0], ct.shape[0]
-    T = cb.shape[1]
+    nb, nt, T = cb.shape[0], ct.shape[0], cb.shape[1]
+    sums = [(c.sum(0), None if binary else (c**2).sum(0)) for c in (cb, ct)]
+    (sb, ssb), (st, sst) = sums
+    # max-T permutation over trials (Westfall & Young 1993)
+    pt, pst = perm_t[..., :T], (None if binary else perm_t[..., T:])
+    tot, tot2 = sb + st, (None if binary else ssb + sst)
+    t_star = welch_t_stat(nb, tot - pt, None if binary else tot2 - pst, nt, pt, pst)
+    stars = (boot_b[..., :T] / nb, boot_t[..., :T] / nt)
+    return _summary(nb, nt, *sums, stars, True, np.abs(t_star).max(1), alpha, binary,
+                    "bootstrap sup-t (Montiel Olea & Plagborg-Moller 2019)",
+                    "single-step max-T permutation, FWER over trials (Westfall & Young 1993)")
 
-    def split(sums):
-        return sums[..., :T], (None if binary else sums[..., T:])
 
-    sb, ssb = cb.sum(0), (None if binary else (cb**2).sum(0))
-    st, sst = ct.sum(0), (None if binary else (ct**2).sum(0))
+def _summary(nb, nt, sums_b, sums_t, stars, about_means, max_star, alpha, binary, band_method,
+             test_method) -> dict:
+    """The curve results of both paths from each method's seeds, per-trial sums and sums of squares
+    (None for 0/1 data), the draws of each method's mean curve (`stars`, baseline and treatment:
+    resampled means `about_means`, else deviations about zero) that give the sup-t critical values,
+    and the max-T reference draws."""
+    (sb, ssb), (st, sst) = sums_b, sums_t
     mb, vb = mean_var(nb, sb, ssb)
     mt, vt = mean_var(nt, st, sst)
     seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
-    bb, _ = split(boot_b)
-    bt, _ = split(boot_t)
-    rb_star, rt_star = bb / nb, bt / nt
-    cb_crit = _sup_t(rb_star, mb, seb, alpha)
-    ct_crit = _sup_t(rt_star, mt, set_, alpha)
-    diff = mt - mb
-    sed = np.sqrt(seb**2 + set_**2)
-    cd_crit = _sup_t(rt_star - rb_star, diff, sed, alpha)
-    # max-T permutation over trials (Westfall & Young 1993)
-    t_obs = welch_t_stat(nb, sb, ssb, nt, st, sst)
-    pt, pst = split(perm_t)
-    tot, tot2 = sb + st, (None if binary else ssb + sst)
-    t_star = welch_t_stat(nb, tot - pt, None if binary else tot2 - pst, nt, pt, pst)
-    max_star = np.abs(t_star).max(1)
-    return _summary(
-        mb,
-        mt,
-        seb,
-        set_,
-        (cb_crit, ct_crit, cd_crit),
-        t_obs,
-        max_star,
-        alpha,
-        binary,
-        "bootstrap sup-t (Montiel Olea & Plagborg-Moller 2019)",
-        "single-step max-T permutation, FWER over trials (Westfall & Young 1993)",
-    )
-
-
-def _summary(mb, mt, seb, set_, crits, t_obs, max_star, alpha, binary, band_method, test_method) -> dict:
-    """The curve results from means, SEs, sup-t critical values and the max-T reference draws."""
     T = mb.size
-    cb_crit, ct_crit, cd_crit = crits
     diff = mt - mb
     sed = np.sqrt(seb**2 + set_**2)
+    star_b, star_t = stars
+    eb, et = (mb, mt) if about_means else (np.zeros_like(mb), np.zeros_like(mt))
+    cb_crit = _sup_t(star_b, eb, seb, alpha)
+    ct_crit = _sup_t(star_t, et, set_, alpha)
+    cd_crit = _sup_t(star_t - star_b, et - eb, sed, alpha)
+    t_obs = welch_t_stat(nb, sb, ssb, nt, st, sst)
     p_adj = perm_p(t_obs, max_star[:, None])
     sig = p_adj <= alpha
     trial = np.arange(1, T + 1)
@@ -155,40 +141,14 @@ def curve_results_large(mom_b: dict, mom_t: dict, keys, resamples: int, alpha: f
     from jaxeac.stats import large
 
     nb, nt = mom_b["n"], mom_t["n"]
-
-    def sq(m):
-        return None if binary else np.diag(m["G"])
-
-    sb, st = mom_b["s"], mom_t["s"]
-    mb, vb = mean_var(nb, sb, sq(mom_b))
-    mt, vt = mean_var(nt, st, sq(mom_t))
-    seb, set_ = np.sqrt(vb / nb), np.sqrt(vt / nt)
+    sums = [(m["s"], None if binary else np.diag(m["G"])) for m in (mom_b, mom_t)]
     k_b, k_t, k_p = (jax.random.fold_in(k, large.CURVE_STREAM) for k in keys)
-    dev_b = gaussian_draws(host_rng(k_b), covariance(mom_b) / nb, resamples)
-    dev_t = gaussian_draws(host_rng(k_t), covariance(mom_t) / nt, resamples)
-    zero = np.zeros_like(mb)
-    sed = np.sqrt(seb**2 + set_**2)
-    crits = (
-        _sup_t(dev_b, zero, seb, alpha),
-        _sup_t(dev_t, zero, set_, alpha),
-        _sup_t(dev_t - dev_b, zero, sed, alpha),
-    )
-    pooled = {"n": nb + nt, "s": sb + st, "G": mom_b["G"] + mom_t["G"]}
+    stars = (gaussian_draws(host_rng(k_b), covariance(mom_b) / nb, resamples),
+             gaussian_draws(host_rng(k_t), covariance(mom_t) / nt, resamples))
+    pooled = {"n": nb + nt, "s": mom_b["s"] + mom_t["s"], "G": mom_b["G"] + mom_t["G"]}
     max_star = gaussian_max_abs(host_rng(k_p), covariance(pooled), resamples)
-    t_obs = welch_t_stat(nb, sb, sq(mom_b), nt, st, sq(mom_t))
-    return _summary(
-        mb,
-        mt,
-        seb,
-        set_,
-        crits,
-        t_obs,
-        max_star,
-        alpha,
-        binary,
-        large.REFERENCES["sup_t_gaussian"],
-        large.REFERENCES["max_t_gaussian"],
-    )
+    return _summary(nb, nt, *sums, stars, False, max_star, alpha, binary, large.REFERENCES["sup_t_gaussian"],
+                    large.REFERENCES["max_t_gaussian"])
 
 
 def curve_columns(c, binary):
