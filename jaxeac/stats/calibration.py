@@ -36,6 +36,12 @@ def _rate(p, alpha):
     return {"rate": k / n if n else math.nan, "ci95": [lo, hi], "rejections": k, "splits": n}
 
 
+def _measure_rates(rates: dict, name: str, pvalues, alpha) -> None:
+    """A measure's rates of its Welch, permutation and Brunner–Munzel tests (p of each split)."""
+    for test, p in zip(("welch", "permutation", "brunner_munzel"), pvalues, strict=True):
+        rates.setdefault(test, {})[name] = _rate(p, alpha)
+
+
 def dispatch_calibration(key, n: int, splits: int, resamples: int):
     """Start drawing the calibration's random halves of n seeds: `splits` splits, then
     `resamples` reference relabellings, all uniform k-of-N subsets with N = 2·(n // 2)."""
@@ -109,22 +115,12 @@ def calibrate(
         ss_b = None if sq is None else tot[sq] - sums[:, sq]
         return welch_t_stat(h, tot[cols] - sums[:, cols], ss_b, h, sums[:, cols], ss_t)
 
-    rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
+    rates: dict = {}
     for j, name in enumerate(names):
-        cols, sq = slice(j, j + 1), slice(M + j, M + j + 1)
-        _, _, p_w = cf.welch_from_moments(
-            h,
-            tot[j] - split_sums[:, j],
-            tot[M + j] - split_sums[:, M + j],
-            h,
-            split_sums[:, j],
-            split_sums[:, M + j],
-        )
-        p_perm = perm_p(tstats(split_sums, cols, sq)[:, 0], tstats(ref_sums, cols, sq))
-        p_bm = cf.brunner_munzel_masks(x[:, j], masks, alpha)[3]
-        rates["welch"][name] = _rate(p_w, alpha)
-        rates["permutation"][name] = _rate(p_perm, alpha)
-        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
+        a1, a2 = split_sums[:, j], split_sums[:, M + j]
+        t_split, _, p_w = cf.welch_from_moments(h, tot[j] - a1, tot[M + j] - a2, h, a1, a2)
+        p_perm = perm_p(t_split, tstats(ref_sums, slice(j, j + 1), slice(M + j, M + j + 1)))
+        _measure_rates(rates, name, (p_w, p_perm, cf.brunner_munzel_masks(x[:, j], masks, alpha)[3]), alpha)
     if time_event is not None:
         tm, ev = time_event
         tm = tm.codes.astype(np.int64) if isinstance(tm, Coded) else tm
@@ -176,8 +172,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         binary = is_binary(c)
         cols = c if binary else np.concatenate([c, c * c], 1)
         wait_curve = dispatch_subset_sums(jax.random.fold_in(key, large.CURVE_STREAM), cols, h, splits)
-    rates: dict = {"welch": {}, "permutation": {}, "brunner_munzel": {}}
-    methods: dict = {}
+    rates, methods = {}, {}
 
     def one(j: int):  # a measure's halves and tests (on a host thread; its own key)
         raw, counts = value_counts(measures[names[j]], N)
@@ -189,8 +184,7 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
         s1, s2 = large.moment_sums(H, vals)
         tot1, tot2 = K @ vals, K @ (vals * vals)
         a1, a2 = s1[:splits], s2[:splits]
-        _, _, p_w = cf.welch_from_moments(h, tot1 - a1, tot2 - a2, h, a1, a2)
-        t_split = welch_t_stat(h, tot1 - a1, tot2 - a2, h, a1, a2)
+        t_split, _, p_w = cf.welch_from_moments(h, tot1 - a1, tot2 - a2, h, a1, a2)
         if exact:
             r1, r2 = s1[splits:], s2[splits:]
             p_perm = perm_p(t_split, welch_t_stat(h, tot1 - r1, tot2 - r2, h, r1, r2)[:, None])
@@ -205,15 +199,13 @@ def _calibrate_large(measures, curves, key, *, splits, resamples, alpha, time_ev
 
     with ThreadPoolExecutor(max_workers=M) as pool:
         done = list(pool.map(one, range(M)))
-    for name, (p_w, p_perm, p_bm, method) in zip(names, done, strict=True):
-        rates["welch"][name] = _rate(p_w, alpha)
-        rates["permutation"][name] = _rate(p_perm, alpha)
-        rates["brunner_munzel"][name] = _rate(p_bm, alpha)
+    for name, (*pvalues, method) in zip(names, done, strict=True):
+        _measure_rates(rates, name, pvalues, alpha)
         methods[name] = method
     if time_event is not None:
-        times, K = event_counts(*time_event, N)
+        _, K = event_counts(*time_event, N)
         H = hypergeometric_counts(host_rng(jax.random.fold_in(key, M)), K, h, splits)
-        p_lr = logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), K, H)[1]
+        p_lr = logrank_counts(K, H)[1]
         rates["logrank"] = {"first_success": _rate(p_lr, alpha)}
     if curves is not None:
         T = c.shape[1]

@@ -25,44 +25,32 @@ def logrank_masks(time: np.ndarray, event: np.ndarray, masks: np.ndarray):
     (True = treatment). Returns (chi2, p, observed_t, expected_t) of length S.
     Only counts per (time, event) pair enter, so this is `logrank_counts` on them.
     """
-    time = np.asarray(time)
-    event = np.asarray(event, bool)
     masks = np.atleast_2d(np.asarray(masks, bool))
-    times, inv = np.unique(time, return_inverse=True)
-    code = 2 * inv.reshape(-1) + event  # category (time, event)
-    C = 2 * times.size
-    total = np.bincount(code, minlength=C).astype(np.float64)
-    treat = np.stack([np.bincount(code, weights=m, minlength=C) for m in masks.astype(np.float64)])
-    return logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), total, treat)
+    times, inv = np.unique(np.asarray(time), return_inverse=True)
+    code = 2 * inv.reshape(-1) + np.asarray(event, bool)  # category (time, event)
+    total = np.bincount(code, minlength=2 * times.size)
+    treat = np.stack([np.bincount(code, weights=m, minlength=total.size) for m in masks.astype(np.float64)])
+    return logrank_counts(total, treat)
 
 
-def logrank_counts(time_c, event_c, total_c, treat_c):
-    """Log-rank test from counts per category: category c has time `time_c[c]` and event flag
-    `event_c[c]`; `total_c` [C] units in both groups, `treat_c` [S, C] in the treatment group of
-    each of S splits. Returns (chi2, p, observed_t, expected_t) of length S. O(S · C).
+def logrank_counts(total_c, treat_c):
+    """Log-rank test from counts per category, category 2j + e holding the units of the j-th
+    distinct time (ascending) with event flag e (as `event_table` counts them): `total_c` [2J]
+    units in both groups, `treat_c` [S, 2J] in the treatment group of each of S splits. Returns
+    (chi2, p, observed_t, expected_t) of length S. O(S · J).
     """
-    time_c = np.asarray(time_c)
-    event_c = np.asarray(event_c, bool)
     total_c = np.asarray(total_c, np.float64)
     treat_c = np.atleast_2d(np.asarray(treat_c, np.float64))
-    ev = np.nonzero(event_c & (total_c > 0))[0]
-    ev = ev[np.argsort(time_c[ev], kind="stable")]  # one category per event time (pairs are unique)
-    times = time_c[ev]
-    if times.size == 0:
+    ev = 1 + 2 * np.flatnonzero(total_c[1::2] > 0)  # the event categories, ascending in time
+    if ev.size == 0:
         s = treat_c.shape[0]
         return np.zeros(s), np.ones(s), np.zeros(s), np.zeros(s)
-    order = np.argsort(time_c, kind="stable")
-    first = np.searchsorted(time_c[order], times, side="left")
 
-    def events(cnt):  # [..., C] -> [..., J]: events at each event time
-        return cnt[..., ev]
+    def at_risk(cnt):  # [..., 2J] -> [..., events]: units with time >= the event's time
+        return np.cumsum(cnt[..., ::-1], axis=-1)[..., ::-1][..., ev - 1]
 
-    def at_risk(cnt):  # [..., C] -> [..., J]: units with time >= times[j]
-        tail = np.cumsum(cnt[..., order][..., ::-1], axis=-1)[..., ::-1]
-        return tail[..., first]
-
-    d_t = events(treat_c)  # [S, J] events in treatment
-    d = events(total_c)  # [J] events in both groups
+    d_t = treat_c[..., ev]  # [S, J] events in treatment
+    d = total_c[ev]  # [J] events in both groups
     n_t = at_risk(treat_c)  # [S, J] at risk in treatment
     n_all = at_risk(total_c)  # [J]
     e_t = d * n_t / n_all
@@ -89,8 +77,7 @@ def logrank_tables(baseline, treatment) -> TestResult:
     total[np.searchsorted(times, tb)] += kb.reshape(-1, 2)
     total[np.searchsorted(times, tt)] += kt.reshape(-1, 2)
     treat[np.searchsorted(times, tt)] = kt.reshape(-1, 2)
-    chi2, p, _, _ = logrank_counts(np.repeat(times, 2), np.tile([False, True], times.size), total.reshape(-1),
-                                   treat.reshape(1, -1))
+    chi2, p, _, _ = logrank_counts(total.reshape(-1), treat.reshape(1, -1))
     return TestResult(float(chi2[0]), float(p[0]), 1.0)
 
 
