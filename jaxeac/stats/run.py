@@ -272,23 +272,12 @@ def _same_seeds(data: RunData, baseline: str, treatment: str) -> bool:
     return nb == nt  # folders without seed ids (and runs in memory) hold seeds 0 … N − 1
 
 
-def analyse_run_data(
-    data: RunData,
-    *,
-    baseline: str = "ac",
-    treatment: str = "eac",
-    resamples: int = 10_000,
-    alpha: float = 0.05,
-    key: int = 0,
-    calibration_splits: int = CALIBRATION_SPLITS,
-    calibration_resamples: int = 200,
-    chunk: int = 1000,
-    unpaired: bool = False,
-    require_paired: bool = False,
-) -> tuple[dict, dict]:
-    """The statistics of a run's results (`compare_experiment`): (stats, figures' data), before
-    the report is written (`compare_run_dir`). Checks that the results fit the comparison asked
-    for; bad input raises `jaxeac.errors.UsageError`."""
+def analyse_run_data(data: RunData, *, baseline: str = "ac", treatment: str = "eac", unpaired: bool = False,
+                     require_paired: bool = False, **settings) -> tuple[dict, dict]:
+    """The statistics of a run's results (`compare_experiment`, with its `settings`: resamples,
+    alpha, key, calibration and chunks): (stats, figures' data), before the report is written
+    (`compare_run_dir`). Checks that the results fit the comparison asked for; bad input raises
+    `jaxeac.errors.UsageError`."""
     bowling = data.experiment == "bowling"
     expected = "return" if bowling else "successes"
     if data.primary_measure != expected:
@@ -301,22 +290,11 @@ def analyse_run_data(
         nb, nt = len(data.success[baseline]), len(data.success[treatment])
         raise UsageError(f"--paired needs the same seeds of {baseline} and {treatment} (this run has "
                          f"{nb} and {nt}, or different seed ids); drop --paired to compare them unpaired")
-    return compare_experiment(
-        data.success[baseline],
-        data.success[treatment],
-        returns_baseline=data.returns.get(baseline) if bowling else None,
-        returns_treatment=data.returns.get(treatment) if bowling else None,
-        baseline=baseline,
-        treatment=treatment,
-        experiment=data.experiment,
-        resamples=resamples,
-        alpha=alpha,
-        key=key,
-        calibration_splits=calibration_splits,
-        calibration_resamples=calibration_resamples,
-        chunk=chunk,
-        paired=paired,
-    )
+    return compare_experiment(data.success[baseline], data.success[treatment],
+                              returns_baseline=data.returns.get(baseline) if bowling else None,
+                              returns_treatment=data.returns.get(treatment) if bowling else None,
+                              baseline=baseline, treatment=treatment, experiment=data.experiment,
+                              paired=paired, **settings)
 
 
 def compare_run_dir(
