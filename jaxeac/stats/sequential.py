@@ -265,19 +265,17 @@ def simulate(design: SequentialDesign, pool_baseline: np.ndarray, pool_treatment
 
 def _tally(design: SequentialDesign, draw: Callable[[], tuple[np.ndarray, np.ndarray]], experiments: int,
            paired: bool) -> tuple[dict, float]:
-    """Run `experiments` sequential comparisons of the (baseline, treatment) samples `draw()`
-    gives: each decision's share with its Monte Carlo standard error, and the mean seeds used."""
-    c = design.boundaries()
+    """Run `experiments` sequential comparisons (`run_sequential`) of the (baseline, treatment)
+    samples `draw()` gives: each decision's share with its Monte Carlo standard error, and the
+    mean seeds used."""
     counts = dict.fromkeys(DECISIONS[:3], 0)
     used = 0
     for _ in range(experiments):
         b, t = draw()
-        for k, size in enumerate(design.sizes):
-            r = look(b[:size], t[:size], c[k], design.effect, k + 1 == design.looks, paired)
-            if r["decision"] != "continue":
-                counts[r["decision"]] += 1
-                used += size
-                break
+        r = run_sequential(design, lambda first, n, b=b, t=t: (b[first:first + n], t[first:first + n]),
+                           paired=paired)
+        counts[r["decision"]] += 1
+        used += r["seeds_used"]
     rates = {}
     for name, k in counts.items():
         p = k / experiments
