@@ -97,27 +97,6 @@ def _permutation_large(table: large.ValueTable, t_obs: float, centre: float, key
     return permutation_welch_p(table.nb, table.nt, t_obs, *tot, *large.moment_sums(h, v))
 
 
-def _rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, higher_is_better: bool, power: dict) -> dict:
-    """The Brunner–Munzel, A12, probability-of-improvement and power fields of a measure's record."""
-    return {
-        "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
-        "a12": a,
-        "a12_ci95": [a_lo, a_hi],
-        "prob_improvement": a if higher_is_better else 1 - a,
-        "prob_improvement_ci95": [a_lo, a_hi] if higher_is_better else [1 - a_hi, 1 - a_lo],
-        "seeds_for_80pct_power": power["seeds_for_80pct_power"],
-        "power": power,
-    }
-
-
-def _power(g: float, alpha: float) -> dict:
-    return {
-        "observed_d": abs(g),
-        "seeds_for_80pct_power": cf.seeds_for_power(g, 0.8, alpha),
-        **{f"d={d}": cf.seeds_for_power(d, 0.8, alpha) for d in POWER_DS},
-    }
-
-
 def _row(name, hib, nb, nt, means, moments, ranks, alpha) -> dict:
     """One measure's result, the same dictionary on both paths: `means` (mean and sd of each
     method), `moments` (Σx, Σx², Σy, Σy² of the centred values), `ranks` (A12, Brunner–Munzel
@@ -127,6 +106,8 @@ def _row(name, hib, nb, nt, means, moments, ranks, alpha) -> dict:
     t, df, p = cf.welch_from_moments(nb, sx, sxx, nt, sy, syy)
     g = float(cf.hedges_from_moments(nb, sx, sxx, nt, sy, syy))
     a, w, bm_df, bm_p, a_lo, a_hi = ranks
+    power = {"observed_d": abs(g), "seeds_for_80pct_power": cf.seeds_for_power(g, 0.8, alpha),
+             **{f"d={d}": cf.seeds_for_power(d, 0.8, alpha) for d in POWER_DS}}
     return {
         "measure": name,
         "higher_is_better": hib,
@@ -144,7 +125,13 @@ def _row(name, hib, nb, nt, means, moments, ranks, alpha) -> dict:
         "p_permutation": None,
         "hedges_g": g,
         "hedges_g_ci95": None,
-        **_rank_fields(w, bm_df, bm_p, a, a_lo, a_hi, hib, _power(g, alpha)),
+        "brunner_munzel": {"statistic": w, "df": bm_df, "p": bm_p},
+        "a12": a,
+        "a12_ci95": [a_lo, a_hi],
+        "prob_improvement": a if hib else 1 - a,
+        "prob_improvement_ci95": [a_lo, a_hi] if hib else [1 - a_hi, 1 - a_lo],
+        "seeds_for_80pct_power": power["seeds_for_80pct_power"],
+        "power": power,
     }
 
 
