@@ -74,7 +74,7 @@ def test_top_level_envs_alias_is_the_same_module():
 class Import:
     """One import of a jaxeac module by another, where it is written."""
 
-    source: str  # the importing module, e.g. "jaxeac.stats.rundir"
+    source: str  # the importing module, e.g. "jaxeac.stats.run"
     target: str  # the imported module, e.g. "jaxeac.results"
     file: str  # the importing file, relative to the repository
     line: int
