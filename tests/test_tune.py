@@ -106,12 +106,14 @@ def test_evaluation_at_a_selection_is_a_plain_run_at_that_setting(tuned):
 
 def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_path, monkeypatch):
     """On accelerators the tuning runs beside the study's runs and the evaluation beside its
-    statistics (`GROUPS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`); forced on here, every number of
-    study.json but the timings is the CPU path's."""
+    statistics (`GROUPS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`), and E8 on the platform
+    `DIAGNOSE_ON` names; forced on here, every number of study.json but the timings is the CPU
+    path's, and so is every task's E8."""
     from jaxeac.experiments import grid, study
 
     monkeypatch.setitem(study.GROUPS_SIDE_BY_SIDE, "cpu", True)
     monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    monkeypatch.setitem(study.DIAGNOSE_ON, "cpu", "cpu")
     out, settings, _, _ = tuned
     tuning = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
                           key=None, eval_key=0, trials=20, out=tmp_path)
@@ -122,6 +124,10 @@ def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_pat
         return {k: v for k, v in saved.items() if k not in ("timeline", "environment", "seconds")}
 
     assert numbers(tmp_path) == numbers(out)
+    for task in TASKS:
+        e8 = [json.loads((study._folder(f, task) / "summary.json").read_text())["memory_diagnostics"]
+              for f in (tmp_path, out)]
+        assert e8[0] == e8[1] and e8[0]
 
 
 def test_tuned_report_and_json(tuned):

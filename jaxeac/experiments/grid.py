@@ -298,12 +298,12 @@ DIAGNOSE_BESIDE_THE_RUN = {"gpu": True, "tpu": True}
 DIAGNOSE_ONCE_DISPATCHED = {"gpu": True, "tpu": True}
 
 
-def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[str, np.ndarray]
-                  ) -> tuple[dict, float]:
+def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[str, np.ndarray],
+                  platform: str | None = None) -> tuple[dict, float]:
     """({algo: E8 counts of its seeds `seeds[algo]`}, seconds): those seeds again through the `trials`
     loop, counting E1's branches, E2's learning steps and the E6 flags on a best action (G2 moves
     along a shortest path, `shortest_actions`; none known off a grid map). The algorithms' programs
-    compile and run side by side."""
+    compile and run side by side, on `platform`'s devices (default: JAX's default backend)."""
     from jaxeac.envs.grid import shortest_actions
     from jaxeac.running.diagnostics import diagnose_seeds
 
@@ -314,7 +314,8 @@ def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[
     best = shortest_actions(grid_map) if grid_map is not None else None
 
     def one(algo: str):
-        return diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=seeds[algo], best=best)
+        return diagnose_seeds(env, settings.run_config(algo), root_key=settings.key, seeds=seeds[algo], best=best,
+                              platform=platform)
 
     with ThreadPoolExecutor(max_workers=len(seeds)) as pool:
         counts = dict(zip(seeds, pool.map(one, seeds), strict=True))

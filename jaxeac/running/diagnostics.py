@@ -122,18 +122,19 @@ def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
     return SeedDiagnostics(route_sums(records.route), *flag_counts(pairs, best), records.success)
 
 
-def _program(env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
+def _program(env: Env, cfg: RunConfig, has_best: bool, devices: tuple):
     """jit over a chunk of seeds: ``(root, seeds [M], hyper, best, tables) -> SeedDiagnostics [M]``,
-    split over `n_devices` local devices (seeds are independent, R1); one per `program_key` (a
-    tabular task's tables are its inputs: tasks of one layout share it)."""
-    return _keyed_program(program_key(env), env, cfg, has_best, n_devices)
+    split over `devices` (seeds are independent, R1); one per `program_key` (a tabular task's
+    tables are its inputs: tasks of one layout share it)."""
+    return _keyed_program(program_key(env), env, cfg, has_best, devices)
 
 
 _PROGRAMS: dict = {}
 
 
-def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, n_devices: int):
-    whole = (key, cfg, has_best, n_devices)
+def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, devices: tuple):
+    whole = (key, cfg, has_best, devices)
+    n_devices = len(devices)
     if whole in _PROGRAMS:
         return _PROGRAMS[whole]
     if len(_PROGRAMS) >= 16:
@@ -149,7 +150,7 @@ def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, n_devices: int
 
         from jaxeac.running.batch import SEEDS_AXIS, seed_mesh
 
-        mesh = seed_mesh(jax.local_devices()[:n_devices])
+        mesh = seed_mesh(devices)
         batch = jax.shard_map(batch, mesh=mesh, in_specs=(PartitionSpec(), PartitionSpec(SEEDS_AXIS),
                                                           PartitionSpec(), PartitionSpec(), PartitionSpec()),
                               out_specs=PartitionSpec(SEEDS_AXIS), check_vma=False)
@@ -157,10 +158,16 @@ def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, n_devices: int
     return program
 
 
-def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None):
-    """(config in the trials loop, devices, chunk, best input, tables) of a `diagnose_seeds` call."""
+def _devices(platform: str | None, n_seeds: int) -> tuple:
+    """The local devices of `platform` (None: JAX's default backend) that `n_seeds` seeds split over."""
+    devices = tuple(jax.local_devices(backend=platform))
+    return devices[:min(len(devices), n_seeds)]
+
+
+def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None, devices: tuple):
+    """(config in the trials loop, chunk, best input, tables) of a `diagnose_seeds` call."""
     cfg = trials_config(env, cfg)
-    n_devices = min(len(jax.local_devices()), seeds.size)
+    n_devices = len(devices)
     per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * env.n_chances * 8 + env.n_states * env.n_actions
     chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
     chunk = -(-chunk // n_devices) * n_devices
@@ -168,23 +175,24 @@ def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None):
     if best is not None:  # padded states (a tabular layout's, `bind_inputs`) have no best action
         n_padded = bind_inputs(env, program_inputs(env)).n_states
         best_arg = jnp.asarray(np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0))))
-    return cfg, n_devices, chunk, best_arg, program_inputs(env)
+    return cfg, chunk, best_arg, program_inputs(env)
 
 
 _EXECUTABLES = OnceCache()  # (program, chunk, best's shape) -> the compiled program
 
 
-def _executable(env: Env, cfg: RunConfig, n_devices: int, has_best: bool, args: tuple):
+def _executable(env: Env, cfg: RunConfig, devices: tuple, has_best: bool, args: tuple):
     """The compiled program for these inputs' shapes, compiled once: a later caller, on any
     thread, waits for the first (`prepare_diagnostics` compiles ahead of the runs)."""
     shapes = tuple(str(jax.typeof(x)) for x in jax.tree.leaves(args[2:4]))  # the rates' and best's
-    key = ((program_key(env), cfg, has_best, n_devices), args[1].shape, shapes)
+    key = ((program_key(env), cfg, has_best, devices), args[1].shape, shapes)
 
     def build():
-        return _program(env, cfg, has_best, n_devices).lower(*args).compile()
+        return _program(env, cfg, has_best, devices).lower(*args).compile()
 
-    identity = (program_key(env), cfg, has_best, [d.id for d in jax.local_devices()[:n_devices]])
-    return _EXECUTABLES.get(key, lambda: load_or_build("diagnostics", identity, args, build)[0])[0]
+    identity = (program_key(env), cfg, has_best, [(d.platform, d.id) for d in devices])
+    return _EXECUTABLES.get(key, lambda: load_or_build("diagnostics", identity, args, build,
+                                                       platform=devices[0].platform)[0])[0]
 
 
 def _checked_seeds(seeds) -> np.ndarray:
@@ -200,35 +208,41 @@ def _checked_seeds(seeds) -> np.ndarray:
 
 
 def prepare_diagnostics(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndarray | None = None,
-                        hyper: Hyper | None = None) -> None:
+                        hyper: Hyper | None = None, platform: str | None = None) -> None:
     """Compile the program `diagnose_seeds` of `n_seeds` seeds will run (for these arguments),
     so that the call finds it compiled: compiles of many tasks' diagnostics can go at once,
     ahead of their runs."""
     seeds = _checked_seeds(np.arange(n_seeds))
-    cfg, n_devices, chunk, best_arg, tables = _plan(env, cfg, seeds, best)
-    hyper = cfg.hyper() if hyper is None else hyper
-    args = (jax.random.key(0), np.zeros(chunk, np.int32), hyper, best_arg, tables)
-    _executable(env, cfg, n_devices, best is not None, args)
+    devices = _devices(platform, seeds.size)
+    with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`
+        cfg, chunk, best_arg, tables = _plan(env, cfg, seeds, best, devices)
+        hyper = cfg.hyper() if hyper is None else hyper
+        args = (jax.random.key(0), np.zeros(chunk, np.int32), hyper, best_arg, tables)
+        _executable(env, cfg, devices, best is not None, args)
 
 
 def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
-                   best: np.ndarray | None = None, hyper: Hyper | None = None) -> SeedDiagnostics:
+                   best: np.ndarray | None = None, hyper: Hyper | None = None,
+                   platform: str | None = None) -> SeedDiagnostics:
     """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
     seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
     `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
-    hold `CHUNK_BYTES` and split over the local devices."""
-    root = jax.random.key(root_key_int(root_key))
+    hold `CHUNK_BYTES` and split over the local devices of `platform` (default: JAX's default
+    backend; ``"cpu"`` beside a GPU run: the same counts, R2)."""
     seeds = _checked_seeds(seeds)
-    cfg, n_devices, chunk, best_arg, tables = _plan(env, cfg, seeds, best)
-    hyper = cfg.hyper() if hyper is None else hyper
+    devices = _devices(platform, seeds.size)
     parts = []
-    for start in range(0, seeds.size, chunk):
-        part = seeds[start:start + chunk]
-        padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
-        args = (root, padded, hyper, best_arg, tables)
-        program = _executable(env, cfg, n_devices, best is not None, args)
-        out = jax.device_get(program(*args))
-        parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
+    with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`
+        cfg, chunk, best_arg, tables = _plan(env, cfg, seeds, best, devices)
+        root = jax.random.key(root_key_int(root_key))
+        hyper = cfg.hyper() if hyper is None else hyper
+        for start in range(0, seeds.size, chunk):
+            part = seeds[start:start + chunk]
+            padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
+            args = (root, padded, hyper, best_arg, tables)
+            program = _executable(env, cfg, devices, best is not None, args)
+            out = jax.device_get(program(*args))
+            parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
     return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
 
 

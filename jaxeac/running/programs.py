@@ -113,14 +113,14 @@ def inputs_name(args) -> str:
 KEPT_PLATFORMS = ("gpu",)
 
 
-def folder() -> Path | None:
-    """Where programs are kept: `FOLDER` in JAX's persistent cache folder, None while that cache is
-    off (``JAXEAC_COMPILATION_CACHE=off``) or not a local folder, or where the default backend is
-    not one of `KEPT_PLATFORMS`."""
+def folder(platform: str | None = None) -> Path | None:
+    """Where programs for `platform` (default: JAX's default backend) are kept: `FOLDER` in JAX's
+    persistent cache folder, None while that cache is off (``JAXEAC_COMPILATION_CACHE=off``) or not
+    a local folder, or where the platform is not one of `KEPT_PLATFORMS`."""
     where = jax.config.jax_compilation_cache_dir
     if not where or not jax.config.jax_enable_compilation_cache or "://" in str(where):
         return None
-    if jax.default_backend() not in KEPT_PLATFORMS:
+    if (platform or jax.default_backend()) not in KEPT_PLATFORMS:
         return None
     return Path(where) / FOLDER
 
@@ -159,12 +159,12 @@ def program_name(kind: str, identity, args) -> str | None:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def load_or_build(kind: str, identity, args, build: Callable[[], jax.stages.Compiled]
-                  ) -> tuple[jax.stages.Compiled, bool]:
+def load_or_build(kind: str, identity, args, build: Callable[[], jax.stages.Compiled],
+                  platform: str | None = None) -> tuple[jax.stages.Compiled, bool]:
     """(the compiled program, whether it was loaded): loaded from `folder` where a program of this
-    `kind`, `identity` and inputs' types was kept by an earlier process, else `build()` (lower and
-    compile) and kept for the next one."""
-    where = folder()
+    `kind`, `identity` and inputs' types, for `platform` (default: JAX's default backend), was kept
+    by an earlier process, else `build()` (lower and compile) and kept for the next one."""
+    where = folder(platform)
     name = program_name(kind, identity, args) if where is not None else None
     if name is None:
         return build(), False
