@@ -190,3 +190,25 @@ def test_study_refuses_before_any_compute(tmp_path, capsys, argv, match):
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and match in err[0], err
     assert not (tmp_path / "s").exists()
+
+
+def test_study_checks_sizes_on_the_runs_own_environments(tmp_path, monkeypatch):
+    """The up-front size check sees each task's environment as its runs will (tables padded to the
+    layout of its group, `task_envs`), so tasks of one layout share every answer resolved there
+    (on GPUs the fused kernel's probe: 32 for the 11 default tasks instead of 88)."""
+    from jaxeac.experiments import common, study
+    from jaxeac.running.loops import program_key
+
+    seen = {}
+    monkeypatch.setattr(common, "check_grid_resources", lambda grid, env: seen.setdefault(grid.env, env))
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt  # the check is done: no compute
+
+    monkeypatch.setattr(study, "run_study", stop)
+    tasks = ["FrozenLake-4x4-v1", "FrozenLake-4x4-slippery-v1", "CliffWalking-v1"]
+    assert main(["study", "--tasks", *tasks, "--seeds", "4", "--out", str(tmp_path / "s"), "--quiet"]) == 130
+    settings = StudySettings(tasks=tuple(tasks), algos=("ac", "eac"), seeds=4)
+    want = study.task_envs({t: settings.task_settings(t) for t in tasks})
+    assert {program_key(seen[t]) for t in tasks} == {program_key(want[t]) for t in tasks}
+    assert len({program_key(seen[t]) for t in tasks[:2]}) == 1  # FrozenLake and its slippery variant: one layout

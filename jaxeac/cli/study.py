@@ -45,7 +45,14 @@ def add_parser(sub) -> None:
 def cmd_study(args: argparse.Namespace) -> int:
     from jaxeac.cli.process import _claim_out
     from jaxeac.experiments.common import check_grid_resources
-    from jaxeac.experiments.study import DEFAULT_ALGOS, DEFAULT_TASKS, StudySettings, run_study, summary_table
+    from jaxeac.experiments.study import (
+        DEFAULT_ALGOS,
+        DEFAULT_TASKS,
+        StudySettings,
+        run_study,
+        summary_table,
+        task_envs,
+    )
 
     settings = StudySettings(
         tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
@@ -61,9 +68,10 @@ def cmd_study(args: argparse.Namespace) -> int:
         tuning = Tuning.build(args.tune, algos=settings.algos, seeds=args.tune_seeds or 200, key=args.tune_key,
                               eval_key=settings.key, trials=settings.task_settings(settings.tasks[0]).trials,
                               out=args.out)  # a folder tuned with another setup is refused here
-    for task in settings.tasks:  # sizes that cannot fit or finish fail here, for every task
-        grid = settings.task_settings(task)
-        check_grid_resources(grid, grid.make_env())
+    grids = {task: settings.task_settings(task) for task in settings.tasks}
+    envs = task_envs(grids)  # the runs' own environments: tasks of one layout share their kernel probes
+    for task, grid in grids.items():  # sizes that cannot fit or finish fail here, for every task
+        check_grid_resources(grid, envs[task])
     _claim_out(args, args.out, kind="study")
     result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning, timeline=args.timeline)
     print(summary_table(result))
