@@ -99,15 +99,19 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
     rng = host_rng(k_boot)
     path = large.resampling_path(n, values.size, paired=True)  # the one rule
     out["path"] = path
+    u = values if path == large.PER_VALUE else d  # the jackknife: one pair (of each value) left out
+    jk_mean = n * mean - u  # made in place (one value per seed on the large path)
+    jk_mean /= n - 1
+    jk_sq = u * u
+    np.subtract((d * d).sum(), jk_sq, out=jk_sq)
+    jk_sq /= n - 1
+    jk_dz = _dz(jk_mean, jk_sq, n - 1)
+    del jk_sq
     if path == large.PER_VALUE:  # exact: counts per distinct difference
         c = multinomial_counts(rng, counts, resamples)
         s1, s2 = large.moment_sums(c, values)
         boot_mean, boot_sq = s1 / n, s2 / n
-        drop = n * mean - values  # leave one pair of each value out
-        jk_mean = drop / (n - 1)
-        jk_sq = ((d * d).sum() - values**2) / (n - 1)
-        jk = [(jk_mean, counts)]
-        jk_dz = [(_dz(jk_mean, jk_sq, n - 1), counts)]
+        jk, jk_dz = [(jk_mean, counts)], [(jk_dz, counts)]
         out["bootstrap"] = "exact: multinomial counts per distinct difference (Efron 1979)"
     elif path == large.RAW:  # pairs one by one
         boot_mean, boot_sq = np.empty(resamples), np.empty(resamples)
@@ -117,19 +121,10 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
             idx = rng.integers(0, n, (k, n))
             boot_mean[i:i + k] = d[idx].mean(1)
             boot_sq[i:i + k] = (d[idx] ** 2).mean(1)
-        jk_mean = (n * mean - d) / (n - 1)
-        jk_sq = ((d * d).sum() - d * d) / (n - 1)
-        jk, jk_dz = [jk_mean], [_dz(jk_mean, jk_sq, n - 1)]
+        jk, jk_dz = [jk_mean], [jk_dz]
         out["bootstrap"] = "pairs resampled one by one"
-    else:  # the bootstrap's normal limit (one value per seed: the jackknife made in place)
-        jk_mean = n * mean - d
-        jk_mean /= n - 1
+    else:  # the bootstrap's normal limit
         lo, hi = normal_bca(mean, jk_mean, alpha)
-        jk_sq = d * d
-        np.subtract(jk_sq.sum(), jk_sq, out=jk_sq)
-        jk_sq /= n - 1
-        jk_dz = _dz(jk_mean, jk_sq, n - 1)
-        del jk_mean, jk_sq
         dlo, dhi = normal_bca(dz, jk_dz, alpha)
         out |= {"mean_diff_ci95": [lo, hi], "d_z_ci95": [dlo, dhi],
                 "bootstrap": large.REFERENCES["normal_bca"]}
