@@ -15,9 +15,9 @@ loop for every piece of Algorithm 1 (`jaxeac.algorithm`: E1's `restricts`,
 `shaped_reward`; R1's `action_uniform` and `start_index`). What it owns, because it
 holds a block of lanes per action column in registers rather than [A]-vectors:
 loading and storing the seed's row, memory word and log entry, the per-column
-softmax draw (`_sample`), and the flags as per-column bits. Tests check
-that it matches the XLA loop bit for bit on the CPU (Pallas's interpreter runs the
-kernel body there); on GPUs both paths are compiled by different compilers, so
+softmax draw (`_sample`) and the baselines' ε-greedy one (`_epsilon_greedy`), and the
+flags as per-column bits. Tests check that it matches the XLA loop bit for bit on the
+CPU (Pallas's interpreter runs the kernel body there); on GPUs both paths are compiled by different compilers, so
 results are compared in BENCHMARKS.md rather than promised equal.
 
 Supported: every environment that gives its `KernelTables` (`env.kernel_tables()`, the
