@@ -98,7 +98,7 @@ def test_kernel_block_equals_xla_slots_on_tabular_tasks(task, algo):
     assert int(want.agent.log.astype(bool).sum()) > LANES_PER_PROGRAM  # trials ended inside the blocks
 
 
-@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only", "q_learning", "sarsa"])
+@pytest.mark.parametrize("algo", ["ac", "eac", "eac_failure_only", "sarsa"])  # SARSA: its next action per lane
 @pytest.mark.parametrize("lanes", [None, LANES_PER_PROGRAM])  # a lane per seed (padded), and a queue
 def test_kernel_runs_equal_xla_runs(algo, lanes):
     """Whole runs through `run_seeds`: the same successes and steps per trial for every seed
@@ -111,7 +111,7 @@ def test_kernel_runs_equal_xla_runs(algo, lanes):
 
 
 @pytest.mark.parametrize("task", ["frozenlake", "frozenlake_slippery"])
-@pytest.mark.parametrize("algo", ["ac", "eac", "q_learning"])
+@pytest.mark.parametrize("algo", ["ac", "eac"])
 def test_kernel_runs_equal_xla_runs_on_a_tabular_task(algo, task):
     """A whole run of a tabular task fed from a queue (128 lanes): the same per-seed results."""
     env = TASKS[task]
