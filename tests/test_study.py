@@ -212,3 +212,31 @@ def test_study_checks_sizes_on_the_runs_own_environments(tmp_path, monkeypatch):
     want = study.task_envs({t: settings.task_settings(t) for t in tasks})
     assert {program_key(seen[t]) for t in tasks} == {program_key(want[t]) for t in tasks}
     assert len({program_key(seen[t]) for t in tasks[:2]}) == 1  # FrozenLake and its slippery variant: one layout
+
+
+def test_study_with_compact_outputs_brings_back_measures_only(tmp_path, monkeypatch):
+    """Above `FULL_OUTPUT_SEEDS` a task's results.parquet holds per-seed measures only, so its runs
+    bring back the measures taken on the device, not every trial's log: the same study.json."""
+    import pyarrow.parquet as pq
+
+    from jaxeac import results
+    from jaxeac.running import outputs
+
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
+    full = run_study(settings, tmp_path / "full", progress=False)
+    monkeypatch.setattr(results, "FULL_OUTPUT_SEEDS", 4)
+    prepared = []
+    prepare = outputs.CompactCollector.prepare
+    monkeypatch.setattr(outputs.CompactCollector, "prepare",
+                        lambda self, start, chunk, pool: prepared.append(chunk.measures is not None)
+                        or prepare(self, start, chunk, pool))
+    compact = run_study(settings, tmp_path / "compact", progress=False)
+    assert prepared and all(prepared)  # measured on the device
+    columns = {f: pq.read_schema(tmp_path / f / "tasks" / "FrozenLake-4x4-v1" / results.RESULTS_FILE).names
+               for f in ("full", "compact")}
+    assert set(columns["compact"]) < set(columns["full"])  # no per-trial steps, no policies
+
+    def numbers(r):
+        return {k: v for k, v in r.items() if k not in ("timeline",)}
+
+    assert numbers(compact) == numbers(full)

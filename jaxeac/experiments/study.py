@@ -536,7 +536,9 @@ class _TaskRunner:
         try:
             with ResultsWriter(stage / RESULTS_FILE, grid.trials, env.n_states, options) as writer:
                 collectors = [CompactCollector(seeds, grid.trials, env.n_states, n_chances=env.n_chances,
-                                               on_chunk=writer.chunk_writer(a, seeds)) for a in grid.algos]
+                                               on_chunk=writer.chunk_writer(a, seeds),
+                                               whole_chunks=options.trial_steps or options.policies)
+                              for a in grid.algos]  # compact outputs: measures, not logs, come back
                 runs = run_algorithms(env, [grid.run_config(a) for a in grid.algos], root_key=grid.key,
                                       n_seeds=grid.seeds, chunk_size=grid.chunk_size, progress=progress,
                                       collectors=collectors)
