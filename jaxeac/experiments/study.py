@@ -460,7 +460,8 @@ DIAGNOSTIC_COMPILERS = 8
 
 #: Per default backend, the platform E8's seeds run on beside a study's runs: on GPUs the host's idle
 #: CPU cores, where E8's latency-bound `trials` loops no longer queue with the runs' kernels
-#: (`jaxeac study --seeds 1000`, one H200, first run: 94.9 -> 51.9 s; the same counts, R2).
+#: (`jaxeac study --seeds 1000`, one H200, first runs of two builds in one sitting: 101.3 -> 64.0 s;
+#: the same counts, R2).
 DIAGNOSE_ON = {"gpu": "cpu"}
 
 
