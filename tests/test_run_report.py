@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -72,6 +73,13 @@ def test_a_run_of_four_algorithms_reports_each_against_the_baseline(tmp_path):
             assert line in report
     assert stats["primary"]["n_treatment"] == 12
     assert stats["algos_run"] == ["ac", "eac", "q_learning", "sarsa"]
+
+    from jaxeac.cli import main  # a second comparison of the folder: its own files, its own figures linked
+
+    assert main(["compare", str(out), "--treatment", "sarsa"]) == 0
+    second = (out / "report_ac_vs_sarsa.md").read_text(encoding="utf-8")
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", second)
+    assert len(links) == 3 and all(link.endswith("_ac_vs_sarsa.png") and (out / link).is_file() for link in links)
 
 
 def test_a_two_algorithm_run_has_no_family_section(tmp_path):

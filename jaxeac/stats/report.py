@@ -211,6 +211,7 @@ def family_section(stats: dict) -> list[str]:
 def render_markdown(stats: dict) -> str:
     """The readable report."""
     b, t = stats["baseline"].upper(), stats["treatment"].upper()
+    figures = stats.get("files", {}).get("figures", FIGURES)  # a second comparison's carry its suffix
     st = stats["settings"]
     holm = stats["holm"]
     res = [stats["primary"], *stats["secondary"].values()]
@@ -298,7 +299,7 @@ def render_markdown(stats: dict) -> str:
             "",
             "## Learning curves",
             "",
-            f"![learning curves]({FIGURES['curves']})",
+            f"![learning curves]({figures['curves']})",
             "",
             f"Bands: {cur['band_method']}, holding over all {cur['trials']} trials at once. "
             f"Trials where the methods differ: {cur['test_method']}, {st['permutations']} "
@@ -313,11 +314,11 @@ def render_markdown(stats: dict) -> str:
         "",
         "## Per-seed distributions",
         "",
-        f"![per-seed distributions]({FIGURES['distributions']})",
+        f"![per-seed distributions]({figures['distributions']})",
         "",
         "## Probability of improvement",
         "",
-        f"![probability of improvement]({FIGURES['improvement']})",
+        f"![probability of improvement]({figures['improvement']})",
         "",
     ]
     cal = stats.get("calibration", {})
