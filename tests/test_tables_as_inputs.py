@@ -1,9 +1,12 @@
 """Tabular tasks as data (X1): a task's tables are inputs of its compiled program, padded to a layout
-shared by a group of tasks, so one program per algorithm (and C) serves every task of the group, on
-the XLA loop and in the fused kernel, with each task's own per-seed results (R2)."""
+shared by a group of tasks, so one program per algorithm serves every task of the group whatever its
+C, on the XLA loop and in the fused kernel, with each task's own per-seed results (R2)."""
 
 from __future__ import annotations
 
+import dataclasses
+
+import jax
 import numpy as np
 import pytest
 
@@ -24,8 +27,9 @@ def _plain(name: str, chances: int | None = None) -> TabularEnv:
     return TabularEnv(make(name).task, chances)
 
 
-def _padded(names, chances: int | None = None) -> list[TabularEnv]:
-    plain = [_plain(n, chances) for n in names]
+def _padded(names, chances: int | None | tuple = None) -> list[TabularEnv]:
+    per_task = chances if isinstance(chances, tuple) else (chances,) * len(names)
+    plain = [_plain(n, c) for n, c in zip(names, per_task, strict=True)]
     layout = TableLayout.covering(plain)
     return [env.padded(layout) for env in plain]
 
@@ -39,12 +43,14 @@ def _same(a, b):
 def test_layout_covers_the_group_and_gates_jumps():
     envs = _padded(GROUP)
     layout = envs[0].layout
-    assert layout == TableLayout(states=48, outcomes=3, starts=1, gated_jumps=True)
+    assert layout == TableLayout(states=48, outcomes=3, starts=1, chances=100, gated_jumps=True)
     assert [env.n_states for env in envs] == [16, 16, 48]  # the task's own, outside the program
     assert len({env.program_key() for env in envs}) == 1
     assert {RunConfig(trials=20, agent=algorithm("eac")).resolve(env).jump for env in envs} == {"on"}
     with pytest.raises(UsageError, match="does not hold its tables"):
-        _plain("CliffWalking-v1").padded(TableLayout(16, 1, 1))
+        _plain("CliffWalking-v1").padded(TableLayout(16, 1, 1, 100))
+    with pytest.raises(UsageError, match="does not hold its tables"):
+        _plain("CliffWalking-v1").padded(TableLayout(48, 1, 1, 99))
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -57,15 +63,17 @@ def test_padded_tables_give_each_task_its_own_results(algo):
               run_seeds(_plain(name), cfg, root_key=4, n_seeds=20, chunk_size=10))
 
 
-def test_one_program_per_algorithm_serves_every_task(monkeypatch):
-    """Three tasks × four algorithms compile four programs: the first task's; the others reuse them."""
+@pytest.mark.parametrize("chances", [None, (20, 35, 50)])
+def test_one_program_per_algorithm_serves_every_task(monkeypatch, chances):
+    """Three tasks × four algorithms compile four programs: the first task's; the others reuse them,
+    whether their C are the same or not."""
     built = []
     make_batch_run = batch.make_batch_run
     monkeypatch.setattr(batch, "make_batch_run", lambda *a, **k: built.append(a[1]) or make_batch_run(*a, **k))
     batch._COMPILED.clear()
     cfgs = [RunConfig(trials=20, agent=algorithm(a)) for a in ALGOS]
     compile_seconds = []
-    for env in _padded(GROUP):
+    for env in _padded(GROUP, chances):
         runs = run_algorithms(env, cfgs, root_key=1, n_seeds=12, chunk_size=12)
         compile_seconds.append([r.compile_seconds for r in runs])
     assert len(built) == len(ALGOS)
@@ -83,3 +91,59 @@ def test_kernel_runs_padded_tables_as_the_xla_loop(algo):
         for other in runs[1:]:
             np.testing.assert_array_equal(runs[0].success, other.success)
             np.testing.assert_array_equal(runs[0].steps, other.steps)
+
+
+#: C is data too: tasks of different C (each cut after its own, drawing its own counters, R1)
+#: share one program per algorithm.
+MIXED_C = (20, 35, 50)
+
+
+def test_tasks_of_different_c_share_a_program_with_their_own_results():
+    envs = _padded(GROUP, MIXED_C)
+    assert len({env.program_key() for env in envs}) == 1
+    assert envs[0].layout.chances == 50 and envs[0].layout.mixed_chances
+    assert not _padded(GROUP)[0].layout.mixed_chances  # one C: part of the program, as for one task
+    assert [env.n_chances for env in envs] == list(MIXED_C)  # the task's own, outside the program
+    for algo in ALGOS + ("sarsa",):
+        cfg = RunConfig(trials=25, agent=algorithm(algo))
+        for name, c, env in zip(GROUP, MIXED_C, envs, strict=True):
+            _same(run_seeds(env, cfg, root_key=9, n_seeds=12, chunk_size=12),
+                  run_seeds(_plain(name, c), cfg, root_key=9, n_seeds=12, chunk_size=12))
+
+
+@pytest.mark.parametrize("memory", ["dense", "buffer"])
+def test_trials_loop_skips_chances_past_the_task_c(memory):
+    """The literal loop runs the bound's chances, those past the task's C skipped (not taken)."""
+    cfg = RunConfig(trials=15, agent=algorithm("eac", memory=memory), loop="trials")
+    for name, c, env in zip(GROUP[:2], MIXED_C[:2], _padded(GROUP, MIXED_C)[:2], strict=True):
+        _same(run_seeds(env, cfg, root_key=2, n_seeds=8, chunk_size=8),
+              run_seeds(_plain(name, c), cfg, root_key=2, n_seeds=8, chunk_size=8))
+
+
+def test_diagnostics_of_a_padded_c_are_the_task_own():
+    """E8 (the `trials` loop) of a task of a mixed-C layout runs in a layout of its own C (shared with
+    the tasks of that C): the same counts, per chance index up to the task's C."""
+    from jaxeac.running.diagnostics import diagnose_seeds
+
+    cfg = RunConfig(trials=12, agent=algorithm("eac"))
+    env = _padded(GROUP, MIXED_C)[0]
+    ours = diagnose_seeds(env, cfg, root_key=3, seeds=np.arange(6))
+    own = diagnose_seeds(_plain(GROUP[0], MIXED_C[0]), cfg, root_key=3, seeds=np.arange(6))
+    assert ours.routes.taken.shape == (6, MIXED_C[0])
+    fixed = env.fixed_chances()
+    assert fixed.layout.chances == MIXED_C[0] and not fixed.layout.mixed_chances
+    assert fixed.layout.states == env.layout.states
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(own), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_kernel_reads_each_task_c_from_its_tables():
+    """The fused kernel (Pallas's interpreter here) loops and draws with the task's own C."""
+    for name, c, env in zip(GROUP[:2], MIXED_C[:2], _padded(GROUP, MIXED_C)[:2], strict=True):
+        cfg = RunConfig(trials=10, agent=algorithm("eac", tables="rows"), lanes=128)
+        ours = run_seeds(env, dataclasses.replace(cfg, kernel="pallas"), root_key=6, n_seeds=128,
+                         chunk_size=128)
+        own = run_seeds(_plain(name, c), dataclasses.replace(cfg, kernel="xla"), root_key=6, n_seeds=128,
+                        chunk_size=128)
+        np.testing.assert_array_equal(ours.success, own.success)
+        np.testing.assert_array_equal(ours.steps, own.steps)

@@ -106,12 +106,12 @@ def test_evaluation_at_a_selection_is_a_plain_run_at_that_setting(tuned):
 
 def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_path, monkeypatch):
     """On accelerators the tuning runs beside the study's runs and the evaluation beside its
-    statistics (`GROUPS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`), and E8 on the platform
+    statistics (`TASKS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`), and E8 on the platform
     `DIAGNOSE_ON` names; forced on here, every number of study.json but the timings is the CPU
     path's, and so is every task's E8."""
     from jaxeac.experiments import grid, study
 
-    monkeypatch.setitem(study.GROUPS_SIDE_BY_SIDE, "cpu", True)
+    monkeypatch.setitem(study.TASKS_SIDE_BY_SIDE, "cpu", 2)
     monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
     monkeypatch.setitem(study.DIAGNOSE_ON, "cpu", "cpu")
     out, settings, _, _ = tuned

@@ -19,7 +19,9 @@ draw the same numbers:
 * ``start(words, trial)`` — the first state of trial `trial` (G3);
 * ``move(state, action, words, trial, chance)`` — a `Transition` (G4, G5);
 * ``observation(state)`` — the state index; ``rtilde(transition, goal_known)`` — E5's r̃;
-* ``n_states``, ``n_actions``, ``n_chances``, ``deterministic``;
+* ``n_states``, ``n_actions``, ``n_chances``, ``deterministic``; inside a program whose inputs are
+  the environment's tables, ``n_chances`` may be traced, and ``max_chances`` (optional, an int)
+  bounds it: the length of the per-chance arrays (`chance_bound`);
 * optionally ``kernel_tables()`` — the environment's `KernelTables` for the fused GPU kernel
   (`jaxeac.running.kernel`), or None where the kernel cannot run it (the default: an
   environment without the method runs as XLA ops).
@@ -68,6 +70,12 @@ class LoopEnv(Protocol):
     def rtilde(self, transition: Transition, goal_known: jax.Array) -> jax.Array: ...
 
 
+def chance_bound(env) -> int:
+    """The static length of `env`'s per-chance arrays (r̃ slots, a trial's path): its
+    ``max_chances`` where C is data of its program (`jaxeac.envs.tabular.TabularEnv`), else C."""
+    return getattr(env, "max_chances", env.n_chances)
+
+
 class KernelTables:
     """An environment's part of the fused kernel's chance (`jaxeac.running.kernel`): its tables and
     how a chance reads them, step for step as the environment's own `move`/`rtilde`/`start` compute
@@ -81,7 +89,12 @@ class KernelTables:
 
     def __init__(self, arrays: dict, n_actions: int, n_chances: int, n_starts: int):
         self.arrays = arrays
-        self.n_actions, self.n_chances, self.n_starts = n_actions, n_chances, n_starts
+        self.n_actions, self.n_chances, self.n_starts = n_actions, n_chances, n_starts  # C: a bound if data
+
+    def chances(self, ref, like):
+        """C in the kernel (a vector like `like`, or an int): the environment's own where it is static;
+        read from the tables where it is data (then `n_chances` is its bound, `chance_bound`)."""
+        return self.n_chances
 
     def move(self, ref, s, action, words, trial, chance):
         """(s', reward, terminated, success, bumped) of action `action` at s in chance `chance` of
@@ -94,7 +107,7 @@ class KernelTables:
 
     def start(self, ref, words, trial):
         """G3: the start state of trial `trial` (`env.start`)."""
-        return ref["starts"][start_index(words, trial, self.n_chances, self.n_starts)]
+        return ref["starts"][start_index(words, trial, self.chances(ref, trial), self.n_starts)]
 
 
 class UniformEnv:

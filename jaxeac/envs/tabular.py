@@ -43,18 +43,24 @@ class TabularState:
 @dataclasses.dataclass(frozen=True)
 class TableLayout:
     """The static shape of a tabular task's compiled program (X1): the sizes its tables are padded
-    to. Tasks with the same layout, actions, C and r̃ rule share one program; their tables are its
+    to. Tasks with the same layout, actions and r̃ rule share one program; their tables are its
     inputs (`TabularEnv.program_inputs`). A padded state is never entered (no move leads to it,
     no trial starts there); a padded outcome has probability 0; a padded start is never drawn.
 
     `outcomes` 1: every task is deterministic (a move draws nothing). `gated_jumps`: some tasks
     are deterministic and some not; memory jumps (exact only on deterministic tasks) are then
-    compiled in and switched on per task by a flag among the tables (`TabularEnv.jump_gate`)."""
+    compiled in and switched on per task by a flag among the tables (`TabularEnv.jump_gate`).
+    `chances`: the largest C. `mixed_chances`: the tasks' C differ; each task's own C is then data
+    too (``info``), so they share the program, each cut after its own C chances and drawing its
+    own counters (G5, R1); the per-chance arrays (r̃ slots, a trial's path) are `chances` long.
+    Otherwise C is part of the program, as for one task."""
 
     states: int
     outcomes: int
     starts: int
+    chances: int
     gated_jumps: bool = False
+    mixed_chances: bool = False
 
     @classmethod
     def covering(cls, envs) -> TableLayout:
@@ -62,10 +68,12 @@ class TableLayout:
         own = [env.own_layout for env in envs]
         deterministic = [x.outcomes == 1 for x in own]
         return cls(max(x.states for x in own), max(x.outcomes for x in own), max(x.starts for x in own),
-                   any(deterministic) and not all(deterministic))
+                   max(x.chances for x in own), any(deterministic) and not all(deterministic),
+                   len({x.chances for x in own}) > 1)
 
     def holds(self, other: TableLayout) -> bool:
-        return self.states >= other.states and self.outcomes >= other.outcomes and self.starts >= other.starts
+        return (self.states >= other.states and self.outcomes >= other.outcomes
+                and self.starts >= other.starts and self.chances >= other.chances)
 
 
 class TabularEnv(UniformEnv):
@@ -82,7 +90,7 @@ class TabularEnv(UniformEnv):
     (E5's ‖s − g‖₂; zeros where r̃ is the reward); the ``starts``; in a stochastic layout the
     ``cumulative`` probabilities (all but the last) of the K outcomes of (s, a): outcome k is
     their number at most the transition uniform (X1); ``info`` = [number of starts, 1 if the
-    task is deterministic]. A compiled program gets them as arguments (`bind`).
+    task is deterministic, C]. A compiled program gets them as arguments (`bind`).
     """
 
     def __init__(self, task: TabularTask, n_chances: int | None = None, rtilde: RtildeRule = "shaped",
@@ -100,14 +108,14 @@ class TabularEnv(UniformEnv):
         self.goal_distance = task.goal_distance if rtilde == "shaped" else None
         self.rtilde_rule: RtildeRule = "shaped" if self.goal_distance is not None else "reward"
         k = 1 if task.deterministic else task.n_outcomes  # deterministic: outcome 0 has probability 1
-        self.own_layout = TableLayout(task.n_states, k, int(np.size(task.start_states)))
+        self.own_layout = TableLayout(task.n_states, k, int(np.size(task.start_states)), self.n_chances)
         layout = self.own_layout if layout is None else layout
         if not isinstance(layout, TableLayout) or not layout.holds(self.own_layout):
             raise UsageError(f"task {task.name}: layout {layout!r} does not hold its tables "
                              f"({self.own_layout})")
         self.layout = layout
         self.deterministic = layout.outcomes == 1  # the program's moves draw nothing
-        self.arrays = _tables(task, self.n_actions, k, layout, self.goal_distance)
+        self.arrays = _tables(task, self.n_actions, k, layout, self.goal_distance, self.n_chances)
         self._t = self.arrays  # what the moves read: these, or a program's inputs (`bind`)
 
     def __repr__(self) -> str:
@@ -117,24 +125,39 @@ class TabularEnv(UniformEnv):
     def n_starts(self) -> int:
         return self.own_layout.starts
 
+    @property
+    def max_chances(self) -> int:
+        """The length of its per-chance arrays (`jaxeac.envs.protocol.chance_bound`): the layout's C."""
+        return self.layout.chances
+
     def padded(self, layout: TableLayout) -> TabularEnv:
         """This task with its tables padded to `layout` (same per-seed results)."""
         return TabularEnv(self.task, self.n_chances, self.rtilde_rule, layout)
 
     # --- tables as program inputs (`jaxeac.running.loops.program_key`) ----------------------
     def program_key(self) -> tuple:
-        """What its compiled program depends on: everything but the tables' values."""
-        return TabularEnv, self.n_actions, self.n_chances, self.rtilde_rule, self.layout
+        """What its compiled program depends on: everything but the tables' values (C among them)."""
+        return TabularEnv, self.n_actions, self.rtilde_rule, self.layout
 
     def program_inputs(self) -> dict[str, np.ndarray]:
         return self.arrays
 
     def bind(self, tables: dict) -> TabularEnv:
         """The environment as its compiled program sees it: `tables` (traced) in place of its own,
-        and the layout's padded state count."""
+        the layout's padded state count, and, where the layout's tasks differ in C, C read from the
+        tables (a traced int32)."""
         view = copy.copy(self)
         view._t, view.n_states, view._kernel_tables = dict(tables), self.layout.states, None
+        if self.layout.mixed_chances:
+            view.n_chances = jnp.asarray(tables["info"])[2]
         return view
+
+    def fixed_chances(self) -> TabularEnv:
+        """This task in a layout of its own C only (`TableLayout.mixed_chances` off), shared with the
+        tasks of that C: for the literal `trials` loop, which takes each of the bound's chances."""
+        if not self.layout.mixed_chances:
+            return self
+        return self.padded(dataclasses.replace(self.layout, chances=self.n_chances, mixed_chances=False))
 
     def jump_gate(self):
         """bool []: whether memory jumps are exact for this task (`TableLayout.gated_jumps`);
@@ -179,7 +202,8 @@ class TabularEnv(UniformEnv):
         return self._kernel_tables
 
 
-def _tables(task: TabularTask, n_actions: int, k: int, layout: TableLayout, goal_distance) -> dict:
+def _tables(task: TabularTask, n_actions: int, k: int, layout: TableLayout, goal_distance,
+            n_chances: int) -> dict:
     """`TabularEnv`'s tables of `task` (its first `k` outcomes) padded to `layout`: a padded state
     stays put and is never entered, a padded outcome repeats outcome 0 behind a cumulative
     probability of 2 (never drawn), padded starts repeat the first. Floats stay float64 here: a
@@ -202,7 +226,7 @@ def _tables(task: TabularTask, n_actions: int, k: int, layout: TableLayout, goal
     arrays = {
         "moves": moves.reshape(-1).astype(np.int32), "reward": reward.reshape(-1), "ends": ends,
         "distance": distance, "starts": np.pad(starts, (0, layout.starts - starts.size), mode="edge"),
-        "info": np.array([starts.size, task.deterministic], np.int32),
+        "info": np.array([starts.size, task.deterministic, n_chances], np.int32),
     }
     if big > 1:  # [S·A, K − 1]: the outcome of a draw u is the number of these ≤ u
         cumulative = np.full((layout.states * n_actions, big - 1), 2.0)
@@ -219,13 +243,18 @@ class TabularKernelTables(KernelTables):
         self.shaped = env.rtilde_rule == "shaped"
         self.outcomes = env.layout.outcomes  # K: 1 for a deterministic layout
         self.gated = env.layout.gated_jumps
-        super().__init__(dict(env._t), env.n_actions, env.n_chances, env.layout.starts)
+        self.mixed = env.layout.mixed_chances
+        super().__init__(dict(env._t), env.n_actions, env.max_chances, env.layout.starts)
+
+    def chances(self, ref, like):
+        """C: read from the tables (``info[2]``) as a vector like `like` where it is data, else static."""
+        return ref["info"][jnp.full_like(like, 2)] if self.mixed else self.n_chances
 
     def move(self, ref, s, action, words, trial, chance):
         row = s * self.n_actions + action
         at = row * self.outcomes
         if self.outcomes > 1:  # X1: outcome k of the seed's transition uniform
-            u = transition_uniform(words, trial, chance, self.n_chances)
+            u = transition_uniform(words, trial, chance, self.chances(ref, trial))
             below = [(u >= ref["cumulative"][row * (self.outcomes - 1) + j]).astype(jnp.int32)
                      for j in range(self.outcomes - 1)]
             at = at + functools.reduce(lambda a, b: a + b, below)
@@ -241,7 +270,7 @@ class TabularKernelTables(KernelTables):
     def start(self, ref, words, trial):
         """G3: the start of trial `trial`, among the task's own starts (``info[0]`` of them)."""
         count = ref["info"][jnp.zeros_like(trial)]
-        return ref["starts"][uniform_index(start_uniform(words, trial, self.n_chances), count)]
+        return ref["starts"][uniform_index(start_uniform(words, trial, self.chances(ref, trial)), count)]
 
     def jump_gate(self, ref, like):
         """`TabularEnv.jump_gate` per lane (`like`: a lane vector), or None."""

@@ -13,10 +13,11 @@ CI, the difference from AC with a BCa CI, Hedges' g, the IQM and the probability
 improvement (`compare_tasks`). Results are what the run found.
 
 Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
-compiled programs (`jaxeac.envs.tabular.TableLayout`), padded to the largest task of its group
-(tasks with the same C), so one program per algorithm and C serves every task of the group
-(the run's and E8's); the figure is drawn once, a panel per task. On accelerators the groups run
-side by side (`GROUPS_SIDE_BY_SIDE`: every group's programs compile at once), E8's programs compile
+compiled programs (`jaxeac.envs.tabular.TableLayout`, C among them), padded to the largest task of
+its group (tasks with the same actions and r̃ rule: every default task), so one program per
+algorithm serves every task of the group (the run's and E8's); the figure is drawn once, a panel
+per task. On accelerators several tasks run side by side (`TASKS_SIDE_BY_SIDE`; tasks of one
+group share each program, compiled by the first to need it), E8's programs compile
 ahead of the runs, and a tuned study's tuning runs start with the study's and its evaluation runs
 beside the statistics (`jaxeac.experiments.tune_runs`).
 
@@ -156,8 +157,9 @@ class _TaskSettings(GridSettings):
 
 def task_envs(grids: dict[str, GridSettings]) -> dict:
     """Each task's environment, its tables padded to the `TableLayout` covering every task with its
-    C, actions and r̃ rule (the paper grid as its table, `grid_task`: the same runs), so one compiled
-    program per algorithm serves all of them. Environments without tables are left as they are."""
+    actions and r̃ rule, whatever its C (the paper grid as its table, `grid_task`: the same runs), so
+    one compiled program per algorithm serves all of them. Environments without tables are left as
+    they are."""
     from jaxeac.envs.grid import GridWorld
     from jaxeac.envs.tabular import TableLayout, TabularEnv
     from jaxeac.envs.tasks import grid_task
@@ -171,7 +173,7 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
     groups: dict = {}
     for task, env in envs.items():
         if isinstance(env, TabularEnv):
-            groups.setdefault((env.n_actions, env.n_chances, env.rtilde_rule), []).append(task)
+            groups.setdefault((env.n_actions, env.rtilde_rule), []).append(task)
     for tasks in groups.values():
         layout = TableLayout.covering([envs[t] for t in tasks])
         for t in tasks:
@@ -276,7 +278,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         tuner = tuning_runs(settings, tuning, grids, envs, progress=progress)
         tuned = in_background(tuner.tune, "jaxeac-study")
     with _TaskRunner(todo, tl) as runner:
-        ahead = _start_groups(runner, todo, out, side, progress)
+        ahead = _start_tasks(runner, todo, out, side, progress)
         for i, (task, grid) in enumerate(tasks.items()):
             folder = _folder(out, task)
             if task not in todo:
@@ -402,31 +404,33 @@ def _seed_ids(n: int) -> np.ndarray:
     return ids
 
 
-#: Per platform, whether the study's chance-budget groups run side by side (a thread each, its tasks
-#: in turn), so that every group's programs compile at once rather than group after group, and a
-#: tuning's runs start with the study's. Not on CPUs: there compiles and runs share the same cores.
-GROUPS_SIDE_BY_SIDE = {"gpu": True, "tpu": True}
+#: Per platform, how many of the study's tasks run side by side (threads, each taking every k-th
+#: task in turn), so that one task's host work (dispatch, copies, its folder) overlaps another's
+#: device runs and a tuning's runs start with the study's; 4, as many as the chance-budget groups
+#: that ran side by side before C was data. Not on CPUs: there compiles and runs share the cores.
+TASKS_SIDE_BY_SIDE = {"gpu": 4, "tpu": 4}
 
 
 def _side_by_side(todo: dict) -> bool:
     import jax
 
-    return bool(todo) and GROUPS_SIDE_BY_SIDE.get(jax.default_backend(), False)
+    return bool(todo) and TASKS_SIDE_BY_SIDE.get(jax.default_backend(), 0) > 1
 
 
-def _start_groups(runner: _TaskRunner, todo: dict, out: Path, side: bool, progress: bool) -> dict:
-    """Where groups go side by side (`GROUPS_SIDE_BY_SIDE`): {task: future of its run's results},
-    each chance-budget group's tasks in turn on a thread of its own; else {} (run in the loop)."""
+def _start_tasks(runner: _TaskRunner, todo: dict, out: Path, side: bool, progress: bool) -> dict:
+    """Where tasks go side by side (`TASKS_SIDE_BY_SIDE`): {task: future of its run's results}, the
+    tasks dealt in order to that many threads, each running its own in turn; else {} (run in the
+    loop). Tasks of one program layout on different threads share its programs (the first compiles)."""
     if not side:
         return {}
-    from jaxeac.running.loops import program_key
+    import jax
 
-    groups: dict = {}
-    for task, grid in todo.items():
-        groups.setdefault(program_key(grid.make_env()), []).append(task)
+    width = TASKS_SIDE_BY_SIDE[jax.default_backend()]
+    order = list(todo)
+    lanes = [order[i::width] for i in range(min(width, len(order)))]
     ahead: dict = {}
 
-    def group(tasks: list) -> None:
+    def lane(tasks: list) -> None:
         for task in tasks:
             done = ahead[task]
             try:
@@ -441,18 +445,18 @@ def _start_groups(runner: _TaskRunner, todo: dict, out: Path, side: bool, progre
 
     from concurrent.futures import Future
 
-    for tasks in groups.values():
-        for task in tasks:
-            ahead[task] = Future()
-    for tasks in groups.values():
-        threading.Thread(target=group, args=(tasks,), daemon=True, name="jaxeac-study-group").start()
+    for task in order:
+        ahead[task] = Future()
+    for tasks in lanes:
+        threading.Thread(target=lane, args=(tasks,), daemon=True, name="jaxeac-study-tasks").start()
     return ahead
 
 
-#: Tasks whose E8 diagnostics run at once beside the runs (accelerators only). All 11 tasks' queued
-#: on 2 workers at the study's start slowed the runs of one H200 (grid-paper-v0:slip=0.1 at 1,000
-#: seeds: 17.8 s against 2.2 s); one at a time, started with its task, is as beside a grid run.
-DIAGNOSTIC_WORKERS = 1
+#: Per platform E8 runs on (`DIAGNOSE_ON`), tasks whose E8 diagnostics run at once beside the runs
+#: (accelerators only). On the GPU, all 11 tasks' queued on 2 workers at the study's start slowed
+#: the runs of one H200 (grid-paper-v0:slip=0.1 at 1,000 seeds: 17.8 s against 2.2 s): one at a
+#: time, started with its task. On the host's CPU cores they queue with no run: several.
+DIAGNOSTIC_WORKERS = {"cpu": 4}
 
 
 #: Compiles of E8's programs at once, ahead of the runs (accelerators: `_prepare_diagnostics`).
@@ -467,7 +471,7 @@ DIAGNOSE_ON = {"gpu": "cpu"}
 
 def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
     """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
-    memories, chance budget and best-action input), several at once, so that each task's
+    memories, C and best-action input), several at once, so that each task's
     diagnostics find theirs compiled instead of compiling group after group: the pool."""
     from concurrent.futures import ThreadPoolExecutor
 
@@ -480,7 +484,7 @@ def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
         env, grid_map = grid.make_env(), grid.grid_map()
         best = shortest_actions(grid_map) if grid_map is not None else None
         for algo, seeds in diagnostic_seeds(grid).items():
-            key = (program_key(env), algo, best is not None, seeds.size)
+            key = (program_key(env), env.n_chances, algo, best is not None, seeds.size)  # E8's has C
             jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
     pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
     for env, cfg, n, best in jobs.values():
@@ -511,7 +515,8 @@ class _TaskRunner:
         self._seeds = diagnostic_seeds
         self.compiler = None
         if self.beside:
-            self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS)
+            workers = DIAGNOSTIC_WORKERS.get(self.platform or jax.default_backend(), 1)
+            self.pool = ThreadPoolExecutor(max_workers=workers)
             self.finisher = ThreadPoolExecutor(max_workers=1)
             self.compiler = _prepare_diagnostics(todo, diagnostic_seeds, self.platform)
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from jaxeac.algorithm.agent import AgentState, init_agent
 from jaxeac.envs.protocol import LoopEnv as Env
+from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
 
 
@@ -37,23 +38,24 @@ class _FlatCarry:
 
 
 def flat_init(env: Env, cfg, words) -> _FlatCarry:
-    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, chance_bound(env), cfg.trials)
     start = env.start(words, 0)
     jumps = None
     if cfg.jump == "on":
         shadow = start if _shadowed(cfg) else None
-        jumps = _Jumps(jnp.zeros((env.n_states,), jnp.int32), jnp.int32(env.n_chances), shadow)
+        jumps = _Jumps(jnp.zeros((env.n_states,), jnp.int32), jnp.asarray(env.n_chances, jnp.int32), shadow)
     return _FlatCarry(agent, start, jumps)
 
 
-def visit_word(trial, chance, n_chances: int):
-    """A `_Jumps.visits` word: trial + 1 above the bits of the chance (0: no visit)."""
-    return ((trial + 1) << _chance_bits(n_chances)) | chance
+def visit_word(trial, chance, max_chances: int):
+    """A `_Jumps.visits` word: trial + 1 above the bits of the chance (0: no visit); `max_chances`:
+    the static bound of C (`chance_bound`)."""
+    return ((trial + 1) << _chance_bits(max_chances)) | chance
 
 
-def visit_fields(word, n_chances: int):
+def visit_fields(word, max_chances: int):
     """(trial, chance) of a `visit_word`; trial −1: no visit."""
-    bits = _chance_bits(n_chances)
+    bits = _chance_bits(max_chances)
     return (word >> bits) - 1, word & ((1 << bits) - 1)
 
 

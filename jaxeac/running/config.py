@@ -18,6 +18,7 @@ import jax.numpy as jnp
 
 from jaxeac.algorithm import memory as mem
 from jaxeac.algorithm.config import AgentConfig, Hyper, Rate
+from jaxeac.envs.protocol import chance_bound
 from jaxeac.errors import UsageError, check_int, check_number, is_plain_number
 from jaxeac.running.carry import state_bytes_per_seed, visit_words_fit
 
@@ -222,7 +223,7 @@ def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
         return "memory jumps skip steps that learn under learn_on_memory_steps"
     if cfg.loop != "flat":
         return "memory jumps run in the flat loop (the trials loop takes every step)"
-    if not visit_words_fit(cfg.trials, env.n_chances):
+    if not visit_words_fit(cfg.trials, chance_bound(env)):
         return "memory jumps store (trial, chance) in one int32, too small for this many trials and chances"
     return None
 

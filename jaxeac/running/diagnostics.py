@@ -25,6 +25,7 @@ import numpy as np
 from jaxeac.algorithm.agent import AgentState, StepRoute
 from jaxeac.algorithm.buffer import BufferMemory
 from jaxeac.algorithm.config import AgentConfig, Hyper
+from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key
 from jaxeac.running.config import RunConfig
@@ -164,11 +165,18 @@ def _devices(platform: str | None, n_seeds: int) -> tuple:
     return devices[:min(len(devices), n_seeds)]
 
 
+def _own_chances(env: Env) -> Env:
+    """`env` with its C part of the program (`jaxeac.envs.tabular.TabularEnv.fixed_chances`): the
+    `trials` loop takes every chance up to C's bound, which is then the task's own."""
+    fixed = getattr(env, "fixed_chances", None)
+    return fixed() if fixed is not None else env
+
+
 def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None, devices: tuple):
     """(config in the trials loop, chunk, best input, tables) of a `diagnose_seeds` call."""
     cfg = trials_config(env, cfg)
     n_devices = len(devices)
-    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * env.n_chances * 8 + env.n_states * env.n_actions
+    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * chance_bound(env) * 8 + env.n_states * env.n_actions
     chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
     chunk = -(-chunk // n_devices) * n_devices
     best_arg = jnp.zeros((), bool)
@@ -212,7 +220,7 @@ def prepare_diagnostics(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndar
     """Compile the program `diagnose_seeds` of `n_seeds` seeds will run (for these arguments),
     so that the call finds it compiled: compiles of many tasks' diagnostics can go at once,
     ahead of their runs."""
-    seeds = _checked_seeds(np.arange(n_seeds))
+    seeds, env = _checked_seeds(np.arange(n_seeds)), _own_chances(env)
     devices = _devices(platform, seeds.size)
     with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`
         cfg, chunk, best_arg, tables = _plan(env, cfg, seeds, best, devices)
@@ -229,7 +237,7 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
     `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
     hold `CHUNK_BYTES` and split over the local devices of `platform` (default: JAX's default
     backend; ``"cpu"`` beside a GPU run: the same counts, R2)."""
-    seeds = _checked_seeds(seeds)
+    seeds, env = _checked_seeds(seeds), _own_chances(env)
     devices = _devices(platform, seeds.size)
     parts = []
     with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`

@@ -111,7 +111,7 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
     from jax.experimental.pallas import triton as plgpu
 
     agent = cfg.agent
-    n_actions, n_chances, n_trials = env.n_actions, env.n_chances, cfg.trials
+    n_actions, n_trials = env.n_actions, cfg.trials
     value_based = agent.learner != "actor_critic"  # X3's baselines: ε-greedy on Q, with ε an input
     n_fixed = 7 if value_based else 6
     n_in = n_fixed + len(tables.arrays)
@@ -119,6 +119,8 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
     env_refs = dict(zip(tables.arrays, refs[n_fixed:n_in], strict=True))  # the env's tables, by name
     state = dict(zip(names, refs[n_in + len(names):], strict=True))  # the outputs, aliased to the inputs
     lane = pl.program_id(0) * LANES_PER_PROGRAM + jnp.arange(LANES_PER_PROGRAM)
+    n_chances = tables.chances(env_refs, jnp.int32(0))  # C: static, or a scalar read from the tables
+    max_chances = tables.n_chances  # the static bound (`chance_bound`): the visit words' chance bits
 
     def put(ref, value, mask=None):
         plgpu.store(ref, value, mask=mask)
@@ -157,7 +159,7 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
                 # The log is read only where the visit word names a trial (a masked load: memory
                 # traffic bounds this kernel); the visit word is read beside the memory word.
                 visit = plgpu.load(state["visits"].at[lane, s], mask=live, other=0)
-                visit_trial, visit_chance = visit_fields(visit, n_chances)
+                visit_trial, visit_chance = visit_fields(visit, max_chances)
                 known = (remembered >= 0) & (visit_trial >= 0)
                 walked = plgpu.load(log.at[lane, jnp.maximum(visit_trial, 0)], mask=known, other=0)
                 to_goal = walked - visit_chance
@@ -223,7 +225,7 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
         success = reached
         ends = active & (terminated | truncated)
         if jumps:
-            put(state["visits"].at[lane, s], visit_word(trial_now, c, n_chances), active & (remembered >= 0))
+            put(state["visits"].at[lane, s], visit_word(trial_now, c, max_chances), active & (remembered >= 0))
             remaining = n_chances - c
             success = jnp.where(jump, to_goal <= remaining, reached)
             ends = ends | jump

@@ -42,6 +42,7 @@ from jaxeac.algorithm.agent import (
 )
 from jaxeac.algorithm.config import Hyper, rate_at
 from jaxeac.envs.protocol import LoopEnv as Env
+from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import action_uniform, as_key, bootstrap_uniform, seed_words
 from jaxeac.running.carry import (  # noqa: F401  (flat_init, state_bytes_per_seed: re-exported)
@@ -130,11 +131,12 @@ class _ChanceCarry:
 
 def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, diagnose: bool = False):
     """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6.
-    With `diagnose` (static), the record also keeps each chance's `StepRoute` (E8)."""
+    With `diagnose` (static), the record also keeps each chance's `StepRoute` (E8). Where C is
+    data (traced, `chance_bound`), the chances past it up to the bound are skipped, recorded as
+    not taken (zeros), as masked chances are."""
     trial = agent.trial
-    n_chances = env.n_chances
 
-    def chance(carry: _ChanceCarry, c):
+    def take(carry: _ChanceCarry):
         live = ~carry.done
         agent, step, s, action, rtilde, *route = take_chance(env, cfg, carry.agent, carry.env_state, words,
                                                              hyper, live, diagnose=diagnose)
@@ -142,10 +144,21 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, 
         done = carry.done | step.terminated | step.truncated
         return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.success, *route)
 
-    start = env.start(words, trial)
+    first = _ChanceCarry(env.start(words, trial), agent, jnp.bool_(False))
+    if not isinstance(env.n_chances, jax.Array):  # C static: every chance of the scan is one
+        def chance(carry: _ChanceCarry, _):
+            return take(carry)
+    else:
+        records = jax.eval_shape(take, first)[1]
+
+        def chance(carry: _ChanceCarry, c):
+            def skip(carry):
+                return carry, jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), records)
+
+            return jax.lax.cond(c < env.n_chances, take, skip, carry)
+
     end, (states, actions, rtilde, live, reached, *route) = jax.lax.scan(
-        chance, _ChanceCarry(start, agent, jnp.bool_(False)), jnp.arange(n_chances)
-    )
+        chance, first, jnp.arange(chance_bound(env)))
     record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any(), *route)
     agent = end_trial(cfg.agent, end.agent, record.success, jnp.bool_(True))
     return agent, record
@@ -159,7 +172,7 @@ def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
     ``jax.random.key(k)``, `jaxeac.rng.as_key`) and `hyper`; jit and vmap it freely."""
     check_run_args(env, cfg, hyper)
     cfg = cfg.resolve(env)
-    agent = init_agent(cfg.agent, env.n_states, env.n_actions, env.n_chances, cfg.trials)
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, chance_bound(env), cfg.trials)
     words = seed_words(as_key(key, "key"))
     return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words, diagnose), agent, None,
                         length=cfg.trials)
@@ -248,7 +261,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         n_chances, c = env.n_chances, agent.chance
         s = env.observation(carry.env_state)
         remembered = agent.memory.success_action(s, agent.trial, agent.outcomes)
-        visit_trial, visit_chance = visit_fields(jumps.visits[s], n_chances)
+        visit_trial, visit_chance = visit_fields(jumps.visits[s], chance_bound(env))
         walked = agent.log[jnp.maximum(visit_trial, 0)]  # > 0: that trial's chances, a success
         known = (remembered >= 0) & (visit_trial >= 0) & (walked > 0)
         to_goal = walked - visit_chance  # h: chances from s to the goal
@@ -275,7 +288,7 @@ def flat_slot(env: Env, cfg: RunConfig, carry: _FlatCarry, words, hyper: Hyper) 
         success = jnp.where(jump, to_goal <= remaining, step.success)
         row = jnp.where(takes & (remembered >= 0), s, env.n_states)  # a step E1(a) took: h known later
         jumps = _Jumps(
-            visits=jumps.visits.at[row].set(visit_word(agent.trial, c, n_chances), mode="drop",
+            visits=jumps.visits.at[row].set(visit_word(agent.trial, c, chance_bound(env)), mode="drop",
                                             unique_indices=True),
             anchor=jnp.where(ends, jnp.where(jump, c, n_chances), jumps.anchor),
             shadow=shadow,

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxeac.bits import SuccessBits, as_bool, measures_of  # noqa: F401 (their home before jaxeac.bits)
+from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.running.schedule import record
 
@@ -73,7 +74,7 @@ def narrow_int(largest: int) -> np.dtype:
 
 def pack_output(env, log: jax.Array, policy: jax.Array, finite: jax.Array | None = None) -> BatchOutput:
     """A chunk's logs and policies in `narrow_int` types (exact: |log| ≤ C, policy < A)."""
-    return BatchOutput(log.astype(narrow_int(env.n_chances)), policy.astype(narrow_int(env.n_actions)),
+    return BatchOutput(log.astype(narrow_int(chance_bound(env))), policy.astype(narrow_int(env.n_actions)),
                        finite)
 
 
