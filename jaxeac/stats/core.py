@@ -35,9 +35,9 @@ from jaxeac.perseed import PerSeed, check_scale, excerpt, from_arrays, is_frame,
 from jaxeac.rng import as_key
 from jaxeac.sb3 import read_sb3
 from jaxeac.stats import closed_form as cf
-from jaxeac.stats.groups import Group, pair_row, paired_row
+from jaxeac.stats.groups import Group, pair_row, paired_row, task_groups
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
-from jaxeac.stats.resample import boot_counts
+from jaxeac.stats.resample import boot_counts, boot_counts_binned
 from jaxeac.stats.result import Comparison
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
@@ -45,6 +45,9 @@ PAIRED_STREAM = 1 << 20
 #: Host threads for the paired rows (NumPy's samplers release the interpreter's lock): 11 tasks x 8
 #: algorithms x 1,000 seeds x 10,000 resamples took 9.0-9.6 s against 12.8-13.3 s one row after another (2 cores).
 PAIRED_WORKERS = min(8, os.cpu_count() or 1)
+#: Tasks whose groups, rows and draws are computed at once (their draws are independent: task i's
+#: key is fold_in(key, i)); rows and results keep the tasks' order.
+TASK_WORKERS = min(4, os.cpu_count() or 1)
 #: Each tail of an interval needs at least this many resamples beyond it.
 MIN_TAIL_RESAMPLES = 10
 #: Bootstrap counts kept for the aggregate across tasks (beyond, drawn again from the same keys).
@@ -206,51 +209,52 @@ def compare_per_seed(
     aggregating = len(per.tasks) > 1 and normalize is not None
     keep = units * resamples * 4 <= MAX_KEPT_BYTES
     beside = ThreadPoolExecutor(max_workers=PAIRED_WORKERS, thread_name_prefix="jaxeac-paired")
+    by_task = ThreadPoolExecutor(max_workers=TASK_WORKERS, thread_name_prefix="jaxeac-task-stats")
     aggregate_result = None
-    try:
-        for i, task in enumerate(per.tasks):
-            tkey = jax.random.fold_in(root, i)
-            groups = {
-                a: Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples, chunk)
-                for j, a in enumerate(per.algos)
-            }
-            for a in per.algos:
-                g = groups[a]
-                paths[g.path] = paths.get(g.path, 0) + 1
-                est, lo, hi = g.iqm(alpha)
-                algos.append(
-                    {
-                        "task": task,
-                        "algo": a,
-                        "n": g.n,
-                        "mean": g.mean,
-                        "iqm": est,
-                        "iqm_ci": [lo, hi],
-                        "excluded": per.excluded.get(task, {}).get(a, 0),
-                    }
+
+    def one_task(i: int, task):
+        """Task i's algorithm entries, rows (paired rows as futures), draws for the aggregate and paths."""
+        tkey = jax.random.fold_in(root, i)
+        groups = task_groups({a: per.values[task][a] for a in per.algos},
+                             {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
+        entries, rows, drawn, paths = [], [], None, {}
+        for a in per.algos:
+            g = groups[a]
+            paths[g.path] = paths.get(g.path, 0) + 1
+            est, lo, hi = g.iqm(alpha)
+            entries.append({"task": task, "algo": a, "n": g.n, "mean": g.mean, "iqm": est, "iqm_ci": [lo, hi],
+                            "excluded": per.excluded.get(task, {}).get(a, 0)})
+        shared, order = _shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
+                                     chunk)
+        if aggregating:
+            drawn = _for_aggregate(per, task, tkey, groups, shared, order, resamples, chunk, keep)
+        for x, y in family:
+            row = {"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha)}
+            if order is not None and x in order and y in order:
+                d = order[x] - order[y]
+                pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
+                raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
+                row["paired"] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey,
+                                              resamples)
+            elif paired == "paired":
+                raise UsageError(
+                    f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
+                    f"{' on task ' + excerpt(task, 20) if task else ''}; drop --paired to compare "
+                    "them unpaired"
                 )
-            shared, order = _shared_draw(
-                per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples, chunk
-            )
+            else:
+                row["paired"] = None
+            rows.append(row)
+        return entries, rows, drawn, paths
+
+    try:
+        for entries, task_rows, task_drawn, task_paths in by_task.map(one_task, *zip(*enumerate(per.tasks))):
+            algos += entries
+            rows += task_rows
             if aggregating:
-                drawn.append(_for_aggregate(per, task, tkey, groups, shared, order, resamples, chunk, keep))
-            for x, y in family:
-                row = {"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha)}
-                if order is not None and x in order and y in order:
-                    d = order[x] - order[y]
-                    pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
-                    raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
-                    row["paired"] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey,
-                                                  resamples)
-                elif paired == "paired":
-                    raise UsageError(
-                        f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
-                        f"{' on task ' + excerpt(task, 20) if task else ''}; drop --paired to compare "
-                        "them unpaired"
-                    )
-                else:
-                    row["paired"] = None
-                rows.append(row)
+                drawn.append(task_drawn)
+            for k, v in task_paths.items():
+                paths[k] = paths.get(k, 0) + v
         if aggregating:
             from jaxeac.stats.tasks import aggregate_across_tasks
 
@@ -269,6 +273,7 @@ def compare_per_seed(
             row["analysis"] = "paired" if row["paired"] else "unpaired"
             row["p"] = row["paired"]["p_paired_t"] if row["paired"] else row["p_welch"]
     finally:
+        by_task.shutdown(cancel_futures=True)
         beside.shutdown(cancel_futures=True)
     for r, p, pw in zip(
         rows, cf.holm([r["p"] for r in rows]), cf.holm([r["p_welch"] for r in rows]), strict=True
@@ -321,10 +326,13 @@ class SharedDraw:
             self._units = boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True)
         return self._units
 
-    def per_value(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        distinct, inverse = np.unique(x, return_inverse=True)
-        return distinct, boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True,
-                                     bins=inverse.astype(np.int32))
+    def per_value(self, xs: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """{name: (ascending distinct values of xs[name], the draws' counts per value [D, R])}, the
+        one draw binned for every array of `xs` at once (`boot_counts_binned`)."""
+        split = {a: np.unique(x, return_inverse=True) for a, x in xs.items()}
+        counts = boot_counts_binned(self.key, self.n, self.resamples,
+                                    [inverse.astype(np.int32) for _, inverse in split.values()], chunk=self.chunk)
+        return {a: (d[0], c) for (a, d), c in zip(split.items(), counts, strict=True)}
 
 
 def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
@@ -352,15 +360,30 @@ def _for_aggregate(per: PerSeed, task, tkey, groups, shared, order, resamples, c
     the same seed ids (counted per value of each), else each group's own (drawn again from its
     key when not kept, by raw draws where its path has none)."""
     if shared is not None and len(order) == len(per.algos):
-        return {a: (lambda a=a: shared.per_value(order[a])) for a in per.algos}, True
+        if keep:  # drawn now (on the task's thread), binned for every algorithm at once
+            return shared.per_value(order), True
+        left: dict = {}  # binned for every algorithm at the first call, each handed out once
+        taken: set = set()
+
+        def take(a):
+            if not taken:
+                left.update(shared.per_value(order))
+            taken.add(a)
+            return left.pop(a) if a in left else shared.per_value({a: order[a]})[a]
+
+        return {a: (lambda a=a: take(a)) for a in per.algos}, True
 
     def one(j, a):
-        g = groups[a] if keep else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples, chunk)
+        g = groups[a] if keep or held(a) else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples,
+                                                      chunk)
         if g.CT is None:
             key = jax.random.fold_in(tkey, j)
             return g.x, boot_counts(key, g.n, resamples, chunk=chunk, units_first=True)
         return g.values, g.CT
 
-    if keep:
-        return {a: one(j, a) for j, a in enumerate(per.algos)}, False
-    return {a: (lambda j=j, a=a: one(j, a)) for j, a in enumerate(per.algos)}, False
+    def held(a):  # counts per value, small whatever the seeds: kept if every group's would fit
+        ct = groups[a].CT
+        return ct is not None and ct.nbytes * len(per.algos) * len(per.tasks) <= MAX_KEPT_BYTES
+
+    return {a: one(j, a) if keep or held(a) else (lambda j=j, a=a: one(j, a))
+            for j, a in enumerate(per.algos)}, False

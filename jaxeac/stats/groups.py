@@ -22,7 +22,7 @@ from jaxeac.stats.asymptotic import abc_two_sample
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts
 from jaxeac.stats.large import resampling_path
 from jaxeac.stats.paired import paired_analysis, paired_tests
-from jaxeac.stats.resample import boot_counts, cumulative
+from jaxeac.stats.resample import boot_counts, boot_counts_binned, cumulative
 from jaxeac.stats.tasks import below_half, wins_replicates
 
 
@@ -32,10 +32,12 @@ class Group:
     path (raw draws of the units, counted per value on the device, or counts per value); their
     cumulative counts and sums are computed once, on first use."""
 
-    def __init__(self, x, key, resamples: int, chunk: int = 1000, *, in_order: bool = False, counted=None):
+    def __init__(self, x, key, resamples: int, chunk: int = 1000, *, in_order: bool = False, counted=None,
+                 draw: bool = True):
         """`in_order`: raw draws index the units in the order given (by default: sorted). `counted`:
         (ascending distinct values, their counts) in place of x: exact counts per value at any n,
-        without a per-unit copy (then `x` is None)."""
+        without a per-unit copy (then `x` is None). `draw` False: raw draws are left to the caller
+        (`task_groups`), which sets `CT` from `bins`, each unit's value index."""
         if counted is None:
             self.x = np.sort(np.asarray(x, np.float64))
             distinct, counts = np.unique(self.x, return_counts=True)
@@ -46,8 +48,9 @@ class Group:
         self.n = int(counts.sum())
         if self.path == large.RAW:  # the raw draws of the units, counted per distinct value (same numbers)
             bins = np.searchsorted(distinct, x) if in_order else np.repeat(np.arange(distinct.size), counts)
-            self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True,
-                                  bins=bins.astype(np.int32))
+            self.bins = bins.astype(np.int32)
+            if draw:
+                self.CT = boot_counts(key, self.n, resamples, chunk=chunk, units_first=True, bins=self.bins)
         elif self.path == large.PER_VALUE:
             c = multinomial_counts(host_rng(key), counts, resamples)  # exact in float32 below 2^24 units
             self.CT = np.ascontiguousarray(c.T, np.float32 if self.n < 1 << 24 else np.float64)
@@ -131,6 +134,23 @@ def iqm_ci(x, key, *, resamples: int = 10_000, alpha: float = 0.05, chunk: int =
     `large.resampling_path` gives (raw draws on the device, counts per value, or the normal limit)."""
     est, lo, hi = Group(cf.check_sample(x), as_key(key), resamples, chunk).iqm(alpha)
     return cf.Estimate(est, lo, hi, 1 - alpha)
+
+
+def task_groups(values: dict, keys: dict, resamples: int, chunk: int = 1000) -> dict[str, Group]:
+    """Every algorithm's `Group` on one task (values ``values[a]``, key ``keys[a]``), the raw draws
+    of its groups of one size made together (`boot_counts_binned`): each group's own draws, bit for
+    bit, in a few device calls instead of one per group."""
+    groups = {a: Group(x, keys[a], resamples, chunk, draw=False) for a, x in values.items()}
+    sizes: dict = {}
+    for a, g in groups.items():
+        if g.path == large.RAW:
+            sizes.setdefault(g.n, []).append(a)
+    for n, names in sizes.items():
+        cts = boot_counts_binned([keys[a] for a in names], n, resamples, [groups[a].bins for a in names],
+                                 chunk=chunk)
+        for a, ct in zip(names, cts, strict=True):
+            groups[a].CT = ct
+    return groups
 
 
 def pair_row(gx: Group, gy: Group, alpha: float) -> dict:

@@ -77,6 +77,50 @@ def boot_counts(key, n: int, resamples: int, *, chunk: int = 1000, units_first: 
     return np.concatenate([np.asarray(p)[:, :width] for p in parts])[:resamples]
 
 
+def _binned(keys, c, n: int, chunk: int, bins, width: int):
+    """`_counts` with bins for K bin rows at once, units first [K, width, chunk]: bins [K, n], and
+    keys [K] (row k's own draw) or [1] (one draw counted per every row's bins)."""
+    idx = jax.vmap(lambda k: uniform_index(jax.random.fold_in(k, c), (chunk, n), n))(keys)
+    k_rows = bins.shape[0]
+    idx = jax.vmap(lambda b, i: b[i])(bins, jnp.broadcast_to(idx, (k_rows, chunk, n)))
+    flat = (idx + (jnp.arange(k_rows * chunk, dtype=jnp.int32) * width).reshape(k_rows, chunk, 1)).reshape(-1)
+    counts = jnp.zeros((k_rows * chunk * width,), jnp.float32).at[flat].add(1.0, mode="promise_in_bounds")
+    return counts.reshape(k_rows, chunk, width).transpose(0, 2, 1)
+
+
+_binned_chunk = jax.jit(_binned, static_argnames=("n", "chunk", "width"))
+
+
+#: Per backend, whether `boot_counts_binned` makes its rows' draws in one program (else one call per
+#: row, which the 2-core CPU runs side by side: 8 groups of 1,000 seeds × 10,000 resamples 0.23 s
+#: against 0.53 s together).
+BINNED_TOGETHER = {"cpu": False}
+
+
+def boot_counts_binned(keys, n: int, resamples: int, bins: list[np.ndarray], *, chunk: int = 1000
+                       ) -> list[np.ndarray]:
+    """`boot_counts(key, n, resamples, chunk=chunk, units_first=True, bins=b)` for every b of `bins`
+    (each [n] ints from 0), bit for bit, in a few device calls instead of one each: `keys` is a list
+    of each b's own key, or one key drawn once for all of them (one draw of shared seeds, counted per
+    value of each algorithm's). Rows go in batches of at most `MAX_CHUNK_ELEMENTS` drawn indices."""
+    keys = list(keys) if isinstance(keys, list | tuple) else [keys]
+    if not BINNED_TOGETHER.get(jax.default_backend(), True):
+        return [boot_counts(keys[i if len(keys) > 1 else 0], n, resamples, chunk=chunk, units_first=True, bins=b)
+                for i, b in enumerate(bins)]
+    chunk = _cap(chunk, resamples, n)
+    widths = [int(b.max(initial=-1)) + 1 for b in bins]
+    width = max(16, 1 << max(max(widths) - 1, 0).bit_length())
+    step = max(1, MAX_CHUNK_ELEMENTS // (chunk * n))
+    out: list[np.ndarray] = []
+    for start in range(0, len(bins), step):
+        rows = jnp.asarray(np.stack(bins[start:start + step]), jnp.int32)
+        stacked = jnp.stack(keys[start:start + step] if len(keys) > 1 else keys)
+        parts = [_binned_chunk(stacked, c, n, chunk, rows, width) for c in range(-(-resamples // chunk))]
+        whole = np.concatenate([np.asarray(p) for p in parts], axis=2)[:, :, :resamples]
+        out.extend(whole[k, :w] for k, w in enumerate(widths[start:start + step]))
+    return out
+
+
 def cumulative(ct: np.ndarray, *, zero_row: bool = False) -> np.ndarray:
     """Inclusive cumulative sums over the rows of ct [D, R] (units first), row by row: NumPy's
     cumsum along axis 0 is several times slower; the additions are in the same order. With
