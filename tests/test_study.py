@@ -215,16 +215,18 @@ def test_study_checks_sizes_on_the_runs_own_environments(tmp_path, monkeypatch):
 
 
 def test_study_with_compact_outputs_brings_back_measures_only(tmp_path, monkeypatch):
-    """Above `FULL_OUTPUT_SEEDS` a task's results.parquet holds per-seed measures only, so its runs
-    bring back the measures taken on the device, not every trial's log: the same study.json."""
+    """Above `STUDY_FULL_OUTPUT_SEEDS` a task's results.parquet holds per-seed measures only (and no
+    per_seed.csv), so its runs bring back the measures taken on the device, not every trial's log:
+    the same study.json."""
     import pyarrow.parquet as pq
 
     from jaxeac import results
+    from jaxeac.experiments import study
     from jaxeac.running import outputs
 
     settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
     full = run_study(settings, tmp_path / "full", progress=False)
-    monkeypatch.setattr(results, "FULL_OUTPUT_SEEDS", 4)
+    monkeypatch.setattr(study, "STUDY_FULL_OUTPUT_SEEDS", 4)
     prepared = []
     prepare = outputs.CompactCollector.prepare
     monkeypatch.setattr(outputs.CompactCollector, "prepare",
@@ -235,6 +237,8 @@ def test_study_with_compact_outputs_brings_back_measures_only(tmp_path, monkeypa
     columns = {f: pq.read_schema(tmp_path / f / "tasks" / "FrozenLake-4x4-v1" / results.RESULTS_FILE).names
                for f in ("full", "compact")}
     assert set(columns["compact"]) < set(columns["full"])  # no per-trial steps, no policies
+    csv = [(tmp_path / f / "tasks" / "FrozenLake-4x4-v1" / "per_seed.csv").exists() for f in ("full", "compact")]
+    assert csv == [True, False]
 
     def numbers(r):
         return {k: v for k, v in r.items() if k not in ("timeline",)}

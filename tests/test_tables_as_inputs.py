@@ -120,21 +120,29 @@ def test_trials_loop_skips_chances_past_the_task_c(memory):
               run_seeds(_plain(name, c), cfg, root_key=2, n_seeds=8, chunk_size=8))
 
 
-def test_diagnostics_of_a_padded_c_are_the_task_own():
-    """E8 (the `trials` loop) of a task of a mixed-C layout runs in a layout of its own C (shared with
-    the tasks of that C): the same counts, per chance index up to the task's C."""
-    from jaxeac.running.diagnostics import diagnose_seeds
+def test_diagnostics_of_tasks_of_different_c_share_a_program_with_their_own_counts():
+    """E8 (`count_run`: the `trials` loop's chances up to the task's C, C read from the tables) of the
+    tasks of a mixed-C layout: one compiled program per algorithm for all of them, in chunks of
+    `MIXED_CHUNK` seeds, and each task's counts, per chance index up to its own C, those of its own
+    tables (dense and buffer memories)."""
+    from jaxeac.running import diagnostics
 
-    cfg = RunConfig(trials=12, agent=algorithm("eac"))
-    env = _padded(GROUP, MIXED_C)[0]
-    ours = diagnose_seeds(env, cfg, root_key=3, seeds=np.arange(6))
-    own = diagnose_seeds(_plain(GROUP[0], MIXED_C[0]), cfg, root_key=3, seeds=np.arange(6))
-    assert ours.routes.taken.shape == (6, MIXED_C[0])
-    fixed = env.fixed_chances()
-    assert fixed.layout.chances == MIXED_C[0] and not fixed.layout.mixed_chances
-    assert fixed.layout.states == env.layout.states
-    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(own), strict=True):
-        np.testing.assert_array_equal(a, b)
+    diagnostics._EXECUTABLES.clear()
+    built = []
+    program = diagnostics._program
+    pad = dict(zip(GROUP, _padded(GROUP, MIXED_C), strict=True))
+    for memory in ("dense", "buffer"):
+        cfg = RunConfig(trials=12, agent=algorithm("eac", memory=memory))
+        for name, c in zip(GROUP, MIXED_C, strict=True):
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(diagnostics, "_program", lambda *a: built.append(a[1]) or program(*a))
+                mp.setattr(diagnostics, "MIXED_CHUNK", 4)
+                ours = diagnostics.diagnose_seeds(pad[name], cfg, root_key=3, seeds=np.arange(6))
+            own = diagnostics.diagnose_seeds(_plain(name, c), cfg, root_key=3, seeds=np.arange(6))
+            assert ours.routes.taken.shape == (6, c) and ours.routes.taken[:, 0].sum() == 6 * 12
+            for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(own), strict=True):
+                np.testing.assert_array_equal(a, b)
+    assert len(built) == 2  # one per memory layout, whatever the task and its C
 
 
 def test_kernel_reads_each_task_c_from_its_tables():

@@ -152,13 +152,6 @@ class TabularEnv(UniformEnv):
             view.n_chances = jnp.asarray(tables["info"])[2]
         return view
 
-    def fixed_chances(self) -> TabularEnv:
-        """This task in a layout of its own C only (`TableLayout.mixed_chances` off), shared with the
-        tasks of that C: for the literal `trials` loop, which takes each of the bound's chances."""
-        if not self.layout.mixed_chances:
-            return self
-        return self.padded(dataclasses.replace(self.layout, chances=self.n_chances, mixed_chances=False))
-
     def jump_gate(self):
         """bool []: whether memory jumps are exact for this task (`TableLayout.gated_jumps`);
         None where the layout decides it statically."""

@@ -253,7 +253,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     summary.json) when they are in, while later tasks run; the
     statistics of all tasks are one pass (`compare_tasks`) once every task's successes are in."""
     from jaxeac.experiments.tune import run_tuning
-    from jaxeac.io import atomic_write_json, atomic_write_text, staged_dir
+    from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.plots import cumulative_counts
 
     settings.validate()
@@ -315,6 +315,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             algos = list(settings.algos)
             evaluated = in_background(lambda: tuner.evaluate(
                 select(tuning, tuned.result(), list(tasks), algos, first.trials), kept), "jaxeac-evaluation")
+        figure = in_background(functools.partial(_timed, tl, "figure", study_figure, curves, settings.seeds),
+                               "jaxeac-study-figure")  # drawn beside the statistics
         with said("statistics"):  # while the last tasks' diagnostics finish
             per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
                                                       key=settings.key)
@@ -340,13 +342,17 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                                           runs=tuner if tuned else None, scores=tuned, samples=evaluated,
                                           phase=said)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
-        with tl.phase("figure"):
-            study_figure(curves, settings.seeds, stage / STUDY_FIGURE)
+        atomic_write_bytes(stage / STUDY_FIGURE, figure.result())
         result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
         result["timeline"] = tl.record()  # writing study.json itself is the one phase left out
         atomic_write_json(stage / "study.json", result)
         atomic_write_text(stage / "report.md", report_markdown(result))
     return result
+
+
+def _timed(tl: Timeline, phase: str, work: Callable, *args):
+    with tl.phase(phase):
+        return work(*args)
 
 
 def _folder(out: Path, task: str) -> Path:
@@ -402,6 +408,12 @@ def _seed_ids(n: int) -> np.ndarray:
     ids = np.arange(n).astype(f"<U{len(str(max(n - 1, 0)))}")
     ids.flags.writeable = False
     return ids
+
+
+#: A study's task folders hold per-trial steps, policies and per_seed.csv up to this many seeds; beyond,
+#: the per-seed measures (taken on the device) and success curves, as a grid run's above
+#: `jaxeac.results.FULL_OUTPUT_SEEDS`: 11 tasks x 8 algorithms of whole trial logs, 4 tasks at a time.
+STUDY_FULL_OUTPUT_SEEDS = 10_000
 
 
 #: Per platform, how many of the study's tasks run side by side (threads, each taking every k-th
@@ -471,21 +483,21 @@ DIAGNOSE_ON = {"gpu": "cpu"}
 
 def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
     """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
-    memories, C and best-action input), several at once, so that each task's
+    memories and layout: `jaxeac.running.diagnostics.diagnostics_key`), several at once, so that each task's
     diagnostics find theirs compiled instead of compiling group after group: the pool."""
     from concurrent.futures import ThreadPoolExecutor
 
     from jaxeac.envs.grid import shortest_actions
-    from jaxeac.running.diagnostics import prepare_diagnostics
-    from jaxeac.running.loops import program_key
+    from jaxeac.running.diagnostics import diagnostics_key, prepare_diagnostics
 
     jobs: dict = {}
     for grid in todo.values():
         env, grid_map = grid.make_env(), grid.grid_map()
         best = shortest_actions(grid_map) if grid_map is not None else None
         for algo, seeds in diagnostic_seeds(grid).items():
-            key = (program_key(env), env.n_chances, algo, best is not None, seeds.size)  # E8's has C
-            jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
+            cfg = grid.run_config(algo)
+            key = diagnostics_key(env, cfg, n_seeds=seeds.size, best=best, platform=platform)
+            jobs.setdefault(key, (env, cfg, seeds.size, best))
     pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
     for env, cfg, n, best in jobs.values():
         pool.submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best, platform=platform)
@@ -531,7 +543,8 @@ class _TaskRunner:
         from jaxeac.running.batch import run_algorithms
         from jaxeac.running.outputs import CompactCollector
 
-        options = OutputOptions.auto(grid.seeds)
+        options = OutputOptions.auto(grid.seeds, full=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS,
+                                     csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
         if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
             self.diagnosed[task] = self.pool.submit(self._diagnose, grid, grid.grid_map(), diagnosed)
@@ -608,18 +621,23 @@ class _TaskRunner:
 STUDY_FIGURE = "fig_study.png"
 
 
-def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int, path: Path) -> None:
-    """One figure for the whole study: a panel per task, each algorithm's mean cumulative successes
-    over trials with a pointwise 95 % CI band, from the per-trial counts of the cumulative values
-    (`jaxeac.plots.cumulative_counts`, [T, T + 1] per algorithm: `curves[task][algo]`)."""
-    import matplotlib.pyplot as plt
+def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int) -> bytes:
+    """One figure for the whole study, as PNG bytes: a panel per task, each algorithm's mean
+    cumulative successes over trials with a pointwise 95 % CI band, from the per-trial counts of the
+    cumulative values (`jaxeac.plots.cumulative_counts`, [T, T + 1] per algorithm:
+    `curves[task][algo]`). A `matplotlib.figure.Figure` of its own (no pyplot state), so it can be
+    drawn on a thread beside the statistics."""
+    import io
+
+    from matplotlib.figure import Figure
     from scipy import special
 
     from jaxeac import style
 
     cols = min(4, len(curves))
     rows = -(-len(curves) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.9 * rows), squeeze=False)
+    fig = Figure(figsize=(3.6 * cols, 2.9 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     for ax, (task, per_algo) in zip(axes.flat, curves.items(), strict=False):
         for algo, counts in per_algo.items():
             t = counts.shape[0]
@@ -644,8 +662,9 @@ def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int, path: Path) -
                title=f"mean cumulative successes of {n:,} seeds per algorithm (shaded: 95% CI of the mean)",
                title_fontsize=7, bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.08 if rows > 1 else 0.14, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    png = io.BytesIO()
+    fig.savefig(png, dpi=110)
+    return png.getvalue()
 
 
 def _successes(folder: Path, grid: GridSettings) -> tuple[dict, dict[str, np.ndarray]]:

@@ -2,8 +2,9 @@
 and where the failure flags (E6) landed: the numbers that explain a result.
 
 The run loops count nothing (their per-seed results and speed stay as they are). A grid run's
-diagnostics re-run its first seeds (`diagnostic_seed_count`) through the `trials` loop with
-``diagnose=True``, which keeps each chance's `StepRoute` from the agent's own `select_action`.
+diagnostics re-run its first seeds (`diagnostic_seed_count`) through the `trials` loop's chances
+(`count_run`), adding each chance's `StepRoute` from the agent's own `select_action` to the counts
+of its chance index. C may be data there (a mixed layout's), so a study's tasks share E8's programs.
 Seed i uses ``fold_in(root, i)`` in every loop (R1) and the loops agree bit for bit (R2), so the
 diagnosed seeds are the run's own; `diagnose_seeds` returns their successes to show it. Bowling
 gathers the same `StepRoute` of every throw during its run (`jaxeac.experiments.bowling`).
@@ -22,20 +23,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxeac.algorithm.agent import AgentState, StepRoute
+from jaxeac.algorithm.agent import AgentState, StepRoute, end_trial, init_agent
 from jaxeac.algorithm.buffer import BufferMemory
 from jaxeac.algorithm.config import AgentConfig, Hyper
 from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
-from jaxeac.rng import KEY_LIMIT, root_key_int, seed_key
+from jaxeac.rng import KEY_LIMIT, as_key, root_key_int, seed_key, seed_words
 from jaxeac.running.config import RunConfig
 from jaxeac.running.loops import (
     Env,
     bind_inputs,
+    chance_of_trial,
+    check_run_args,
+    first_chance,
     program_inputs,
     program_key,
     state_bytes_per_seed,
-    trace_run,
 )
 from jaxeac.running.outputs import KEEP_LOGS
 from jaxeac.running.programs import load_or_build
@@ -104,23 +107,50 @@ def flag_counts(pairs: tuple[jax.Array, jax.Array, jax.Array], best: jax.Array |
     return n, on_best.sum(dtype=jnp.int32), jnp.where(held, share[states], 0.0).sum(dtype=jnp.float32)
 
 
-def route_sums(route: StepRoute, axis: int = 0) -> StepRoute:
-    """int32 counts of a `StepRoute` of bools, summed over `axis` (trials, seeds)."""
-    return jax.tree.map(lambda x: jnp.asarray(x).sum(axis=axis, dtype=jnp.int32), route)
-
-
 def trials_config(env: Env, cfg: RunConfig) -> RunConfig:
     """`cfg` in the literal `trials` loop (no memory jumps, XLA ops): the loop `diagnose` runs in."""
     return dataclasses.replace(cfg, loop="trials", kernel="auto", jump="auto", lanes=None).resolve(env)
 
 
+def count_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, StepRoute, jax.Array]:
+    """One seed's run in the `trials` loop (`jaxeac.running.loops.chance_of_trial`: every chance up
+    to C, masked once the trial has ended, then E4/E6), each chance's `StepRoute` added to the
+    counts of its chance index instead of kept per trial: (final agent, int32 [bound] counts per
+    field, successes bool [T]). C may be data (a mixed layout's): the loop stops at it, so tasks of
+    every C share one program and pay for their own chances only."""
+    check_run_args(env, cfg, hyper)
+    cfg = cfg.resolve(env)
+    bound = chance_bound(env)
+    agent = init_agent(cfg.agent, env.n_states, env.n_actions, bound, cfg.trials)
+    words = seed_words(as_key(key, "key"))
+    zeros = jnp.zeros((bound,), jnp.int32)
+
+    def trial(carry, _):
+        agent, counts = carry
+        take = chance_of_trial(env, cfg, hyper, words, diagnose=True)
+
+        def chance(c, inner):
+            at, reached, counts = inner
+            at, (*_, hit, route) = take(at)
+            counts = jax.tree.map(lambda n, r: n.at[c].add(r.astype(jnp.int32)), counts, route)
+            return at, reached | hit, counts
+
+        end, reached, counts = jax.lax.fori_loop(0, env.n_chances, chance,
+                                                 (first_chance(env, agent, words), jnp.bool_(False), counts))
+        return (end_trial(cfg.agent, end.agent, reached, jnp.bool_(True)), counts), reached
+
+    (agent, counts), success = jax.lax.scan(trial, (agent, StepRoute(zeros, zeros, zeros, zeros)), None,
+                                            length=cfg.trials)
+    return agent, counts, success
+
+
 def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
                      best: jax.Array | None = None) -> SeedDiagnostics:
-    """One seed's run in the `trials` loop with ``diagnose=True``, reduced to its E8 counts."""
+    """One seed's run in the `trials` loop (`count_run`), reduced to its E8 counts."""
     cfg = trials_config(env, cfg)
-    agent, records = trace_run(env, cfg, key, hyper, diagnose=True)
+    agent, counts, success = count_run(env, cfg, key, hyper)
     pairs = failure_pairs(cfg.agent, agent, env.n_states, env.n_actions)
-    return SeedDiagnostics(route_sums(records.route), *flag_counts(pairs, best), records.success)
+    return SeedDiagnostics(counts, *flag_counts(pairs, best), success)
 
 
 def _program(env: Env, cfg: RunConfig, has_best: bool, devices: tuple):
@@ -160,30 +190,48 @@ def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, devices: tuple
 
 
 def _devices(platform: str | None, n_seeds: int) -> tuple:
-    """The local devices of `platform` (None: JAX's default backend) that `n_seeds` seeds split over."""
+    """The local devices of `platform` (None: JAX's default backend) that `n_seeds` seeds split over:
+    one device where `platform` is not the default backend (the host's CPU beside an accelerator's
+    runs, where a study's many calls run side by side: split over the 16 host devices of one H100,
+    the paper grid's E8 took 26.9 s in `jaxeac study --seeds 1000`, on one device 9.5 s)."""
     devices = tuple(jax.local_devices(backend=platform))
+    if platform is not None and platform != jax.default_backend():
+        return devices[:1]
     return devices[:min(len(devices), n_seeds)]
 
 
-def _own_chances(env: Env) -> Env:
-    """`env` with its C part of the program (`jaxeac.envs.tabular.TabularEnv.fixed_chances`): the
-    `trials` loop takes every chance up to C's bound, which is then the task's own."""
-    fixed = getattr(env, "fixed_chances", None)
-    return fixed() if fixed is not None else env
+#: Seeds in one chunk of E8 where C is data (`jaxeac.envs.tabular.TableLayout.mixed_chances`): the
+#: fewest any task diagnoses (`MIN_DIAGNOSTIC_SEEDS`), so that one program per algorithm serves the
+#: layout's tasks whatever their C and seed counts (a study: 5 programs, not 20).
+MIXED_CHUNK = MIN_DIAGNOSTIC_SEEDS
 
 
 def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None, devices: tuple):
-    """(config in the trials loop, chunk, best input, tables) of a `diagnose_seeds` call."""
+    """(config in the trials loop, chunk, best input, tables) of a `diagnose_seeds` call. Where the
+    tables are inputs, a best-action input always goes in (none known: all False, its counts unread)."""
     cfg = trials_config(env, cfg)
     n_devices = len(devices)
-    per_seed = state_bytes_per_seed(env, cfg) + cfg.trials * chance_bound(env) * 8 + env.n_states * env.n_actions
+    tables = program_inputs(env)
+    per_seed = state_bytes_per_seed(env, cfg) + 16 * chance_bound(env) + cfg.trials + env.n_states * env.n_actions
     chunk = max(1, min(seeds.size, CHUNK_BYTES // per_seed))
+    if isinstance(bind_inputs(env, tables).n_chances, jax.Array):
+        chunk = min(chunk, MIXED_CHUNK)
     chunk = -(-chunk // n_devices) * n_devices
-    best_arg = jnp.zeros((), bool)
+    best_arg = np.zeros((), bool)
+    if best is None and tables:
+        best = np.zeros((env.n_states, env.n_actions), bool)
     if best is not None:  # padded states (a tabular layout's, `bind_inputs`) have no best action
-        n_padded = bind_inputs(env, program_inputs(env)).n_states
-        best_arg = jnp.asarray(np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0))))
-    return cfg, chunk, best_arg, program_inputs(env)
+        n_padded = bind_inputs(env, tables).n_states
+        best_arg = np.pad(np.asarray(best, bool), ((0, n_padded - np.shape(best)[0]), (0, 0)))
+    return cfg, chunk, best_arg, tables
+
+
+def diagnostics_key(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndarray | None = None,
+                    platform: str | None = None) -> tuple:
+    """What `prepare_diagnostics` of these arguments compiles: equal keys, one program."""
+    devices = _devices(platform, n_seeds)
+    cfg, chunk, best_arg, _ = _plan(env, cfg, np.arange(n_seeds), best, devices)
+    return program_key(env), cfg, best_arg.shape, chunk, devices
 
 
 _EXECUTABLES = OnceCache()  # (program, chunk, best's shape) -> the compiled program
@@ -220,38 +268,42 @@ def prepare_diagnostics(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndar
     """Compile the program `diagnose_seeds` of `n_seeds` seeds will run (for these arguments),
     so that the call finds it compiled: compiles of many tasks' diagnostics can go at once,
     ahead of their runs."""
-    seeds, env = _checked_seeds(np.arange(n_seeds)), _own_chances(env)
+    seeds = _checked_seeds(np.arange(n_seeds))
     devices = _devices(platform, seeds.size)
     with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`
         cfg, chunk, best_arg, tables = _plan(env, cfg, seeds, best, devices)
         hyper = cfg.hyper() if hyper is None else hyper
         args = (jax.random.key(0), np.zeros(chunk, np.int32), hyper, best_arg, tables)
-        _executable(env, cfg, devices, best is not None, args)
+        _executable(env, cfg, devices, best_arg.ndim > 0, args)
 
 
 def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[int] | np.ndarray,
                    best: np.ndarray | None = None, hyper: Hyper | None = None,
                    platform: str | None = None) -> SeedDiagnostics:
     """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
-    seed axis, from the `trials` loop with ``diagnose=True`` (same keys, same runs: R1, R2).
+    seed axis, from the `trials` loop counting each chance's route (`count_run`; same keys, same
+    runs: R1, R2).
     `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
     hold `CHUNK_BYTES` and split over the local devices of `platform` (default: JAX's default
     backend; ``"cpu"`` beside a GPU run: the same counts, R2)."""
-    seeds, env = _checked_seeds(seeds), _own_chances(env)
+    seeds = _checked_seeds(seeds)
     devices = _devices(platform, seeds.size)
     parts = []
     with jax.default_device(devices[0]):  # this thread's uncommitted inputs go to `devices`
         cfg, chunk, best_arg, tables = _plan(env, cfg, seeds, best, devices)
         root = jax.random.key(root_key_int(root_key))
         hyper = cfg.hyper() if hyper is None else hyper
+        # One chunk in flight per call: a study's 20 calls side by side, each queueing all its chunks
+        # on 16 CPU devices at once, stalled (no chunk done in 90 s); read one by one, they never did.
         for start in range(0, seeds.size, chunk):
             part = seeds[start:start + chunk]
             padded = np.pad(part, (0, chunk - part.size), mode="edge").astype(np.int32)
             args = (root, padded, hyper, best_arg, tables)
-            program = _executable(env, cfg, devices, best is not None, args)
-            out = jax.device_get(program(*args))
+            out = jax.device_get(_executable(env, cfg, devices, best_arg.ndim > 0, args)(*args))
             parts.append(jax.tree.map(lambda x, n=part.size: np.asarray(x)[:n], out))
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    whole = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    # per chance index up to the task's own C (a mixed layout's counts run to the bound)
+    return whole.replace(routes=jax.tree.map(lambda x: x[:, :env.n_chances], whole.routes))
 
 
 def diagnostics_from_logs(logs: np.ndarray, n_chances: int) -> SeedDiagnostics:

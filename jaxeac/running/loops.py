@@ -29,7 +29,6 @@ import jax.numpy as jnp
 
 from jaxeac.algorithm.agent import (
     AgentState,
-    StepRoute,
     end_trial,
     failure_slot,
     greedy_policy,
@@ -68,7 +67,6 @@ class TrialRecord:
     rtilde: jax.Array  # float [C]
     length: jax.Array  # int32 [], chances actually used
     success: jax.Array  # bool []
-    route: StepRoute | None = None  # per chance [C], with `diagnose` only: how E1 chose (E8)
 
 
 def choose(cfg: RunConfig, agent: AgentState, state, words, hyper: Hyper, n_chances: int, active,
@@ -129,12 +127,10 @@ class _ChanceCarry:
     done: jax.Array
 
 
-def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, diagnose: bool = False):
-    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6.
-    With `diagnose` (static), the record also keeps each chance's `StepRoute` (E8). Where C is
-    data (traced, `chance_bound`), the chances past it up to the bound are skipped, recorded as
-    not taken (zeros), as masked chances are."""
-    trial = agent.trial
+def chance_of_trial(env: Env, cfg: RunConfig, hyper: Hyper, words, diagnose: bool = False):
+    """One chance of the `trials` loop: ``take(carry) -> (carry, (state, action, r̃, live, success))``,
+    masked once the trial has ended (``live`` False), with `diagnose` (static) the chance's
+    `StepRoute` (E8) last. `run_trial` scans it; E8's count (`jaxeac.running.diagnostics`) loops it."""
 
     def take(carry: _ChanceCarry):
         live = ~carry.done
@@ -144,7 +140,20 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, 
         done = carry.done | step.terminated | step.truncated
         return _ChanceCarry(env_state, agent, done), (s, action, rtilde, live, live & step.success, *route)
 
-    first = _ChanceCarry(env.start(words, trial), agent, jnp.bool_(False))
+    return take
+
+
+def first_chance(env: Env, agent: AgentState, words) -> _ChanceCarry:
+    """The carry at the start of trial `agent.trial`."""
+    return _ChanceCarry(env.start(words, agent.trial), agent, jnp.bool_(False))
+
+
+def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words):
+    """Algorithm 1 lines 3–29 for trial `agent.trial`: C chances (masked once done), then E4/E6.
+    Where C is data (traced, `chance_bound`), the chances past it up to the bound are skipped,
+    recorded as not taken (zeros), as masked chances are."""
+    take = chance_of_trial(env, cfg, hyper, words)
+    first = first_chance(env, agent, words)
     if not isinstance(env.n_chances, jax.Array):  # C static: every chance of the scan is one
         def chance(carry: _ChanceCarry, _):
             return take(carry)
@@ -157,25 +166,21 @@ def run_trial(env: Env, cfg: RunConfig, agent: AgentState, hyper: Hyper, words, 
 
             return jax.lax.cond(c < env.n_chances, take, skip, carry)
 
-    end, (states, actions, rtilde, live, reached, *route) = jax.lax.scan(
-        chance, first, jnp.arange(chance_bound(env)))
-    record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any(), *route)
+    end, (states, actions, rtilde, live, reached) = jax.lax.scan(chance, first, jnp.arange(chance_bound(env)))
+    record = TrialRecord(states, actions, rtilde, live.sum(dtype=jnp.int32), reached.any())
     agent = end_trial(cfg.agent, end.agent, record.success, jnp.bool_(True))
     return agent, record
 
 
-def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
-              diagnose: bool = False) -> tuple[AgentState, TrialRecord]:
-    """One seed's run with the `trials` loop, keeping the final agent and every trial's record
-    (with `diagnose`, static: each chance's `StepRoute` too, E8). A pure function of the seed's
-    `key` (`jaxeac.rng.seed_key`; a JAX key, traced or not, or an integer k for
-    ``jax.random.key(k)``, `jaxeac.rng.as_key`) and `hyper`; jit and vmap it freely."""
+def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, TrialRecord]:
+    """One seed's run with the `trials` loop, keeping the final agent and every trial's record.
+    A pure function of the seed's `key` (`jaxeac.rng.seed_key`; a JAX key, traced or not, or an
+    integer k for ``jax.random.key(k)``, `jaxeac.rng.as_key`) and `hyper`; jit and vmap it freely."""
     check_run_args(env, cfg, hyper)
     cfg = cfg.resolve(env)
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, chance_bound(env), cfg.trials)
     words = seed_words(as_key(key, "key"))
-    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words, diagnose), agent, None,
-                        length=cfg.trials)
+    return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words), agent, None, length=cfg.trials)
 
 
 def program_key(env: Env):
