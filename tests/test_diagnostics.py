@@ -250,6 +250,23 @@ def test_chunks_change_no_count(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_beside_an_accelerator_each_call_runs_on_one_host_device(monkeypatch):
+    """E8 on a platform other than the default backend (the host's CPU beside a GPU's runs) runs each
+    call on one of its devices (many calls go side by side); on the default backend it splits the
+    seeds over every device. The counts are the same (R2)."""
+    from jaxeac.running import diagnostics
+
+    settings = GridSettings(seeds=6, trials=25, key=1, algos=("eac",)).resolved()
+    env, cfg, best = settings.make_env(), settings.run_config("eac"), shortest_actions(settings.grid_map())
+    split = diagnose_seeds(env, cfg, root_key=1, seeds=np.arange(6), best=best, platform="cpu")
+    assert len(diagnostics._devices("cpu", 6)) == min(6, len(jax.local_devices(backend="cpu")))
+    monkeypatch.setattr(diagnostics.jax, "default_backend", lambda: "gpu")
+    assert len(diagnostics._devices("cpu", 6)) == 1 and len(diagnostics._devices(None, 6)) > 0
+    alone = diagnose_seeds(env, cfg, root_key=1, seeds=np.arange(6), best=best, platform="cpu")
+    for a, b in zip(jax.tree.leaves(split), jax.tree.leaves(alone), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_grid_cli_summary_carries_the_diagnostics(tmp_path):
     out = tmp_path / "run"
     assert main(["grid", *SMALL, "--out", str(out)]) == 0

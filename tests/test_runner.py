@@ -96,7 +96,8 @@ def test_chunks_unpacked_in_row_blocks_equal_whole_chunks(monkeypatch):
 def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monkeypatch, whole_chunks):
     """`CompactCollector` (streamed runs): success bits, per-seed measures, the first policies
     and logs equal the full host arrays', and every chunk reaches `on_chunk` once, in order; measured
-    on the device (`device_measures`), only the chunks that keep rows bring their logs back."""
+    on the device (`device_measures`), only the chunks that keep rows bring their logs back, and
+    only those rows."""
     import jaxeac.running.outputs as outputs
 
     cfg = RunConfig(trials=13, agent=algorithm("eac"))
@@ -108,7 +109,7 @@ def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monk
 
     def on_chunk(start, chunk, m):
         seen.append((start, m["successes"].copy()))
-        logs_back.append(chunk.log is not None)
+        logs_back.append(None if chunk.log is None else (chunk.log.shape[0], chunk.policy.shape[0]))
 
     seeds = np.arange(21)
     collector = outputs.CompactCollector(seeds, 13, ENV.n_states, on_chunk=on_chunk, whole_chunks=whole_chunks)
@@ -128,7 +129,9 @@ def test_compact_collector_keeps_the_same_measures_and_hands_on_every_chunk(monk
     np.testing.assert_array_equal(compact.first_policies, full.policy[:10])
     np.testing.assert_array_equal(compact.first_logs, full.logs_of_first(9))
     assert [s for s, _ in seen] == list(range(0, 21, chunk))  # 3 chunks, rows kept in the first 2
-    assert logs_back == [True, True, True] if whole_chunks else [True, True, False]
+    sizes = [min(chunk, 21 - s) for s in range(0, 21, chunk)]
+    kept = [min(size, 10 - s) if s < 10 else None for s, size in zip(range(0, 21, chunk), sizes, strict=True)]
+    assert logs_back == ([(n, n) for n in sizes] if whole_chunks else [k and (k, k) for k in kept])
     np.testing.assert_array_equal(np.concatenate([m for _, m in seen]), full.successes)
 
 

@@ -299,9 +299,11 @@ class _Entries:
         t2 = time.perf_counter()
         root, tables = self.fixed[group]
         out = self.programs[group].result()(root, chunk_seeds, chunk_hyper, tables)
-        if self.measured:  # the measures, not the logs, come back (but where rows of them are kept)
-            whole = self.collector.keeps_rows(start)
-            out = out.replace(log=out.log if whole else None, policy=out.policy if whole else None,
+        if self.measured:
+            # The measures come back, and the logs and policies of the kept rows only, not the whole
+            # chunk's (a study's 100,000-seed chunk: 57 MB an algorithm, 8 algorithms, 4 tasks at once).
+            kept = min(self.collector.keeps_rows(start), size)
+            out = out.replace(log=out.log[:kept] if kept else None, policy=out.policy[:kept] if kept else None,
                               measures=_measure(out.log))
         t3 = time.perf_counter()
         for leaf in jax.tree.leaves(out):

@@ -61,7 +61,8 @@ class BatchOutput:
 
     @property
     def rows(self) -> int:
-        return (self.log if self.log is not None else self.measures["bits"]).shape[0]
+        """Seeds in the chunk (with measures, its log and policy may hold only its first rows)."""
+        return (self.measures["bits"] if self.measures is not None else self.log).shape[0]
 
 
 def narrow_int(largest: int) -> np.dtype:
@@ -307,9 +308,10 @@ class CompactCollector:
         #: rows of them (`keeps_rows`) bring them back.
         self.measures_on_device = not whole_chunks
 
-    def keeps_rows(self, start: int) -> bool:
-        """Whether the chunk from row `start` has rows whose logs or policies are kept."""
-        return start < max(self.out.first_policies.shape[0], self.out.first_logs.shape[0])
+    def keeps_rows(self, start: int) -> int:
+        """How many of the first rows of the chunk from row `start` have their logs or policies
+        kept (0: none; a chunk's measures come from the device, these rows only come back)."""
+        return max(0, max(self.out.first_policies.shape[0], self.out.first_logs.shape[0]) - start)
 
     def prepare(self, start: int, chunk: BatchOutput, pool: Executor) -> None:
         """The chunk's per-seed measures, into its own rows (any order, any thread)."""
