@@ -133,7 +133,7 @@ def test_diagnostics_of_tasks_of_different_c_share_a_program_with_their_own_coun
     pad = dict(zip(GROUP, _padded(GROUP, MIXED_C), strict=True))
     for memory in ("dense", "buffer"):
         cfg = RunConfig(trials=12, agent=algorithm("eac", memory=memory))
-        for name, c in zip(GROUP, MIXED_C, strict=True):
+        for name, c in zip(GROUP[:2], MIXED_C[:2], strict=True):  # C 20 and 35 in a layout bound by 50
             with pytest.MonkeyPatch.context() as mp:
                 mp.setattr(diagnostics, "_program", lambda *a: built.append(a[1]) or program(*a))
                 mp.setattr(diagnostics, "MIXED_CHUNK", 4)
