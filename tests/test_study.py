@@ -244,3 +244,35 @@ def test_study_with_compact_outputs_brings_back_measures_only(tmp_path, monkeypa
         return {k: v for k, v in r.items() if k not in ("timeline",)}
 
     assert numbers(compact) == numbers(full)
+
+
+def test_statistics_take_tasks_as_they_come():
+    """`TaskStatistics` (the study's one engine pass, each task's statistics from when its successes
+    are in): tasks added in any order while the pass runs give `compare`'s numbers of the whole; a
+    pass stopped while it waits for tasks ends with an error, not a hang."""
+    from jaxeac.experiments.study import TaskStatistics, _seed_ids
+    from jaxeac.perseed import PerSeed
+    from jaxeac.stats.engine import compare
+
+    tasks, algos, n, trials = ("t0", "t1", "t2"), ("ac", "eac", "sarsa"), 40, 20
+    rng = np.random.default_rng(8)
+    samples = {t: {a: rng.binomial(trials, rng.uniform(0.2, 0.8), n).astype(np.int32) for a in algos}
+               for t in tasks}
+    stats = TaskStatistics(tasks, algos, n, trials, resamples=400, key=3)
+    for t in reversed(tasks):
+        stats.add(t, samples[t])
+    per_task, rows, agg = stats.result()
+    whole = compare(PerSeed({t: {a: x.astype(np.float64) for a, x in s.items()} for t, s in samples.items()},
+                            {t: {a: _seed_ids(n) for a in algos} for t in tasks}, "successes", "study"),
+                    baseline="ac", resamples=400, key=3, normalize="minmax",
+                    reference_scores={t: (0.0, float(trials)) for t in tasks}, profile_points=trials + 1)
+    assert [(r["task"], r["x"], r["diff_ci95"], r["p_holm"]) for r in rows] == [
+        (r["task"], r["x"], r["diff_ci"], r["p_welch_holm"]) for r in whole.rows]
+    assert [per_task[a["task"]]["algorithms"][a["algo"]]["iqm_ci95"] for a in whole.algorithms] == [
+        a["iqm_ci"] for a in whole.algorithms]
+    assert agg["algorithms"] == whole.aggregate["algorithms"] and agg["key"] == 3
+    waiting = TaskStatistics(tasks, algos, n, trials, resamples=400, key=3)
+    waiting.add("t0", samples["t0"])
+    waiting.stop()
+    with pytest.raises(RuntimeError, match="stopped"):
+        waiting.result()

@@ -10,7 +10,7 @@ own episode limit. The declared family of comparisons is every algorithm other t
 against AC on every task; Holm (1979) adjusts Welch's p across that whole family.
 Per comparison: mean successes of 200 trials (the primary measure, SPEC §6) with a BCa
 CI, the difference from AC with a BCa CI, Hedges' g, the IQM and the probability of
-improvement (`compare_tasks`). Results are what the run found.
+improvement (`TaskStatistics`). Results are what the run found.
 
 Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
 compiled programs (`jaxeac.envs.tabular.TableLayout`, C among them), padded to the largest task of
@@ -25,7 +25,7 @@ A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chu
 and reused by a rerun with the same settings, so a study killed midway resumes where it
 stopped. Of each task only its per-seed successes (int32 [N] per algorithm) and its success
 curves' counts ([T, T + 1]) stay in memory; the statistics of every task and the aggregate across
-tasks are one pass of `jaxeac.stats.engine.compare` (`compare_tasks`) once all are in.
+tasks are one pass of the statistics engine (`TaskStatistics`) that takes each task as its runs end.
 ``study.json`` (with a ``timeline``: where the time went, per task and phase), ``report.md`` and
 ``fig_study.png`` are written when every task is done.
 """
@@ -251,7 +251,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
     On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
     summary.json) when they are in, while later tasks run; the
-    statistics of all tasks are one pass (`compare_tasks`) once every task's successes are in."""
+    statistics of all tasks are one pass (`TaskStatistics`), each task's from when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.plots import cumulative_counts
@@ -277,7 +277,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
 
         tuner = tuning_runs(settings, tuning, grids, envs, progress=progress)
         tuned = in_background(tuner.tune, "jaxeac-study")
-    with _TaskRunner(todo, tl) as runner:
+    first = grids[settings.tasks[0]]
+    stats = TaskStatistics(settings.tasks, first.algos, settings.seeds, first.trials, resamples=settings.resamples,
+                           key=settings.key)
+    with _TaskRunner(todo, tl) as runner, _stopped_on_error(stats):
         ahead = _start_tasks(runner, todo, out, side, progress)
         for i, (task, grid) in enumerate(tasks.items()):
             folder = _folder(out, task)
@@ -304,10 +307,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
             del success
             kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # per-seed successes, all tasks
+            stats.add(task, kept[task])  # its statistics start, beside the later tasks' runs
             if timeline:  # as each task ends: a study stopped midway still shows where its time went
                 phases = ", ".join(f"{k} {v:.2f} s" for k, v in tl.tasks[task].items())
                 print(f"study: timeline {task}: {phases}", file=sys.stderr, flush=True)
-        first = grids[settings.tasks[0]]
         evaluated = None
         if tuned is not None:  # the evaluation runs beside the statistics (tuning runs done or nearly)
             from jaxeac.experiments.tune import select
@@ -317,9 +320,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 select(tuning, tuned.result(), list(tasks), algos, first.trials), kept), "jaxeac-evaluation")
         figure = in_background(functools.partial(_timed, tl, "figure", study_figure, curves, settings.seeds),
                                "jaxeac-study-figure")  # drawn beside the statistics
-        with said("statistics"):  # while the last tasks' diagnostics finish
-            per_task, rows, aggregate = compare_tasks(kept, first.trials, resamples=settings.resamples,
-                                                      key=settings.key)
+        with said("statistics"):  # the last tasks' and the aggregate, while the last diagnostics finish
+            per_task, rows, aggregate = stats.result()
         with said("diagnostics_wait"):
             runner.finish()
     for task, info in per_task.items():
@@ -350,6 +352,16 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     return result
 
 
+@contextmanager
+def _stopped_on_error(stats: TaskStatistics):
+    """Stop `stats`' pass if the block fails (its threads wait for tasks that will not come)."""
+    try:
+        yield
+    except BaseException:
+        stats.stop()
+        raise
+
+
 def _timed(tl: Timeline, phase: str, work: Callable, *args):
     with tl.phase(phase):
         return work(*args)
@@ -359,45 +371,70 @@ def _folder(out: Path, task: str) -> Path:
     return out / "tasks" / folder_name(task)
 
 
-def compare_tasks(samples: dict[str, dict[str, np.ndarray]], trials: int, *, resamples: int, key: int
-                  ) -> tuple[dict, list[dict], dict | None]:
-    """Every task's statistics and the aggregate across tasks in one pass of
-    `jaxeac.stats.engine.compare` over per-seed successes ``samples[task][algo]``, with the settings
-    of `jaxeac.experiments.tune.across_tasks` (so the aggregate is that function's, bit for bit).
+class TaskStatistics:
+    """Every task's statistics and the aggregate across tasks: one pass of the statistics engine
+    (`jaxeac.stats.core.compare_as_tasks_end`, with the settings of
+    `jaxeac.experiments.tune.across_tasks`, so the aggregate is that function's, bit for bit) that
+    starts with the study and takes each task's per-seed successes as they come (`add`, in any
+    order): a task's statistics run as soon as its runs end, beside the later tasks' runs.
+    `result` waits for the pass; `stop` ends it unfinished (a study stopped midway)."""
 
-    Returns ({task: {"algorithms": {algo: n, mean, iqm, iqm_ci95}}}, the rows (each algorithm but ac
-    against ac per task: difference of means with a BCa CI, Welch's p, Hedges' g, IQMs, P(X > ac);
-    ``p_holm``: Holm over Welch's p of every row), the aggregate or None for one task)."""
-    from jaxeac.perseed import PerSeed
-    from jaxeac.stats.engine import compare
+    def __init__(self, tasks, algos, n: int, trials: int, *, resamples: int, key: int):
+        from jaxeac.perseed import PerSeed
+        from jaxeac.stats.core import compare_as_tasks_end
 
-    values = {t: {a: np.asarray(x, np.float64) for a, x in per.items()} for t, per in samples.items()}
-    seeds = {t: {a: _seed_ids(x.size) for a, x in per.items()} for t, per in values.items()}
-    res = compare(PerSeed(values, seeds, "successes per seed over the trials", "study"), baseline="ac",
-                  level=0.95, resamples=resamples, key=key, normalize="minmax",
-                  reference_scores={t: (0.0, float(trials)) for t in values},
-                  profile_points=min(trials + 1, 101))
-    per_task: dict = {t: {"algorithms": {}} for t in values}
-    for a in res.algorithms:
-        per_task[a["task"]]["algorithms"][a["algo"]] = {"n": a["n"], "mean": a["mean"], "iqm": a["iqm"],
-                                                        "iqm_ci95": a["iqm_ci"]}
-    rows = []
-    for r in res.rows:
-        ax, ay = per_task[r["task"]]["algorithms"][r["x"]], per_task[r["task"]]["algorithms"][r["y"]]
-        rows.append({"task": r["task"], "x": r["x"], "y": r["y"], "n_x": r["n_x"], "n_y": r["n_y"],
-                     "mean_x": r["mean_x"], "mean_y": r["mean_y"], "diff": r["diff"],
-                     "diff_ci95": r["diff_ci"], "p_welch": r["p_welch"], "hedges_g": r["hedges_g"], "iqm_x": ax["iqm"],
-                     "iqm_x_ci95": ax["iqm_ci95"], "iqm_y": ay["iqm"], "iqm_y_ci95": ay["iqm_ci95"],
-                     "p_improvement": r["p_improvement"], "p_improvement_ci95": r["p_improvement_ci"],
-                     "p_holm": r["p_welch_holm"]})
-    agg = res.aggregate
-    if len(values) < 2:
-        agg = None
-    elif agg is not None:
-        agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed "
-                                "lie in [0, T], a scale fixed before any run and the same for every algorithm")
-        agg["key"] = key
-    return per_task, rows, agg
+        self.key, self.n_tasks, self.stopped = key, len(tasks), False
+        self.arrived = {t: threading.Event() for t in tasks}
+        values = {t: {a: np.empty(n, np.float64) for a in algos} for t in tasks}  # filled by `add`
+        seeds = {t: {a: _seed_ids(n) for a in algos} for t in tasks}
+        self.per = PerSeed(values, seeds, "successes per seed over the trials", "study")
+        self.future = in_background(functools.partial(
+            compare_as_tasks_end, self.per, ready=self._ready, baseline="ac", level=0.95, resamples=resamples,
+            key=key, normalize="minmax", reference_scores={t: (0.0, float(trials)) for t in tasks},
+            profile_points=min(trials + 1, 101)), "jaxeac-statistics")
+
+    def _ready(self, task: str) -> None:
+        self.arrived[task].wait()
+        if self.stopped:
+            raise RuntimeError("study stopped before its statistics")
+
+    def add(self, task: str, samples: dict[str, np.ndarray]) -> None:
+        """Task `task`'s per-seed successes {algo: int [N]}: its statistics may start."""
+        for a, x in samples.items():
+            self.per.values[task][a][:] = x
+        self.arrived[task].set()
+
+    def stop(self) -> None:
+        self.stopped = True
+        for event in self.arrived.values():
+            event.set()
+
+    def result(self) -> tuple[dict, list[dict], dict | None]:
+        """({task: {"algorithms": {algo: n, mean, iqm, iqm_ci95}}}, the rows (each algorithm but ac
+        against ac per task: difference of means with a BCa CI, Welch's p, Hedges' g, IQMs,
+        P(X > ac); ``p_holm``: Holm over Welch's p of every row), the aggregate or None for one task)."""
+        res = self.future.result()
+        per_task: dict = {t: {"algorithms": {}} for t in res.tasks}
+        for a in res.algorithms:
+            per_task[a["task"]]["algorithms"][a["algo"]] = {"n": a["n"], "mean": a["mean"], "iqm": a["iqm"],
+                                                            "iqm_ci95": a["iqm_ci"]}
+        rows = []
+        for r in res.rows:
+            ax, ay = per_task[r["task"]]["algorithms"][r["x"]], per_task[r["task"]]["algorithms"][r["y"]]
+            rows.append({"task": r["task"], "x": r["x"], "y": r["y"], "n_x": r["n_x"], "n_y": r["n_y"],
+                         "mean_x": r["mean_x"], "mean_y": r["mean_y"], "diff": r["diff"],
+                         "diff_ci95": r["diff_ci"], "p_welch": r["p_welch"], "hedges_g": r["hedges_g"],
+                         "iqm_x": ax["iqm"], "iqm_x_ci95": ax["iqm_ci95"], "iqm_y": ay["iqm"],
+                         "iqm_y_ci95": ay["iqm_ci95"], "p_improvement": r["p_improvement"],
+                         "p_improvement_ci95": r["p_improvement_ci"], "p_holm": r["p_welch_holm"]})
+        agg = res.aggregate
+        if self.n_tasks < 2:
+            agg = None
+        elif agg is not None:
+            agg["reference_why"] = ("min–max with the stated references (0, T) on every task: successes per seed "
+                                    "lie in [0, T], a scale fixed before any run and the same for every algorithm")
+            agg["key"] = self.key
+        return per_task, rows, agg
 
 
 @functools.lru_cache(maxsize=4)

@@ -195,13 +195,45 @@ def compare_per_seed(
         raise UsageError(f"paired must be 'auto', 'paired' or 'unpaired' (got {excerpt(paired)})")
     per = as_per_seed(data, value=value, aggregate=aggregate)
     family = select(per, tasks, baseline, treatment)
+    _check_values(per, resamples, level, normalize, reference_scores, baseline)
+    return _engine_pass(per, family, baseline=baseline, treatment=treatment, paired=paired, level=level,
+                        resamples=resamples, key=key, aggregate=aggregate, normalize=normalize,
+                        reference_scores=reference_scores, profile_points=profile_points, chunk=chunk)
+
+
+def compare_as_tasks_end(per: PerSeed, *, ready, baseline: str, level: float = 0.95, resamples: int = 10_000,
+                         key=0, normalize: str | None = None, reference_scores: dict | None = None,
+                         profile_points=101, chunk: int = 1000) -> Comparison:
+    """`compare_per_seed` of `per` against `baseline` while its values are filled in, task by task (a
+    study's, as each task's runs end): every task and algorithm is in `per` from the start, each
+    array of its final size, and ``ready(task)`` returns once the task's arrays hold their values.
+    Each task's statistics start then, on the engine's task threads, beside the runs of the tasks
+    after it; the numbers are `compare_per_seed`'s of the filled `per`. The values are checked once
+    all are in (they are the caller's own: a study's runs)."""
+    level = check_level(level)
+    family = select(per, None, baseline, None)
+    result = _engine_pass(per, family, baseline=baseline, treatment=None, paired="auto", level=level,
+                          resamples=resamples, key=key, aggregate="sum", normalize=normalize,
+                          reference_scores=reference_scores, profile_points=profile_points, chunk=chunk,
+                          ready=ready)
+    _check_values(per, resamples, level, normalize, reference_scores, baseline)
+    return result
+
+
+def _check_values(per: PerSeed, resamples, level: float, normalize, reference_scores, baseline) -> None:
+    """The checks of the values themselves: spread, resamples for their number, normalization."""
     check_scale(per)
-    units = sum(x.size for v in per.values.values() for x in v.values())
-    check_resamples(resamples, level, units)
+    check_resamples(resamples, level, sum(x.size for v in per.values.values() for x in v.values()))
     if normalize is not None and len(per.tasks) > 1:
         from jaxeac.stats.tasks import check_normalization
 
         check_normalization(per, normalize, reference_scores, baseline)
+
+
+def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, resamples, key, aggregate,
+                 normalize, reference_scores, profile_points, chunk, ready=None) -> Comparison:
+    """The one pass of `compare_per_seed` over checked values (`ready`: `compare_as_tasks_end`'s)."""
+    units = sum(x.size for v in per.values.values() for x in v.values())
     alpha = round(1 - level, 12)
     root = as_key(key)
     used = list(dict.fromkeys(a for p in family for a in p))
@@ -214,6 +246,8 @@ def compare_per_seed(
 
     def one_task(i: int, task):
         """Task i's algorithm entries, rows (paired rows as futures), draws for the aggregate and paths."""
+        if ready is not None:
+            ready(task)
         tkey = jax.random.fold_in(root, i)
         groups = task_groups({a: per.values[task][a] for a in per.algos},
                              {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
