@@ -35,9 +35,15 @@ from jaxeac.perseed import PerSeed, check_scale, excerpt, from_arrays, is_frame,
 from jaxeac.rng import as_key
 from jaxeac.sb3 import read_sb3
 from jaxeac.stats import closed_form as cf
-from jaxeac.stats.groups import Group, pair_row, paired_row, task_groups
+from jaxeac.stats.groups import (
+    MAX_KEPT_BYTES,
+    aggregate_draws,
+    pair_row,
+    paired_row,
+    shared_draw,
+    task_groups,
+)
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
-from jaxeac.stats.resample import boot_counts, boot_counts_binned
 from jaxeac.stats.result import Comparison
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
@@ -50,8 +56,6 @@ PAIRED_WORKERS = min(8, os.cpu_count() or 1)
 TASK_WORKERS = min(4, os.cpu_count() or 1)
 #: Each tail of an interval needs at least this many resamples beyond it.
 MIN_TAIL_RESAMPLES = 10
-#: Bootstrap counts kept for the aggregate across tasks (beyond, drawn again from the same keys).
-MAX_KEPT_BYTES = 1 << 30
 #: Unit resamples (resamples × seeds) a comparison may ask for: about an hour on a 2-core CPU.
 MAX_WORK = 2e11
 WORK_PER_SECOND = 5e7
@@ -258,10 +262,10 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
             est, lo, hi = g.iqm(alpha)
             entries.append({"task": task, "algo": a, "n": g.n, "mean": g.mean, "iqm": est, "iqm_ci": [lo, hi],
                             "excluded": per.excluded.get(task, {}).get(a, 0)})
-        shared, order = _shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
+        shared, order = shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
                                      chunk)
         if aggregating:
-            drawn = _for_aggregate(per, task, tkey, groups, shared, order, resamples, chunk, keep)
+            drawn = aggregate_draws(per, task, tkey, groups, shared, order, resamples, chunk, keep)
         for x, y in family:
             row = {"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha)}
             if order is not None and x in order and y in order:
@@ -342,82 +346,3 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
         aggregate=aggregate_result,
         resampling={"rule": PATH_RULE, "groups": paths},
     )
-
-
-class SharedDraw:
-    """One bootstrap draw of a task's n seed ids, shared by its algorithms (the paired bootstrap):
-    as counts per seed [n, R] (`units`, drawn on first use), or, for one algorithm's values x in
-    seed order, the same draws counted per distinct value of x on the device (`per_value`: the
-    ascending distinct values and their counts [D, R]), so the host never holds [n, R] unless a
-    paired row resamples continuous differences."""
-
-    def __init__(self, key, n: int, resamples: int, chunk: int):
-        self.key, self.n, self.resamples, self.chunk = key, n, resamples, chunk
-        self._units = None
-
-    def units(self) -> np.ndarray:
-        if self._units is None:
-            self._units = boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True)
-        return self._units
-
-    def per_value(self, xs: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """{name: (ascending distinct values of xs[name], the draws' counts per value [D, R])}, the
-        one draw binned for every array of `xs` at once (`boot_counts_binned`)."""
-        split = {a: np.unique(x, return_inverse=True) for a, x in xs.items()}
-        counts = boot_counts_binned(self.key, self.n, self.resamples,
-                                    [inverse.astype(np.int32) for _, inverse in split.values()], chunk=self.chunk)
-        return {a: (d[0], c) for (a, d), c in zip(split.items(), counts, strict=True)}
-
-
-def _shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
-    """Where the algorithms of a task share seed ids: their values in one seed order, and one
-    draw of those seeds (a `SharedDraw`, the paired bootstrap); else (None, None)."""
-    if paired == "unpaired" or per.seeds is None:
-        return None, None
-    ids = {a: per.seeds[task][a] for a in used}
-    ref = np.sort(ids[used[0]])
-    order = {}
-    for a in used:
-        s = np.sort(ids[a])
-        if s.shape == ref.shape and np.array_equal(s, ref):
-            order[a] = per.values[task][a][np.argsort(ids[a], kind="stable")]
-    if len(order) < 2:
-        return None, None
-    n = ref.size
-    if resampling_path(n, n) != RAW:
-        return None, order
-    return SharedDraw(key, n, resamples, chunk), order
-
-
-def _for_aggregate(per: PerSeed, task, tkey, groups, shared, order, resamples, chunk, keep):
-    """The task's draws for the aggregate across tasks: the shared draw where every algorithm ran
-    the same seed ids (counted per value of each), else each group's own (drawn again from its
-    key when not kept, by raw draws where its path has none)."""
-    if shared is not None and len(order) == len(per.algos):
-        if keep:  # drawn now (on the task's thread), binned for every algorithm at once
-            return shared.per_value(order), True
-        left: dict = {}  # binned for every algorithm at the first call, each handed out once
-        taken: set = set()
-
-        def take(a):
-            if not taken:
-                left.update(shared.per_value(order))
-            taken.add(a)
-            return left.pop(a) if a in left else shared.per_value({a: order[a]})[a]
-
-        return {a: (lambda a=a: take(a)) for a in per.algos}, True
-
-    def one(j, a):
-        g = groups[a] if keep or held(a) else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples,
-                                                      chunk)
-        if g.CT is None:
-            key = jax.random.fold_in(tkey, j)
-            return g.x, boot_counts(key, g.n, resamples, chunk=chunk, units_first=True)
-        return g.values, g.CT
-
-    def held(a):  # counts per value, small whatever the seeds: kept if every group's would fit
-        ct = groups[a].CT
-        return ct is not None and ct.nbytes * len(per.algos) * len(per.tasks) <= MAX_KEPT_BYTES
-
-    return {a: one(j, a) if keep or held(a) else (lambda j=j, a=a: one(j, a))
-            for j, a in enumerate(per.algos)}, False

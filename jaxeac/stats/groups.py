@@ -2,8 +2,10 @@
 
 A `Group` is one algorithm on one task: its sorted values, distinct values with counts,
 the bootstrap counts over them drawn by the group's path (`large.resampling_path`), units
-first, and, computed once on first use, their cumulative counts and sums. `pair_row` is the
-unpaired comparison of two groups, `paired_row` the paired one of per-seed differences.
+first, and, computed once on first use, their cumulative counts and sums (`task_groups` draws a
+task's groups together). `pair_row` is the unpaired comparison of two groups, `paired_row` the
+paired one of per-seed differences. `shared_draw` is a task's one draw of its seed ids shared by
+its algorithms (`SharedDraw`), and `aggregate_draws` what the aggregate across tasks takes of it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import jax
 import numpy as np
 from scipy import special
 
+from jaxeac.perseed import PerSeed
 from jaxeac.rng import as_key
 from jaxeac.stats import closed_form as cf
 from jaxeac.stats import large
@@ -24,6 +27,9 @@ from jaxeac.stats.large import resampling_path
 from jaxeac.stats.paired import paired_analysis, paired_tests
 from jaxeac.stats.resample import boot_counts, boot_counts_binned, cumulative
 from jaxeac.stats.tasks import below_half, wins_replicates
+
+#: Bootstrap counts kept for the aggregate across tasks (beyond, drawn again from the same keys).
+MAX_KEPT_BYTES = 1 << 30
 
 
 class Group:
@@ -193,3 +199,82 @@ def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples
     res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha)
     out["mean_diff_ci"] = res["mean_diff_ci95"]
     return out
+
+
+class SharedDraw:
+    """One bootstrap draw of a task's n seed ids, shared by its algorithms (the paired bootstrap):
+    as counts per seed [n, R] (`units`, drawn on first use), or, for one algorithm's values x in
+    seed order, the same draws counted per distinct value of x on the device (`per_value`: the
+    ascending distinct values and their counts [D, R]), so the host never holds [n, R] unless a
+    paired row resamples continuous differences."""
+
+    def __init__(self, key, n: int, resamples: int, chunk: int):
+        self.key, self.n, self.resamples, self.chunk = key, n, resamples, chunk
+        self._units = None
+
+    def units(self) -> np.ndarray:
+        if self._units is None:
+            self._units = boot_counts(self.key, self.n, self.resamples, chunk=self.chunk, units_first=True)
+        return self._units
+
+    def per_value(self, xs: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """{name: (ascending distinct values of xs[name], the draws' counts per value [D, R])}, the
+        one draw binned for every array of `xs` at once (`boot_counts_binned`)."""
+        split = {a: np.unique(x, return_inverse=True) for a, x in xs.items()}
+        counts = boot_counts_binned(self.key, self.n, self.resamples,
+                                    [inverse.astype(np.int32) for _, inverse in split.values()], chunk=self.chunk)
+        return {a: (d[0], c) for (a, d), c in zip(split.items(), counts, strict=True)}
+
+
+def shared_draw(per: PerSeed, task, used, paired, key, resamples, chunk):
+    """Where the algorithms of a task share seed ids: their values in one seed order, and one
+    draw of those seeds (a `SharedDraw`, the paired bootstrap); else (None, None)."""
+    if paired == "unpaired" or per.seeds is None:
+        return None, None
+    ids = {a: per.seeds[task][a] for a in used}
+    ref = np.sort(ids[used[0]])
+    order = {}
+    for a in used:
+        s = np.sort(ids[a])
+        if s.shape == ref.shape and np.array_equal(s, ref):
+            order[a] = per.values[task][a][np.argsort(ids[a], kind="stable")]
+    if len(order) < 2:
+        return None, None
+    n = ref.size
+    if resampling_path(n, n) != large.RAW:
+        return None, order
+    return SharedDraw(key, n, resamples, chunk), order
+
+
+def aggregate_draws(per: PerSeed, task, tkey, groups, shared, order, resamples, chunk, keep):
+    """The task's draws for the aggregate across tasks: the shared draw where every algorithm ran
+    the same seed ids (counted per value of each), else each group's own (drawn again from its
+    key when not kept, by raw draws where its path has none)."""
+    if shared is not None and len(order) == len(per.algos):
+        if keep:  # drawn now (on the task's thread), binned for every algorithm at once
+            return shared.per_value(order), True
+        left: dict = {}  # binned for every algorithm at the first call, each handed out once
+        taken: set = set()
+
+        def take(a):
+            if not taken:
+                left.update(shared.per_value(order))
+            taken.add(a)
+            return left.pop(a) if a in left else shared.per_value({a: order[a]})[a]
+
+        return {a: (lambda a=a: take(a)) for a in per.algos}, True
+
+    def one(j, a):
+        g = groups[a] if keep or held(a) else Group(per.values[task][a], jax.random.fold_in(tkey, j), resamples,
+                                                      chunk)
+        if g.CT is None:
+            key = jax.random.fold_in(tkey, j)
+            return g.x, boot_counts(key, g.n, resamples, chunk=chunk, units_first=True)
+        return g.values, g.CT
+
+    def held(a):  # counts per value, small whatever the seeds: kept if every group's would fit
+        ct = groups[a].CT
+        return ct is not None and ct.nbytes * len(per.algos) * len(per.tasks) <= MAX_KEPT_BYTES
+
+    return {a: one(j, a) if keep or held(a) else (lambda j=j, a=a: one(j, a))
+            for j, a in enumerate(per.algos)}, False

@@ -105,8 +105,8 @@ def boot_counts_binned(keys, n: int, resamples: int, bins: list[np.ndarray], *, 
     value of each algorithm's). Rows go in batches of at most `MAX_CHUNK_ELEMENTS` drawn indices."""
     keys = list(keys) if isinstance(keys, list | tuple) else [keys]
     if not BINNED_TOGETHER.get(jax.default_backend(), True):
-        return [boot_counts(keys[i if len(keys) > 1 else 0], n, resamples, chunk=chunk, units_first=True, bins=b)
-                for i, b in enumerate(bins)]
+        return [boot_counts(keys[i] if len(keys) > 1 else keys[0], n, resamples, chunk=chunk, units_first=True,
+                            bins=b) for i, b in enumerate(bins)]
     chunk = _cap(chunk, resamples, n)
     widths = [int(b.max(initial=-1)) + 1 for b in bins]
     width = max(16, 1 << max(max(widths) - 1, 0).bit_length())
