@@ -183,8 +183,9 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
 
 class Timeline:
     """Wall seconds of a study's phases (study.json's ``timeline``): per task its run (compile, device
-    run and E8 diagnostics inside, from the run folder's summary), loading, curves and statistics;
-    then the study's own (Holm, aggregate, tuning, figure, writing)."""
+    run and E8 diagnostics inside, from the run folder's summary), loading and curves; then the
+    study's own: ``statistics`` (the wait, once the last task is in, for the tasks' statistics still
+    running, the aggregate and Holm), the wait for E8, tuning, the figure (drawn beside them)."""
 
     def __init__(self) -> None:
         self.t0 = time.perf_counter()
