@@ -521,21 +521,22 @@ DIAGNOSE_ON = {"gpu": "cpu"}
 
 def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
     """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
-    memories and layout: `jaxeac.running.diagnostics.diagnostics_key`), several at once, so that each task's
-    diagnostics find theirs compiled instead of compiling group after group: the pool."""
+    memories and layout), several at once, so that each task's diagnostics find theirs compiled
+    instead of compiling group after group: the pool. Jobs of one layout, algorithm, seed count and
+    best-action input go once; the rest that share a program wait for its compile (`_EXECUTABLES`)."""
     from concurrent.futures import ThreadPoolExecutor
 
     from jaxeac.envs.grid import shortest_actions
-    from jaxeac.running.diagnostics import diagnostics_key, prepare_diagnostics
+    from jaxeac.running.diagnostics import prepare_diagnostics
+    from jaxeac.running.loops import program_key
 
     jobs: dict = {}
     for grid in todo.values():
         env, grid_map = grid.make_env(), grid.grid_map()
         best = shortest_actions(grid_map) if grid_map is not None else None
         for algo, seeds in diagnostic_seeds(grid).items():
-            cfg = grid.run_config(algo)
-            key = diagnostics_key(env, cfg, n_seeds=seeds.size, best=best, platform=platform)
-            jobs.setdefault(key, (env, cfg, seeds.size, best))
+            key = (program_key(env), algo, seeds.size, best is not None)
+            jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
     pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
     for env, cfg, n, best in jobs.values():
         pool.submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best, platform=platform)

@@ -226,14 +226,6 @@ def _plan(env: Env, cfg: RunConfig, seeds: np.ndarray, best: np.ndarray | None, 
     return cfg, chunk, best_arg, tables
 
 
-def diagnostics_key(env: Env, cfg: RunConfig, *, n_seeds: int, best: np.ndarray | None = None,
-                    platform: str | None = None) -> tuple:
-    """What `prepare_diagnostics` of these arguments compiles: equal keys, one program."""
-    devices = _devices(platform, n_seeds)
-    cfg, chunk, best_arg, _ = _plan(env, cfg, np.arange(n_seeds), best, devices)
-    return program_key(env), cfg, best_arg.shape, chunk, devices
-
-
 _EXECUTABLES = OnceCache()  # (program, chunk, best's shape) -> the compiled program
 
 
