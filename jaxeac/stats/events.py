@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import optimize, stats
 
 from jaxeac.errors import UsageError
 from jaxeac.stats.closed_form import Estimate, TestResult, check_sample
@@ -39,6 +38,7 @@ def logrank_counts(total_c, treat_c):
     units in both groups, `treat_c` [S, 2J] in the treatment group of each of S splits. Returns
     (chi2, p, observed_t, expected_t) of length S. O(S · J).
     """
+    from scipy import stats  # imported where used (as in closed_form)
     total_c = np.asarray(total_c, np.float64)
     treat_c = np.atleast_2d(np.asarray(treat_c, np.float64))
     ev = 1 + 2 * np.flatnonzero(total_c[1::2] > 0)  # the event categories, ascending in time
@@ -95,6 +95,7 @@ def logrank(time_baseline, event_baseline, time_treatment, event_treatment) -> T
 
 def wilson_ci(count: float, nobs: float, alpha: float = 0.05) -> tuple[float, float]:
     """Wilson (1927) score interval for a binomial proportion."""
+    from scipy import stats
     z = stats.norm.ppf(1 - alpha / 2)
     p = count / nobs
     den = 1 + z**2 / nobs
@@ -141,6 +142,8 @@ def risk_ratio_ci(
     With correction=True this matches statsmodels
     `confint_proportions_2indep(..., compare="ratio", method="score")`.
     """
+    from scipy import optimize, stats
+
     x1, n1, x2, n2 = float(count_treatment), float(n_treatment), float(count_baseline), float(n_baseline)
     z = stats.norm.ppf(1 - alpha / 2)
     est = (x1 / n1) / (x2 / n2) if x2 > 0 else math.inf

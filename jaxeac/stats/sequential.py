@@ -41,7 +41,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy import optimize, special
+from scipy import special
 
 from jaxeac.errors import UsageError
 from jaxeac.rundir import DECISIONS
@@ -99,6 +99,7 @@ def _boundaries(fractions: tuple, alpha: float, spend: str) -> np.ndarray:
     on the continuation region (Armitage, McPherson & Rowe 1969; Jennison & Turnbull 2000,
     §19.2), each c_k found by root finding.
     """
+    from scipy import optimize  # imported where used (as scipy.stats in closed_form)
     t = np.asarray(fractions, np.float64)
     if t.ndim != 1 or t.size < 1 or not np.all(np.diff(t) > 0) or t[0] <= 0 or not math.isclose(t[-1], 1.0):
         raise UsageError("looks must be at increasing information fractions in (0, 1], the last 1")
