@@ -276,3 +276,29 @@ def test_statistics_take_tasks_as_they_come():
     waiting.stop()
     with pytest.raises(RuntimeError, match="stopped"):
         waiting.result()
+
+
+def test_tasks_of_one_program_share_their_state_size_traced_once(monkeypatch):
+    """`state_bytes_per_seed` sizes a lane as the compiled program holds it, on the layout's
+    padded tables (a small task in a large layout counts the layout's states), once per program
+    and config: tasks of one layout share the answer without tracing again."""
+    import jax
+
+    from jaxeac.running import carry
+
+    grids = {t: StudySettings(tasks=(t,), algos=("eac",), seeds=4).task_settings(t)
+             for t in ("FrozenLake-4x4-v1", "FrozenLake-8x8-v1")}
+    from jaxeac.experiments.study import task_envs
+
+    envs = task_envs(grids)
+    small, big = envs["FrozenLake-4x4-v1"], envs["FrozenLake-8x8-v1"]
+    assert small.n_states == 16 and small.layout.states == big.n_states == 64
+    cfg = grids["FrozenLake-4x4-v1"].run_config("eac")
+    monkeypatch.setattr(carry, "_STATE_BYTES", {})
+    traces = []
+    eval_shape = jax.eval_shape
+    monkeypatch.setattr(jax, "eval_shape", lambda *a, **k: traces.append(1) or eval_shape(*a, **k))
+    size = carry.state_bytes_per_seed(small, cfg)
+    assert carry.state_bytes_per_seed(big, cfg) == size and len(traces) == 1
+    own = carry.flat_init(big, cfg.resolve(big), np.zeros(2, np.uint32))  # the 8x8 map is the layout itself
+    assert size == sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(own))

@@ -53,7 +53,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.protocol import KernelTables
 from jaxeac.rng import action_uniform, bootstrap_uniform
-from jaxeac.running.carry import flat_init, visit_fields, visit_word
+from jaxeac.running.carry import flat_init, program_key, visit_fields, visit_word
 from jaxeac.running.programs import remembered
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
@@ -353,8 +353,7 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
         return None
     platform = jax.default_backend() if jax.default_backend() == "gpu" else "cuda"
     try:
-        program_key = getattr(env, "program_key", None)  # as `jaxeac.running.loops.program_key`
-        key = (program_key() if program_key is not None else env, cfg, platform)  # one answer per layout
+        key = (program_key(env), cfg, platform)  # one answer per layout
         hash(key)
     except TypeError:  # an unhashable env or rate: probed every time
         key = None

@@ -44,11 +44,14 @@ from jaxeac.envs.protocol import LoopEnv as Env
 from jaxeac.envs.protocol import chance_bound
 from jaxeac.pytree import pytree_dataclass
 from jaxeac.rng import action_uniform, as_key, bootstrap_uniform, seed_words
-from jaxeac.running.carry import (  # noqa: F401  (flat_init, state_bytes_per_seed: re-exported)
+from jaxeac.running.carry import (  # noqa: F401  (flat_init, state_bytes_per_seed, program_key: re-exported)
     _FlatCarry,
     _Jumps,
     _shadowed,
+    bind_inputs,
     flat_init,
+    program_inputs,
+    program_key,
     state_bytes_per_seed,
     visit_fields,
     visit_word,
@@ -181,25 +184,6 @@ def trace_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[A
     agent = init_agent(cfg.agent, env.n_states, env.n_actions, chance_bound(env), cfg.trials)
     words = seed_words(as_key(key, "key"))
     return jax.lax.scan(lambda a, _: run_trial(env, cfg, a, hyper, words), agent, None, length=cfg.trials)
-
-
-def program_key(env: Env):
-    """What a compiled program of `env` depends on: its `program_key()` where its tables are the
-    program's inputs (`jaxeac.envs.tabular.TabularEnv`: tasks of one layout share a program), else
-    the environment itself."""
-    key = getattr(env, "program_key", None)
-    return key() if key is not None else env
-
-
-def program_inputs(env: Env) -> dict:
-    """The tables a compiled program of `env` takes as arguments (empty: they are part of it)."""
-    inputs = getattr(env, "program_inputs", None)
-    return inputs() if inputs is not None else {}
-
-
-def bind_inputs(env: Env, inputs: dict) -> Env:
-    """`env` as its compiled program sees it: reading `inputs` (traced) as its tables."""
-    return env.bind(inputs) if inputs else env
 
 
 def jump_gate(env: Env):
