@@ -278,6 +278,30 @@ def test_statistics_take_tasks_as_they_come():
         waiting.result()
 
 
+def test_study_figure_draws_a_panel_per_task_as_each_ends():
+    """`StudyFigure`: each task's panel is drawn when it is added, in the study's order whatever the
+    order of arrival, with the mean cumulative successes of its counts; `finish` gives the PNG
+    and raises what a panel's drawing raised."""
+    from jaxeac.experiments.study_figure import StudyFigure
+    from jaxeac.plots import cumulative_counts
+
+    success = np.array([[1, 0, 1], [0, 0, 1]], bool)  # 2 seeds x 3 trials: means 0.5, 0.5, 1.5
+    counts = {"ac": cumulative_counts(success), "eac": cumulative_counts(~success)}
+    with StudyFigure(["a", "b", "c"], 2) as fig:
+        fig.add("c", counts)
+        fig.add("a", counts)
+        fig.add("b", counts)
+        png = fig.finish().result()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [ax.get_title() for ax in fig._fig.axes[:3]] == ["a", "b", "c"]
+    ac = fig._by_task["c"].get_lines()[0]
+    assert ac.get_label() == "AC" and np.allclose(ac.get_ydata(), [0.5, 0.5, 1.5])
+    with StudyFigure(["a"], 2) as broken:
+        broken.add("a", {"ac": np.zeros(3)})  # not [T, T + 1] counts
+        with pytest.raises(ValueError):
+            broken.finish().result()
+
+
 def test_tasks_of_one_program_share_their_state_size_traced_once(monkeypatch):
     """`state_bytes_per_seed` sizes a lane as the compiled program holds it, on the layout's
     padded tables (a small task in a large layout counts the layout's states), once per program

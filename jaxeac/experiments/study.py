@@ -15,17 +15,17 @@ improvement (`TaskStatistics`). Results are what the run found.
 Fixed costs are paid once per study, not per task: a finite task's tables are inputs of its
 compiled programs (`jaxeac.envs.tabular.TableLayout`, C among them), padded to the largest task of
 its group (tasks with the same actions and r̃ rule: every default task), so one program per
-algorithm serves every task of the group (the run's and E8's); the figure is drawn once, a panel
-per task. On accelerators several tasks run side by side (`TASKS_SIDE_BY_SIDE`; tasks of one
+algorithm serves every task of the group (the run's and E8's); the figure is one, a panel per
+task drawn as the task ends (`StudyFigure`). On accelerators several tasks run side by side (`TASKS_SIDE_BY_SIDE`; tasks of one
 group share each program, compiled by the first to need it), E8's programs compile
 ahead of the runs, and a tuned study's tuning runs start with the study's and its evaluation runs
 beside the statistics (`jaxeac.experiments.tune_runs`).
 
 A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chunk at a time)
 and reused by a rerun with the same settings, so a study killed midway resumes where it
-stopped. Of each task only its per-seed successes (int32 [N] per algorithm) and its success
-curves' counts ([T, T + 1]) stay in memory; the statistics of every task and the aggregate across
-tasks are one pass of the statistics engine (`TaskStatistics`) that takes each task as its runs end.
+stopped. Of each task only its per-seed successes (int32 [N] per algorithm) stay in memory; the
+statistics of every task and the aggregate across tasks are one pass of the statistics engine
+(`TaskStatistics`) that takes each task as its runs end.
 ``study.json`` (with a ``timeline``: where the time went, per task and phase), ``report.md`` and
 ``fig_study.png`` are written when every task is done.
 """
@@ -47,6 +47,7 @@ from jaxeac.algorithm.config import ALGORITHMS, BASELINES
 from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_algos, check_key, check_positive_int, finished_run, plain_json
 from jaxeac.experiments.grid import GridSettings
+from jaxeac.experiments.study_figure import STUDY_FIGURE, StudyFigure
 from jaxeac.running.threads import in_background
 
 #: The tasks of a full study: the classic tabular tasks, the paper's grid, and the grid made slippery.
@@ -185,7 +186,8 @@ class Timeline:
     """Wall seconds of a study's phases (study.json's ``timeline``): per task its run (compile, device
     run and E8 diagnostics inside, from the run folder's summary), loading and curves; then the
     study's own: ``statistics`` (the wait, once the last task is in, for the tasks' statistics still
-    running, the aggregate and Holm), the wait for E8, tuning, the figure (drawn beside them)."""
+    running, the aggregate and Holm), the wait for E8, tuning, and the figure (its panels as tasks
+    end and its PNG beside the statistics, summed)."""
 
     def __init__(self) -> None:
         self.t0 = time.perf_counter()
@@ -269,7 +271,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
         todo = {t: g for t, g in tasks.items()
                 if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
-    curves, kept = {}, {}
+    kept = {}
     n = len(settings.tasks)
     side = _side_by_side(todo)
     tuned = None
@@ -281,7 +283,9 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     first = grids[settings.tasks[0]]
     stats = TaskStatistics(settings.tasks, first.algos, settings.seeds, first.trials, resamples=settings.resamples,
                            key=settings.key)
-    with _TaskRunner(todo, tl) as runner, _stopped_on_error(stats):
+    timed = functools.partial(_timed, tl, "figure")
+    with (_TaskRunner(todo, tl) as runner, _stopped_on_error(stats),
+          StudyFigure(settings.tasks, settings.seeds, timed) as figure):
         ahead = _start_tasks(runner, todo, out, side, progress)
         for i, (task, grid) in enumerate(tasks.items()):
             folder = _folder(out, task)
@@ -303,9 +307,9 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                 samples = {a: np.asarray(r.successes) for a, r in results.items()}
                 del results
                 ahead.pop(task, None)
-            # One task's success curves in memory at a time: the figure's counts ([T, T + 1]) are kept.
+            # One task's success curves in memory at a time: its panel is drawn from their counts.
             with tl.phase("curves", task):
-                curves[task] = {a: cumulative_counts(success[a]) for a in grid.algos}
+                figure.add(task, {a: cumulative_counts(success[a]) for a in grid.algos})
             del success
             kept[task] = {a: x.astype(np.int32) for a, x in samples.items()}  # per-seed successes, all tasks
             stats.add(task, kept[task])  # its statistics start, beside the later tasks' runs
@@ -319,8 +323,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             algos = list(settings.algos)
             evaluated = in_background(lambda: tuner.evaluate(
                 select(tuning, tuned.result(), list(tasks), algos, first.trials), kept), "jaxeac-evaluation")
-        figure = in_background(functools.partial(_timed, tl, "figure", study_figure, curves, settings.seeds),
-                               "jaxeac-study-figure")  # drawn beside the statistics
+        png = figure.finish()  # the legend and the PNG, beside the statistics
         with said("statistics"):  # the last tasks' and the aggregate, while the last diagnostics finish
             per_task, rows, aggregate = stats.result()
         with said("diagnostics_wait"):
@@ -345,7 +348,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                                           runs=tuner if tuned else None, scores=tuned, samples=evaluated,
                                           phase=said)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
-        atomic_write_bytes(stage / STUDY_FIGURE, figure.result())
+        atomic_write_bytes(stage / STUDY_FIGURE, png.result())
         result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
         result["timeline"] = tl.record()  # writing study.json itself is the one phase left out
         atomic_write_json(stage / "study.json", result)
@@ -655,55 +658,6 @@ class _TaskRunner:
                 self._close(stage_cm, RuntimeError("study stopped"))
             except RuntimeError:
                 pass
-
-
-STUDY_FIGURE = "fig_study.png"
-
-
-def study_figure(curves: dict[str, dict[str, np.ndarray]], n: int) -> bytes:
-    """One figure for the whole study, as PNG bytes: a panel per task, each algorithm's mean
-    cumulative successes over trials with a pointwise 95 % CI band, from the per-trial counts of the
-    cumulative values (`jaxeac.plots.cumulative_counts`, [T, T + 1] per algorithm:
-    `curves[task][algo]`). A `matplotlib.figure.Figure` of its own (no pyplot state), so it can be
-    drawn on a thread beside the statistics."""
-    import io
-
-    from matplotlib.figure import Figure
-    from scipy import special
-
-    from jaxeac import style
-
-    cols = min(4, len(curves))
-    rows = -(-len(curves) // cols)
-    fig = Figure(figsize=(3.6 * cols, 2.9 * rows))
-    axes = fig.subplots(rows, cols, squeeze=False)
-    for ax, (task, per_algo) in zip(axes.flat, curves.items(), strict=False):
-        for algo, counts in per_algo.items():
-            t = counts.shape[0]
-            values, trials = np.arange(t + 1), np.arange(1, t + 1)
-            mean = counts @ values / n
-            ax.plot(trials, mean, color=style.color(algo), lw=1.4, label=style.label(algo))
-            if n > 1:
-                sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
-                half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
-                ax.fill_between(trials, mean - half, mean + half, color=style.color(algo), alpha=0.25, lw=0)
-        ax.set_title(task, fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.3)
-    for ax in axes.flat[len(curves):]:
-        ax.axis("off")
-    for ax in axes[-1]:
-        ax.set_xlabel("trial", fontsize=8)
-    for ax in axes[:, 0]:
-        ax.set_ylabel("successes so far", fontsize=8)
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(8, len(labels)), fontsize=7,
-               title=f"mean cumulative successes of {n:,} seeds per algorithm (shaded: 95% CI of the mean)",
-               title_fontsize=7, bbox_to_anchor=(0.5, 0.0))
-    fig.tight_layout(rect=(0, 0.08 if rows > 1 else 0.14, 1, 1))
-    png = io.BytesIO()
-    fig.savefig(png, dpi=110)
-    return png.getvalue()
 
 
 def _successes(folder: Path, grid: GridSettings) -> tuple[dict, dict[str, np.ndarray]]:
