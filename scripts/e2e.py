@@ -111,6 +111,14 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
+def _timeline(folder: Path) -> dict | None:
+    """The ``timeline`` a command kept in its folder (study.json's, else summary.json's), if any."""
+    for name in ("study.json", "summary.json"):
+        if (folder / name).is_file():
+            return json.loads((folder / name).read_text()).get("timeline")
+    return None
+
+
 def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, command: list[str] | None = None
                   ) -> dict:
     """A comparison on one machine of source trees (`git worktree` checkouts or `git archive`
@@ -125,8 +133,14 @@ def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, comma
             caches[i] = out / f"xla_cache_build{i}_{r}"
             shutil.rmtree(caches[i], ignore_errors=True)
             env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
-            rows[str(build)]["first_runs"].append(jaxeac([*base, "--out", str(out / f"build{i}")], env))
-            print(json.dumps(rows[str(build)]["first_runs"][-1]), flush=True)
+            folder = out / f"build{i}"
+            shutil.rmtree(folder, ignore_errors=True)  # a first run (a study would reuse its tasks)
+            rows[str(build)]["first_runs"].append(jaxeac([*base, "--out", str(folder)], env))
+            timeline = _timeline(folder)
+            if timeline is not None:
+                rows[str(build)]["first_runs"][-1]["timeline"] = timeline
+            print(json.dumps({k: v for k, v in rows[str(build)]["first_runs"][-1].items() if k != "timeline"}),
+                  flush=True)
     for i, build in enumerate(builds):
         env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
         rows[str(build)]["cached"] = jaxeac([*base, "--out", str(out / f"build{i}")], env)
