@@ -104,9 +104,8 @@ def _start_statistics(run, out, ahead) -> Future:
 
 
 def _compile_statistics_ahead(settings, *, compare: bool) -> threading.Thread | None:
-    """On accelerators, compile the comparison's device programs (and import scipy.stats) on a
-    thread while the run computes (`jaxeac.stats.large.compile_ahead`: they land in the
-    compilation cache). On
+    """On accelerators, compile the comparison's device programs on a thread while the run
+    computes (`jaxeac.stats.large.compile_ahead`: they land in the compilation cache). On
     CPUs the run needs every core, so nothing is started. Returns the thread, or None."""
     import jax
 
@@ -117,8 +116,6 @@ def _compile_statistics_ahead(settings, *, compare: bool) -> threading.Thread | 
 
     def work() -> None:
         with contextlib.suppress(Exception):  # only a head start: the comparison compiles anyway
-            from scipy import stats  # noqa: F401  (the tests' import, ~0.6 s, beside the run too)
-
             large.compile_ahead(settings.seeds, settings.trials, splits=CALIBRATION_SPLITS)
 
     thread = threading.Thread(target=work, daemon=True)
