@@ -26,6 +26,9 @@ The settings, each with its reason:
   ~1.5 GiB of host memory and doubled a 10^6-seed run's peak; growing as needed ran as fast.
 - JAX's persistent compilation cache (`use_compilation_cache`): a rerun loads its programs (the
   run's and E8's whole, without tracing them again: `jaxeac.running.programs`).
+- At most `MALLOC_ARENAS` glibc malloc arenas (``MALLOC_ARENA_MAX``; glibc's default is 8 per
+  core): a 100,000-seed study's many threads each kept what they had freed (peak host RSS
+  3.7-4.5 GiB -> 2.5 GiB on one H100's 16-core host, wall unchanged).
 - `trim_host_memory`: what XLA's compiler and pyarrow freed goes back to the system.
 - `start_device`: a GPU's context starts on a thread while the host reads files.
 """
@@ -65,6 +68,10 @@ RUN_PACKAGES = ("jaxeac", "python", "jax", "jaxlib", "numpy", "optax", "mujoco",
 #: Stated only where installed: the MJX backends' physics.
 OPTIONAL_PACKAGES = ("mujoco-mjx", "warp-lang")
 
+#: glibc malloc arenas at most (module docstring); ``M_ARENA_MAX``: mallopt's parameter for it.
+MALLOC_ARENAS = 8
+M_ARENA_MAX = -8
+
 _LOCK = threading.Lock()
 _APPLIED: dict[str, object] = {}
 
@@ -86,6 +93,8 @@ def configure(work: str | None = None, *, start_jax: bool = True, force: bool = 
     if not force and opted_out():
         return {}
     with _LOCK:
+        if "malloc_arenas" not in _APPLIED:  # before the threads that would make more
+            _APPLIED["malloc_arenas"] = _cap_malloc_arenas()
         if "jax" not in sys.modules:
             _APPLIED["environment"] = _set_environment(work)
         if "blas" not in _APPLIED and "numpy" in sys.modules:
@@ -151,6 +160,19 @@ def default_cache_dir() -> Path:
     """``$XDG_CACHE_HOME/jaxeac/xla`` (``~/.cache/jaxeac/xla`` when unset)."""
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "jaxeac" / "xla"
+
+
+def _cap_malloc_arenas(environ=os.environ) -> int | None:
+    """`MALLOC_ARENAS` through glibc's ``mallopt``, unless the user set ``MALLOC_ARENA_MAX`` (glibc
+    read it at start) or the C library is not glibc. Returns the cap applied, or None."""
+    if environ.get("MALLOC_ARENA_MAX") is not None:
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        done = libc.mallopt(M_ARENA_MAX, MALLOC_ARENAS)
+    except (OSError, AttributeError):  # not glibc
+        return None
+    return MALLOC_ARENAS if done == 1 else None
 
 
 def use_compilation_cache() -> str | None:

@@ -108,3 +108,13 @@ def test_commands_start_without_scipy_stats_and_optimize():
                    "jaxeac.experiments.study, jaxeac.experiments.pipeline, jaxeac.stats; "
                    "print(json.dumps(sorted(m for m in ('scipy.stats', 'scipy.optimize') if m in sys.modules)))")
     assert seen == []
+
+
+def test_malloc_arenas_are_capped_unless_the_user_set_them():
+    """glibc's arenas are capped (`MALLOC_ARENAS`: threads share what they free instead of each
+    keeping it); a ``MALLOC_ARENA_MAX`` the user set is left as glibc read it."""
+    from jaxeac import runtime
+
+    code = "import json, jaxeac.runtime as r; print(json.dumps(r.configure(start_jax=False)['malloc_arenas']))"
+    assert _python(code) == runtime.MALLOC_ARENAS == 8
+    assert _python(code, {"MALLOC_ARENA_MAX": "3"}) is None
