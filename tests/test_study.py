@@ -326,3 +326,35 @@ def test_tasks_of_one_program_share_their_state_size_traced_once(monkeypatch):
     assert carry.state_bytes_per_seed(big, cfg) == size and len(traces) == 1
     own = carry.flat_init(big, cfg.resolve(big), np.zeros(2, np.uint32))  # the 8x8 map is the layout itself
     assert size == sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(own))
+
+
+def test_aggregate_keeps_each_tasks_draw_where_the_counts_fit(monkeypatch):
+    """A task's shared draw, binned per value for the aggregate, is kept as the task ends where
+    every task's counts would fit (`MAX_KEPT_BYTES`), so the aggregate after the last task draws
+    nothing again; without room it draws each task again: the same numbers either way."""
+    from jaxeac.experiments.study import TaskStatistics
+    from jaxeac.stats import core, groups
+
+    tasks, algos, n, trials = ("t0", "t1"), ("ac", "eac"), 30, 12
+    rng = np.random.default_rng(5)
+    samples = {t: {a: rng.binomial(trials, rng.uniform(0.2, 0.8), n).astype(np.int32) for a in algos}
+               for t in tasks}
+    import threading
+
+    calls = []  # the threads that bin a draw: a task's own, or the aggregate's after the last task
+    per_value = groups.SharedDraw.per_value
+    monkeypatch.setattr(groups.SharedDraw, "per_value", lambda self, xs: calls.append(
+        threading.current_thread().name.split("_")[0]) or per_value(self, xs))
+    results = {}
+    # 100,000 bytes: every task's counts per value fit (2 tasks x 2 algorithms x at most 13 values
+    # x 400 resamples x 4 bytes), though the draws of the seeds themselves would not (120 x 400 x 4)
+    for budget in (100_000, 0):
+        monkeypatch.setattr(core, "MAX_KEPT_BYTES", budget)
+        monkeypatch.setattr(groups, "MAX_KEPT_BYTES", budget)
+        calls.clear()
+        stats = TaskStatistics(tasks, algos, n, trials, resamples=400, key=2)
+        for t in tasks:
+            stats.add(t, samples[t])
+        results[budget] = stats.result()
+        assert calls == ["jaxeac-task-stats"] * 2 if budget else calls == ["jaxeac-statistics"] * 2, calls
+    assert results[0] == results[100_000]
