@@ -28,7 +28,7 @@ The settings, each with its reason:
   run's and E8's whole, without tracing them again: `jaxeac.running.programs`).
 - At most `MALLOC_ARENAS` glibc malloc arenas (``MALLOC_ARENA_MAX``; glibc's default is 8 per
   core): a 100,000-seed study's many threads each kept what they had freed (peak host RSS
-  3.7-4.5 GiB -> 2.5 GiB on one H100's 16-core host, wall unchanged).
+  4.64 -> 2.32 GiB on one H100's 16-core host, walls within the host's noise).
 - `trim_host_memory`: what XLA's compiler and pyarrow freed goes back to the system.
 - `start_device`: a GPU's context starts on a thread while the host reads files.
 """
