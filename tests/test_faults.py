@@ -152,3 +152,26 @@ def test_ctrl_c_while_the_exit_handlers_run_is_ignored():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 3, proc.stderr
     assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr
+
+
+def test_ctrl_c_wrapped_by_an_import_is_still_an_interrupt(capsys):
+    """Ctrl-C while a module's class body is set up reaches the command as a RuntimeError caused by
+    it (Python 3.11's ``__set_name__``): still one line and exit code 130, never a traceback; any
+    other RuntimeError is raised as it is."""
+    from jaxeac.cli.process import run_command
+
+    def interrupted_import(argv, cleanup):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("Error calling __set_name__ on '_axis_method_wrapper' instance") from exc
+
+    assert run_command([], interrupted_import) == 130
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["error: interrupted; files already finished are kept, none is half-written"]
+
+    def broken(argv, cleanup):
+        raise RuntimeError("not an interrupt")
+
+    with pytest.raises(RuntimeError, match="not an interrupt"):
+        run_command([], broken)

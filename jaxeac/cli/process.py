@@ -76,12 +76,7 @@ def _guarded(argv: Sequence[str] | None, command: Command) -> int:
     except UsageError as exc:
         return _fail(str(exc))
     except KeyboardInterrupt:
-        code = _fail("interrupted; files already finished are kept, none is half-written", 130)
-        if argv is None:  # the process's entry point: end it now, as XLA may still be running a
-            with contextlib.suppress(Exception):  # chunk on its threads (tearing the interpreter
-                sys.stdout.flush()  # down under it can crash); folders are cleaned up already
-            os._exit(code)
-        return code
+        return _interrupted(argv)
     except BrokenPipeError:  # the reader of stdout stopped early (`jaxeac throw ... | head`): quietly,
         if argv is None:  # like other command-line tools; no second error when Python flushes stdout
             with contextlib.suppress(OSError, ValueError):
@@ -101,10 +96,35 @@ def _guarded(argv: Sequence[str] | None, command: Command) -> int:
         return _fail(f"the disk is full (no space left on device){where}; no file is left half-written: "
                      "free some space or write elsewhere")
     except Exception as exc:
+        if _caused_by_ctrl_c(exc):
+            return _interrupted(argv)
         if not _out_of_device_memory(exc):
             raise
         return _fail("out of device memory: a chunk of seeds does not fit on the accelerator (nothing was "
                      "written); pass a smaller --chunk-size, or use fewer trials or chances or a smaller map")
+
+
+def _interrupted(argv) -> int:
+    """Ctrl-C: one line, exit code 130."""
+    code = _fail("interrupted; files already finished are kept, none is half-written", 130)
+    if argv is None:  # the process's entry point: end it now, as XLA may still be running a
+        with contextlib.suppress(Exception):  # chunk on its threads (tearing the interpreter
+            sys.stdout.flush()  # down under it can crash); folders are cleaned up already
+        os._exit(code)
+    return code
+
+
+def _caused_by_ctrl_c(exc: BaseException) -> bool:
+    """Whether `exc` wraps a Ctrl-C: Python 3.11 turns one raised while a class body is set up (a
+    module being imported, e.g. matplotlib's axes) into ``RuntimeError("Error calling __set_name__
+    ...")`` caused by it."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__
+    return False
 
 
 def _claim_out(args: argparse.Namespace, path, lock_path=None, kind: str = "run", reads: bool = False):
