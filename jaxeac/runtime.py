@@ -162,14 +162,18 @@ def default_cache_dir() -> Path:
     return Path(base) / "jaxeac" / "xla"
 
 
+def _libc() -> ctypes.CDLL:
+    """The process's C library (OSError where it cannot be loaded)."""
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
 def _cap_malloc_arenas(environ=os.environ) -> int | None:
     """`MALLOC_ARENAS` through glibc's ``mallopt``, unless the user set ``MALLOC_ARENA_MAX`` (glibc
     read it at start) or the C library is not glibc. Returns the cap applied, or None."""
     if environ.get("MALLOC_ARENA_MAX") is not None:
         return None
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        done = libc.mallopt(M_ARENA_MAX, MALLOC_ARENAS)
+        done = _libc().mallopt(M_ARENA_MAX, MALLOC_ARENAS)
     except (OSError, AttributeError):  # not glibc
         return None
     return MALLOC_ARENAS if done == 1 else None
@@ -199,11 +203,8 @@ def trim_host_memory() -> None:
     pyarrow's allocator if loaded): XLA's compiler frees gigabytes after a GPU compile that
     malloc would keep, and pyarrow keeps what reading results.parquet freed (1.7 GiB at 10^7
     seeds), so the peak resident memory is the data's."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        pass
+    with contextlib.suppress(OSError, AttributeError):  # not glibc
+        _libc().malloc_trim(0)
     arrow = sys.modules.get("pyarrow")
     if arrow is not None:
         arrow.default_memory_pool().release_unused()

@@ -87,6 +87,17 @@ def program_inputs(env: Env) -> dict:
     return inputs() if inputs is not None else {}
 
 
+def program_cache_key(env: Env, *parts):
+    """(`program_key`, *parts) as a dict key for answers shared by the tasks of one program, or None
+    where it is unhashable (an env or rate that is not): then asked every time."""
+    key = (program_key(env), *parts)
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
 def bind_inputs(env: Env, inputs: dict) -> Env:
     """`env` as its compiled program sees it: reading `inputs` (traced) as its tables."""
     return env.bind(inputs) if inputs else env
@@ -102,11 +113,7 @@ def state_bytes_per_seed(env: Env, cfg) -> int:
     program holds it: traced on the environment the program binds (`bind_inputs`: a tabular
     layout's padded tables), so the tasks of one program share one answer, traced once."""
     cfg = cfg.resolve(env)
-    try:
-        key = (program_key(env), cfg)
-        hash(key)
-    except TypeError:  # an unhashable env or rate: traced every time
-        key = None
+    key = program_cache_key(env, cfg)
     if key in _STATE_BYTES:
         return _STATE_BYTES[key]
     tables = {k: jax.ShapeDtypeStruct(np.shape(v), jax.dtypes.canonicalize_dtype(np.asarray(v).dtype))

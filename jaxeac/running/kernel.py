@@ -53,7 +53,7 @@ from jaxeac.algorithm.agent import (
 from jaxeac.algorithm.tables import RowTables, learning_increments
 from jaxeac.envs.protocol import KernelTables
 from jaxeac.rng import action_uniform, bootstrap_uniform
-from jaxeac.running.carry import flat_init, program_key, visit_fields, visit_word
+from jaxeac.running.carry import flat_init, program_cache_key, visit_fields, visit_word
 from jaxeac.running.programs import remembered
 
 LANES_PER_PROGRAM = 128  # one lane per thread: 4 warps (32, 64, 256 ran slower on an H100)
@@ -352,11 +352,7 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
     if not lower:
         return None
     platform = jax.default_backend() if jax.default_backend() == "gpu" else "cuda"
-    try:
-        key = (program_key(env), cfg, platform)  # one answer per layout
-        hash(key)
-    except TypeError:  # an unhashable env or rate: probed every time
-        key = None
+    key = program_cache_key(env, cfg, platform)  # one answer per layout
     if key in _PROBED:
         return _PROBED[key]
     if getattr(_PROBING, "key", None) is not None:  # the probe's own tracing resolves its config again
