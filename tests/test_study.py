@@ -156,23 +156,28 @@ def test_one_task_study_has_no_aggregate(tmp_path):
 
 def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch):
     """Where E8 goes beside the runs (accelerators), every task's diagnostics start with the study and
-    its folder is finished when they are in: the same summaries and statistics as one task at a time."""
-    from jaxeac.experiments import grid
+    its folder is finished when they are in, on threads or in a helper process (GPUs): the same
+    summaries and statistics as one task at a time."""
+    from jaxeac.experiments import grid, study
 
     settings = StudySettings(tasks=("FrozenLake-4x4-v1", "CliffWalking-v1"), algos=("ac", "eac"), seeds=8,
                              trials=10, resamples=400)
     results = {}
-    for beside in (False, True):
-        monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", beside)
-        results[beside] = run_study(settings, tmp_path / str(beside), progress=False)
+    for how in ("after", "threads", "helper"):
+        monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", how != "after")
+        monkeypatch.setitem(study.DIAGNOSE_IN_HELPER, "cpu", how == "helper")
+        results[how] = run_study(settings, tmp_path / how, progress=False)
         for task in settings.tasks:
-            summary = json.loads((tmp_path / str(beside) / "tasks" / task / "summary.json").read_text())
+            summary = json.loads((tmp_path / how / "tasks" / task / "summary.json").read_text())
             assert summary["memory_diagnostics"]["eac"]["successes_match_run"]
-            results[beside, task] = summary["memory_diagnostics"]
-    assert "finish" not in results[True]["timeline"]["tasks"][settings.tasks[0]]
-    for task in settings.tasks:
-        assert results[True, task] == results[False, task]
-    assert results[True]["comparisons"] == results[False]["comparisons"]
+            results[how, task] = summary["memory_diagnostics"]
+    assert "finish" not in results["threads"]["timeline"]["tasks"][settings.tasks[0]]
+    assert 0 < results["helper"]["timeline"]["helper_peak_rss_gib"] < 4
+    assert "helper_peak_rss_gib" not in results["threads"]["timeline"]
+    for how in ("threads", "helper"):
+        for task in settings.tasks:
+            assert results[how, task] == results["after", task]
+        assert results[how]["comparisons"] == results["after"]["comparisons"]
 
 
 @pytest.mark.parametrize("argv, match", [

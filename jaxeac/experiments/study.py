@@ -193,6 +193,7 @@ class Timeline:
         self.t0 = time.perf_counter()
         self.tasks: dict[str, dict[str, float]] = {}
         self.study: dict[str, float] = {}
+        self.values: dict[str, float] = {}  # other measures (the E8 helper's peak memory)
 
     @contextmanager
     def phase(self, name: str, task: str | None = None):
@@ -214,7 +215,7 @@ class Timeline:
         for p in per.values():
             for k, v in p.items():
                 sums[k] = round(sums.get(k, 0.0) + v, 3)
-        return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per}
+        return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per, **self.values}
 
 
 def _said(tl: Timeline, progress: bool):
@@ -521,14 +522,18 @@ DIAGNOSTIC_COMPILERS = 8
 #: the same counts, R2).
 DIAGNOSE_ON = {"gpu": "cpu"}
 
+#: Per default backend, whether E8 beside the runs goes to a helper process on the host's CPU
+#: (`jaxeac.running.helper`), so that its compiles and runs neither hold this process's interpreter
+#: lock nor take the cores its compiles need first (`DIAGNOSE_ON`'s CPU, in a process of its own).
+DIAGNOSE_IN_HELPER = {"gpu": True}
 
-def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
+
+def _prepare_diagnostics(todo: dict, diagnostic_seeds, submit: Callable) -> None:
     """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
-    memories and layout), several at once, so that each task's diagnostics find theirs compiled
-    instead of compiling group after group: the pool. Jobs of one layout, algorithm, seed count and
-    best-action input go once; the rest that share a program wait for its compile (`_EXECUTABLES`)."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    memories and layout), several at once (`submit(fn, *args, **kwargs)`: a pool's or a helper's), so
+    that each task's diagnostics find theirs compiled instead of compiling group after group. Jobs of
+    one layout, algorithm, seed count and best-action input go once; the rest that share a program
+    wait for its compile (`_EXECUTABLES`)."""
     from jaxeac.envs.grid import shortest_actions
     from jaxeac.running.diagnostics import prepare_diagnostics
     from jaxeac.running.loops import program_key
@@ -540,10 +545,8 @@ def _prepare_diagnostics(todo: dict, diagnostic_seeds, platform: str | None):
         for algo, seeds in diagnostic_seeds(grid).items():
             key = (program_key(env), algo, seeds.size, best is not None)
             jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
-    pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
     for env, cfg, n, best in jobs.values():
-        pool.submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best, platform=platform)
-    return pool
+        submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best)
 
 
 class _TaskRunner:
@@ -561,18 +564,26 @@ class _TaskRunner:
         from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnose_grid, diagnostic_seeds
 
         self.tl, self.open, self.done, self.lock = tl, [], [], threading.Lock()
-        self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(jax.default_backend(), False)
+        backend = jax.default_backend()
+        self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(backend, False)
         self.diagnosed: dict = {}
-        self.pool = self.finisher = None
-        self.platform = DIAGNOSE_ON.get(jax.default_backend())
-        self._diagnose = functools.partial(diagnose_grid, platform=self.platform)
+        self.pool = self.finisher = self.compiler = self.helper = None
         self._seeds = diagnostic_seeds
-        self.compiler = None
-        if self.beside:
-            workers = DIAGNOSTIC_WORKERS.get(self.platform or jax.default_backend(), 1)
-            self.pool = ThreadPoolExecutor(max_workers=workers)
-            self.finisher = ThreadPoolExecutor(max_workers=1)
-            self.compiler = _prepare_diagnostics(todo, diagnostic_seeds, self.platform)
+        if not self.beside:
+            return
+        self.finisher = ThreadPoolExecutor(max_workers=1)
+        if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
+            from jaxeac.running.helper import Helper
+
+            self.helper = Helper()
+            self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
+            _prepare_diagnostics(todo, diagnostic_seeds, self.helper.submit)
+            return
+        platform = DIAGNOSE_ON.get(backend)
+        self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
+        self._diagnose = functools.partial(self.pool.submit, diagnose_grid, platform=platform)
+        self.compiler = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
+        _prepare_diagnostics(todo, diagnostic_seeds, functools.partial(self.compiler.submit, platform=platform))
 
     def __enter__(self) -> _TaskRunner:
         return self
@@ -589,7 +600,7 @@ class _TaskRunner:
                                      csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
         if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
-            self.diagnosed[task] = self.pool.submit(self._diagnose, grid, grid.grid_map(), diagnosed)
+            self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
         stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
         stage = stage_cm.__enter__()
         self.open.append(stage_cm)
@@ -653,6 +664,10 @@ class _TaskRunner:
         for pool in (self.pool, self.finisher, self.compiler):
             if pool is not None:
                 pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
+        if self.helper is not None:
+            self.helper.close() if exc[0] is None else self.helper.kill()
+            if (peak := self.helper.peak_rss_bytes) is not None:
+                self.tl.values["helper_peak_rss_gib"] = round(peak / 2**30, 3)
         for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were
             try:
                 self._close(stage_cm, RuntimeError("study stopped"))
