@@ -363,3 +363,21 @@ def test_aggregate_keeps_each_tasks_draw_where_the_counts_fit(monkeypatch):
         results[budget] = stats.result()
         assert calls == ["jaxeac-task-stats"] * 2 if budget else calls == ["jaxeac-statistics"] * 2, calls
     assert results[0] == results[100_000]
+
+
+def test_tasks_run_side_by_side_are_taken_as_their_runs_end():
+    """The study takes each task (its curves, its statistics) as its runs end, not in the study's
+    order: a first task that compiles the programs no longer holds back the others' statistics."""
+    from concurrent.futures import Future
+
+    from jaxeac.experiments.study import _as_they_end
+
+    ahead = {t: Future() for t in ("a", "b", "c")}
+    order = _as_they_end(["loaded", "a", "b", "c"], ahead)
+    assert next(order) == "loaded"  # not run side by side: first, in the study's order
+    ahead["c"].set_result(None)
+    assert next(order) == "c"
+    ahead["b"].set_exception(RuntimeError("b failed"))
+    assert next(order) == "b"
+    ahead["a"].set_result(None)
+    assert list(order) == ["a"]
