@@ -539,7 +539,8 @@ DIAGNOSE_ON = {"gpu": "cpu"}
 
 #: Per default backend, whether E8 beside the runs goes to a helper process on the host's CPU
 #: (`jaxeac.running.helper`), so that its compiles and runs neither hold this process's interpreter
-#: lock nor take the cores its compiles need first (`DIAGNOSE_ON`'s CPU, in a process of its own).
+#: lock nor take the cores its compiles need first (`jaxeac study --seeds 1000`, one H100: 28.5-29.6
+#: -> 20.7-20.8 s, with the tasks taken as they end).
 DIAGNOSE_IN_HELPER = {"gpu": True}
 #: Jobs the E8 helper runs at once (compiles ahead, then tasks): each compile at once adds about
 #: 75 MiB to its peak memory (the default study's 5 programs on a 2-core CPU: 527 MiB on 2 threads,

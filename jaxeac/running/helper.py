@@ -1,9 +1,9 @@
 """Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs.
 
 A study on a GPU counts E8's seeds again on the host's CPU (`jaxeac.experiments.study`). In the
-study's own process, tracing and compiling those programs holds the interpreter lock that the
-runs' programs need, and running them takes the cores: `jaxeac study --seeds 1000` on one H100
-took 30.1-31.7 s with E8 in its process and 16.2-17.6 s with E8 switched off.
+study's own process, tracing and compiling those programs held the interpreter lock that the
+runs' programs need, and running them took the cores: with E8 in a helper, `jaxeac study --seeds
+1000` on one H100 took 20.7-20.8 s against 28.5-29.6 s (BENCHMARKS.md, `gpu_h100_study_builds.json`).
 
 A `Helper` is a spawned process with JAX on the CPU alone (one host device, as E8's calls use
 beside a GPU), at a lower scheduling priority (`NICE`), that runs jobs (a module-level function
