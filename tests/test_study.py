@@ -154,19 +154,31 @@ def test_one_task_study_has_no_aggregate(tmp_path):
     assert result["aggregate"] is None and "## Across tasks" not in (tmp_path / "report.md").read_text()
 
 
-def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch):
+def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch, capsys):
     """Where E8 goes beside the runs (accelerators), every task's diagnostics start with the study and
     its folder is finished when they are in, on threads or in a helper process (GPUs): the same
-    summaries and statistics as one task at a time."""
+    summaries and statistics as one task at a time; a helper that dies midway leaves its tasks' E8 to
+    the study's own process, with a line saying so."""
     from jaxeac.experiments import grid, study
+    from jaxeac.running import helper
+
+    class DiesAtItsFirstTask(helper.Helper):
+        def submit(self, fn, /, *args, **kwargs):
+            future = super().submit(fn, *args, **kwargs)
+            if fn is grid.diagnose_grid:
+                self.kill()
+            return future
 
     settings = StudySettings(tasks=("FrozenLake-4x4-v1", "CliffWalking-v1"), algos=("ac", "eac"), seeds=8,
                              trials=10, resamples=400)
     results = {}
-    for how in ("after", "threads", "helper"):
+    for how in ("after", "threads", "helper", "helper_dies"):
         monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", how != "after")
-        monkeypatch.setitem(study.DIAGNOSE_IN_HELPER, "cpu", how == "helper")
+        monkeypatch.setitem(study.DIAGNOSE_IN_HELPER, "cpu", how.startswith("helper"))
+        monkeypatch.setattr(helper, "Helper", DiesAtItsFirstTask if how == "helper_dies" else helper.Helper)
+        capsys.readouterr()
         results[how] = run_study(settings, tmp_path / how, progress=False)
+        results[how, "stderr"] = capsys.readouterr().err
         for task in settings.tasks:
             summary = json.loads((tmp_path / how / "tasks" / task / "summary.json").read_text())
             assert summary["memory_diagnostics"]["eac"]["successes_match_run"]
@@ -174,7 +186,9 @@ def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch
     assert "finish" not in results["threads"]["timeline"]["tasks"][settings.tasks[0]]
     assert 0 < results["helper"]["timeline"]["helper_peak_rss_gib"] < 4
     assert "helper_peak_rss_gib" not in results["threads"]["timeline"]
-    for how in ("threads", "helper"):
+    assert "counting its E8 diagnostics in this process" in results["helper_dies", "stderr"]
+    assert "counting" not in results["helper", "stderr"]
+    for how in ("threads", "helper", "helper_dies"):
         for task in settings.tasks:
             assert results[how, task] == results["after", task]
         assert results[how]["comparisons"] == results["after"]["comparisons"]

@@ -38,7 +38,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,7 @@ from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_algos, check_key, check_positive_int, finished_run, plain_json
 from jaxeac.experiments.grid import GridSettings
 from jaxeac.experiments.study_figure import STUDY_FIGURE, StudyFigure
+from jaxeac.running.helper import HelperError
 from jaxeac.running.threads import in_background
 
 #: The tasks of a full study: the classic tabular tasks, the paper's grid, and the grid made slippery.
@@ -597,7 +598,8 @@ class _TaskRunner:
 
             self.helper = Helper(threads=HELPER_THREADS)
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
-            _prepare_diagnostics(todo, diagnostic_seeds, self.helper.submit)
+            with suppress(HelperError):  # ended already: each task's E8 is counted in this process
+                _prepare_diagnostics(todo, diagnostic_seeds, self.helper.submit)
             return
         platform = DIAGNOSE_ON.get(backend)
         self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
@@ -620,7 +622,8 @@ class _TaskRunner:
                                      csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
         if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
-            self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
+            with suppress(HelperError):  # the helper has ended: counted when the folder is finished
+                self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
         stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
         stage = stage_cm.__enter__()
         self.open.append(stage_cm)
@@ -655,7 +658,13 @@ class _TaskRunner:
         try:
             summary = summarize(run)
             summary["outputs"] = dataclasses.asdict(options)
-            diagnosed = self.diagnosed.pop(task).result() if task in self.diagnosed else None
+            diagnosed = None
+            if task in self.diagnosed:
+                try:
+                    diagnosed = self.diagnosed.pop(task).result()
+                except HelperError as exc:  # the helper process ended: E8 counted here instead (R2)
+                    print(f"study: {task}: {exc}; counting its E8 diagnostics in this process", file=sys.stderr,
+                          flush=True)
             summary |= memory_diagnostics(run, diagnosed=diagnosed)
             if options.per_seed_csv:
                 (stage / "per_seed.csv").write_text(per_seed_csv(run))
