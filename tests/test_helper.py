@@ -14,7 +14,8 @@ from jaxeac.running.helper import Helper, HelperError, helper_environment
 def _jax_as_seen() -> tuple:
     import jax
 
-    return jax.default_backend(), len(jax.devices()), os.getpid(), os.getpriority(os.PRIO_PROCESS, 0)
+    return (jax.config.jax_platforms, jax.default_backend(), len(jax.devices()), os.getpid(),
+            os.getpriority(os.PRIO_PROCESS, 0))
 
 
 def _sleep_then(seconds: float, value):
@@ -26,6 +27,19 @@ def _unpicklable():
     return lambda: None
 
 
+def _refuse():
+    raise RuntimeError("this class is read in the helper only")
+
+
+class _ReadThereOnly:
+    def __reduce__(self):
+        return _refuse, ()
+
+
+def _unreadable_here():
+    return _ReadThereOnly()
+
+
 @pytest.fixture(scope="module")
 def helper():
     with Helper() as h:
@@ -33,17 +47,19 @@ def helper():
 
 
 def test_a_job_runs_in_another_process_with_jax_on_one_cpu_device_at_a_lower_priority(helper):
-    backend, devices, pid, nice = helper.submit(_jax_as_seen).result(timeout=60)
-    assert (backend, devices) == ("cpu", 1)
+    platforms, backend, devices, pid, nice = helper.submit(_jax_as_seen).result(timeout=60)
+    assert (platforms, backend, devices) == ("cpu", "cpu", 1)
     assert pid != os.getpid()
     assert nice >= os.getpriority(os.PRIO_PROCESS, 0) + 1
 
 
 def test_jobs_run_side_by_side_and_keep_their_own_results(helper):
+    helper.submit(abs, 0).result(timeout=60)  # started
     t0 = time.perf_counter()
     futures = [helper.submit(_sleep_then, 0.5, i) for i in range(4)]
     assert [f.result(timeout=30) for f in futures] == [0, 1, 2, 3]
-    assert time.perf_counter() - t0 < 1.5  # four half-second jobs at once, not one after another
+    assert time.perf_counter() - t0 < 1.9  # four half-second jobs at once, not one after another (2 s)
+    assert not futures[0].cancel()  # a job sent is not called back
     assert helper.submit(divmod, 7, b=2).exception(timeout=30) is not None  # divmod takes no keywords
     assert helper.submit(divmod, 7, 2).result(timeout=30) == (3, 1)
 
@@ -56,7 +72,21 @@ def test_a_jobs_error_comes_back_as_itself(helper):
 def test_a_result_that_cannot_come_back_is_an_error_naming_it(helper):
     with pytest.raises(HelperError, match="result of _unpicklable cannot come back"):
         helper.submit(_unpicklable).result(timeout=30)
+    with pytest.raises(HelperError, match="result could not be read here .*read in the helper only"):
+        helper.submit(_unreadable_here).result(timeout=30)
+    with pytest.raises(Exception, match="Can't pickle|can't pickle|cannot pickle"):
+        helper.submit(lambda: None)  # the caller's own error, before anything is sent
     assert helper.submit(abs, -3).result(timeout=30) == 3  # the helper goes on
+
+
+def test_a_job_the_helper_cannot_import_fails_alone(tmp_path, helper, monkeypatch):
+    (tmp_path / "only_here.py").write_text("def seven():\n    return 7\n")
+    monkeypatch.syspath_prepend(str(tmp_path))  # after the helper started: not on its path
+    import only_here
+
+    with pytest.raises(ModuleNotFoundError, match="only_here"):
+        helper.submit(only_here.seven).result(timeout=30)
+    assert helper.submit(abs, -4).result(timeout=30) == 4
 
 
 def test_the_environment_keeps_the_users_xla_flags_but_one_host_device():
@@ -94,6 +124,38 @@ def test_a_helper_that_dies_fails_its_jobs_and_one_killed_leaves_no_process():
         stuck.result(timeout=30)
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
+
+
+def test_sending_to_a_helper_that_has_gone_is_a_helper_error_and_kill_ends_a_stopped_one():
+    import threading
+
+    h = Helper()
+    os.kill(h.submit(os.getpid).result(timeout=30), signal.SIGKILL)
+    with pytest.raises(HelperError, match="has ended"):
+        for _ in range(200):  # the pipe breaks, or the reader sees the end first: either way
+            h.submit(abs, 1)
+            time.sleep(0.01)
+    h.kill()
+
+    h = Helper()
+    os.kill(h.submit(os.getpid).result(timeout=30), signal.SIGSTOP)  # reads nothing more
+    raised = []
+
+    def send_much() -> None:
+        try:
+            h.submit(len, b"x" * 2**26)  # 64 MiB: blocks on the full pipe
+        except HelperError as exc:
+            raised.append(exc)
+
+    sender = threading.Thread(target=send_much, daemon=True)
+    sender.start()
+    time.sleep(0.5)
+    assert sender.is_alive()  # still sending
+    t0 = time.perf_counter()
+    h.kill()
+    assert time.perf_counter() - t0 < 10
+    sender.join(10)
+    assert not sender.is_alive() and raised
 
 
 def test_the_helper_ignores_ctrl_c_its_parent_handles():

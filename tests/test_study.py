@@ -395,3 +395,24 @@ def test_tasks_run_side_by_side_are_taken_as_their_runs_end():
     assert next(order) == "b"
     ahead["a"].set_result(None)
     assert list(order) == ["a"]
+
+
+def test_a_task_that_fails_side_by_side_stops_the_study_with_its_own_error(tmp_path, monkeypatch):
+    """A task run side by side that fails stops the study with that task's error, whichever task's
+    end the study reads first (those after it in its lane are not run and carry the same error)."""
+    from jaxeac.experiments import study
+
+    run = study._TaskRunner.run
+
+    def first_fails(self, task, grid, folder, progress):
+        if task == "FrozenLake-4x4-v1":
+            raise MemoryError("the real cause")
+        return run(self, task, grid, folder, progress)
+
+    monkeypatch.setitem(study.TASKS_SIDE_BY_SIDE, "cpu", 2)
+    monkeypatch.setattr(study._TaskRunner, "run", first_fails)
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1", "CliffWalking-v1", "FrozenLake-4x4-slippery-v1"),
+                             algos=("ac", "eac"), seeds=4, trials=5, resamples=400)
+    with pytest.raises(MemoryError, match="the real cause"):
+        run_study(settings, tmp_path, progress=False)
+    assert not (tmp_path / "study.json").exists()

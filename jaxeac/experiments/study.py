@@ -256,7 +256,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
     On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
-    summary.json) when they are in, while later tasks run; the
+    summary.json) when they are in, while later tasks run (on GPUs in a helper process, spawned: a
+    script calling this keeps its top level under ``if __name__ == "__main__":``); the
     statistics of all tasks are one pass (`TaskStatistics`), each task's from when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
@@ -510,7 +511,7 @@ def _start_tasks(runner: _TaskRunner, todo: dict, out: Path, side: bool, progres
             except BaseException as e:  # noqa: BLE001 (the task's future carries it)
                 done.set_exception(e)
                 for later in tasks[tasks.index(task) + 1:]:
-                    ahead[later].set_exception(RuntimeError(f"not run: {task} failed before it"))
+                    ahead[later].set_exception(e)  # not run: whichever the study reads first, the cause
                 return
 
     from concurrent.futures import Future
@@ -593,6 +594,15 @@ class _TaskRunner:
         if not self.beside:
             return
         self.finisher = ThreadPoolExecutor(max_workers=1)
+        try:
+            self._start_diagnostics(todo, backend, diagnose_grid, diagnostic_seeds)
+        except BaseException as exc:  # nothing left running behind the error
+            self.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+
+    def _start_diagnostics(self, todo: dict, backend: str, diagnose_grid, diagnostic_seeds) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
         if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
             from jaxeac.running.helper import Helper
 

@@ -43,7 +43,11 @@ def helper_environment(environ: dict | None = None) -> dict[str, str]:
 class Helper:
     """A helper process (module docstring): `submit(fn, *args, **kwargs)` → a future of
     ``fn(*args, **kwargs)`` computed there; `close` waits for it to end, `kill` ends it now. A job
-    whose function raises gives that exception; one the process did not finish, `HelperError`."""
+    whose function raises gives that exception; one the process did not finish, or whose job or
+    result could not cross between the processes, `HelperError`.
+
+    The process is spawned, so it imports the caller's main module again: a script that starts a
+    helper (a study on a GPU) keeps its top level under ``if __name__ == "__main__":``."""
 
     def __init__(self, *, threads: int = THREADS, nice: int = NICE, name: str = "jaxeac-helper") -> None:
         import multiprocessing
@@ -54,7 +58,8 @@ class Helper:
                                         name=name, daemon=True)
         self._process.start()
         child.close()
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the pending jobs and whether more may come
+        self._sending = threading.Lock()  # one message on the pipe at a time
         self._pending: dict[int, Future] = {}
         self._jobs = 0
         self._open = True
@@ -63,17 +68,22 @@ class Helper:
         self._reader.start()
 
     def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        payload = pickle.dumps((fn, args, kwargs))  # what cannot be pickled is the caller's error, here
         future: Future = Future()
+        future.set_running_or_notify_cancel()  # a job sent cannot be called back
         with self._lock:
             if not self._open:
                 raise HelperError("the helper process has ended; no more jobs can go to it")
             job, self._jobs = self._jobs, self._jobs + 1
             self._pending[job] = future
-            try:
-                self._conn.send((job, fn, args, kwargs))
-            except BaseException:
-                del self._pending[job]
-                raise
+        try:
+            with self._sending:
+                self._conn.send((job, payload))
+        except OSError as exc:  # the process has gone
+            with self._lock:
+                self._pending.pop(job, None)
+                self._open = False
+            raise HelperError(f"the helper process has ended; no more jobs can go to it ({exc})") from exc
         return future
 
     @property
@@ -86,25 +96,26 @@ class Helper:
     def close(self, timeout: float = 30.0) -> None:
         """End the helper once its jobs are done (at most `timeout` s, then it is killed)."""
         with self._lock:
-            if self._open:
-                self._open = False
-                try:
+            was_open, self._open = self._open, False
+        if was_open:
+            try:
+                with self._sending:
                     self._conn.send(None)
-                except OSError:
-                    pass
+            except OSError:
+                pass
         self._reader.join(timeout)
-        self._process.join(timeout)
         self.kill()
 
     def kill(self) -> None:
         """End the helper now; jobs not finished fail with `HelperError`."""
-        with self._lock:
-            self._open = False
-        if self._process.is_alive():
+        if self._process.is_alive():  # first: a helper that stopped reading cannot hold this up
             self._process.kill()
         self._process.join()
-        self._conn.close()
+        with self._lock:
+            self._open = False
         self._reader.join()
+        with self._sending:  # a send under way has failed by now (the process is gone)
+            self._conn.close()
 
     def __enter__(self) -> Helper:
         return self
@@ -113,25 +124,38 @@ class Helper:
         self.close() if kind is None else self.kill()
 
     def _read(self) -> None:
-        while True:
-            try:
-                message = self._conn.recv()
-            except (EOFError, OSError):
-                break
-            if message[0] == "closed":
-                self._peak_rss.set_result(message[1])
-                break
-            job, ok, value = message
-            with self._lock:
-                future = self._pending.pop(job, None)
-            if future is not None:
+        """Hand each result to its future until the process ends; then fail the jobs left. A message
+        that cannot be read (a result that does not unpickle here) ends the helper the same way."""
+        why = "the helper process ended before this job finished"
+        try:
+            while True:
+                try:
+                    message = self._conn.recv()
+                except (EOFError, OSError):
+                    break
+                if message[0] == "closed":
+                    self._peak_rss.set_result(message[1])
+                    break
+                job, ok, blob = message
+                with self._lock:
+                    future = self._pending.pop(job, None)
+                if future is None:
+                    continue
+                try:
+                    value = pickle.loads(blob)
+                except Exception as exc:  # noqa: BLE001 (e.g. a class that does not unpickle here)
+                    ok, value = False, HelperError(f"a job's result could not be read here ({type(exc).__name__}: {exc})")
                 future.set_result(value) if ok else future.set_exception(value)
+        except Exception as exc:  # noqa: BLE001 (every waiting job is told, and the process ends)
+            why = f"a message from the helper process could not be read ({type(exc).__name__}: {exc})"
+            if self._process.is_alive():
+                self._process.kill()
         with self._lock:
             self._open, pending, self._pending = False, self._pending, {}
         if not self._peak_rss.done():
             self._peak_rss.set_exception(HelperError("the helper process was ended"))
         for future in pending.values():
-            future.set_exception(HelperError("the helper process ended before this job finished"))
+            future.set_exception(HelperError(why))
 
 
 def _portable(exc: BaseException) -> BaseException:
@@ -153,24 +177,31 @@ def _serve(conn, threads: int, nice: int, environment: dict[str, str]) -> None:
         pass
     from concurrent.futures import ThreadPoolExecutor
 
+    import jax
+
     from jaxeac import runtime
 
-    runtime.use_compilation_cache()  # as in the parent (JAX starts here, with `environment`)
+    jax.config.update("jax_platforms", "cpu")  # also where the parent's main module imported JAX first
+    runtime.use_compilation_cache()  # as in the parent
     send = threading.Lock()
 
     def reply(message) -> None:
         with send:
             conn.send(message)
 
-    def run(job: int, fn: Callable, args: tuple, kwargs: dict) -> None:
+    def run(job: int, payload: bytes) -> None:
+        name = "the job"
         try:
+            fn, args, kwargs = pickle.loads(payload)  # a job that cannot be read here fails alone
+            name = getattr(fn, "__name__", repr(fn))
             outcome = (job, True, fn(*args, **kwargs))
         except BaseException as exc:  # noqa: BLE001 (the parent's future carries it)
             outcome = (job, False, _portable(exc))
         try:
-            reply(outcome)
+            blob = pickle.dumps(outcome[2])
         except Exception as exc:  # noqa: BLE001 (a result that cannot be pickled)
-            reply((job, False, HelperError(f"the result of {getattr(fn, '__name__', fn)} cannot come back: {exc}")))
+            outcome, blob = (job, False, None), pickle.dumps(HelperError(f"the result of {name} cannot come back: {exc}"))
+        reply((outcome[0], outcome[1], blob))
 
     with ThreadPoolExecutor(threads, thread_name_prefix="jaxeac-helper") as pool:
         while True:
