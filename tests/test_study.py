@@ -159,7 +159,7 @@ def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch
     its folder is finished when they are in, on threads or in a helper process (GPUs): the same
     summaries and statistics as one task at a time; a helper that dies midway leaves its tasks' E8 to
     the study's own process, with a line saying so."""
-    from jaxeac.experiments import grid, study
+    from jaxeac.experiments import grid, study_runs
     from jaxeac.running import helper
 
     class DiesAtItsFirstTask(helper.Helper):
@@ -174,7 +174,7 @@ def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch
     results = {}
     for how in ("after", "threads", "helper", "helper_dies"):
         monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", how != "after")
-        monkeypatch.setitem(study.DIAGNOSE_IN_HELPER, "cpu", how.startswith("helper"))
+        monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", how.startswith("helper"))
         monkeypatch.setattr(helper, "Helper", DiesAtItsFirstTask if how == "helper_dies" else helper.Helper)
         capsys.readouterr()
         results[how] = run_study(settings, tmp_path / how, progress=False)
@@ -240,12 +240,12 @@ def test_study_with_compact_outputs_brings_back_measures_only(tmp_path, monkeypa
     import pyarrow.parquet as pq
 
     from jaxeac import results
-    from jaxeac.experiments import study
+    from jaxeac.experiments import study_runs
     from jaxeac.running import outputs
 
     settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=8, trials=10, resamples=400)
     full = run_study(settings, tmp_path / "full", progress=False)
-    monkeypatch.setattr(study, "STUDY_FULL_OUTPUT_SEEDS", 4)
+    monkeypatch.setattr(study_runs, "STUDY_FULL_OUTPUT_SEEDS", 4)
     prepared = []
     prepare = outputs.CompactCollector.prepare
     monkeypatch.setattr(outputs.CompactCollector, "prepare",
@@ -384,10 +384,10 @@ def test_tasks_run_side_by_side_are_taken_as_their_runs_end():
     order: a first task that compiles the programs no longer holds back the others' statistics."""
     from concurrent.futures import Future
 
-    from jaxeac.experiments.study import _as_they_end
+    from jaxeac.experiments.study_runs import as_they_end
 
     ahead = {t: Future() for t in ("a", "b", "c")}
-    order = _as_they_end(["loaded", "a", "b", "c"], ahead)
+    order = as_they_end(["loaded", "a", "b", "c"], ahead)
     assert next(order) == "loaded"  # not run side by side: first, in the study's order
     ahead["c"].set_result(None)
     assert next(order) == "c"
@@ -400,17 +400,17 @@ def test_tasks_run_side_by_side_are_taken_as_their_runs_end():
 def test_a_task_that_fails_side_by_side_stops_the_study_with_its_own_error(tmp_path, monkeypatch):
     """A task run side by side that fails stops the study with that task's error, whichever task's
     end the study reads first (those after it in its lane are not run and carry the same error)."""
-    from jaxeac.experiments import study
+    from jaxeac.experiments import study_runs
 
-    run = study._TaskRunner.run
+    run = study_runs.TaskRunner.run
 
     def first_fails(self, task, grid, folder, progress):
         if task == "FrozenLake-4x4-v1":
             raise MemoryError("the real cause")
         return run(self, task, grid, folder, progress)
 
-    monkeypatch.setitem(study.TASKS_SIDE_BY_SIDE, "cpu", 2)
-    monkeypatch.setattr(study._TaskRunner, "run", first_fails)
+    monkeypatch.setitem(study_runs.TASKS_SIDE_BY_SIDE, "cpu", 2)
+    monkeypatch.setattr(study_runs.TaskRunner, "run", first_fails)
     settings = StudySettings(tasks=("FrozenLake-4x4-v1", "CliffWalking-v1", "FrozenLake-4x4-slippery-v1"),
                              algos=("ac", "eac"), seeds=4, trials=5, resamples=400)
     with pytest.raises(MemoryError, match="the real cause"):

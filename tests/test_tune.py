@@ -109,11 +109,11 @@ def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_pat
     statistics (`TASKS_SIDE_BY_SIDE`, `DIAGNOSE_BESIDE_THE_RUN`), and E8 on the platform
     `DIAGNOSE_ON` names; forced on here, every number of study.json but the timings is the CPU
     path's, and so is every task's E8."""
-    from jaxeac.experiments import grid, study
+    from jaxeac.experiments import grid, study_runs
 
-    monkeypatch.setitem(study.TASKS_SIDE_BY_SIDE, "cpu", 2)
+    monkeypatch.setitem(study_runs.TASKS_SIDE_BY_SIDE, "cpu", 2)
     monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
-    monkeypatch.setitem(study.DIAGNOSE_ON, "cpu", "cpu")
+    monkeypatch.setitem(study_runs.DIAGNOSE_ON, "cpu", "cpu")
     out, settings, _, _ = tuned
     tuning = Tuning.build(["alpha=0.1,0.3", "beta=0.3,1", "sarsa.epsilon=0.05,0.2"], algos=ALGOS, seeds=16,
                           key=None, eval_key=0, trials=20, out=tmp_path)
@@ -125,7 +125,7 @@ def test_side_by_side_on_accelerators_gives_the_cpu_paths_results(tuned, tmp_pat
 
     assert numbers(tmp_path) == numbers(out)
     for task in TASKS:
-        e8 = [json.loads((study._folder(f, task) / "summary.json").read_text())["memory_diagnostics"]
+        e8 = [json.loads((study_runs.task_folder(f, task) / "summary.json").read_text())["memory_diagnostics"]
               for f in (tmp_path, out)]
         assert e8[0] == e8[1] and e8[0]
 

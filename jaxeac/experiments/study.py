@@ -1,6 +1,7 @@
 """Beyond the paper's grid: every task × every algorithm, compared with AC (`jaxeac study`, X4).
 
-(Over 400 lines: the study end to end: tasks, their runs and folders, one-pass statistics, timeline, report.)
+(Over 400 lines: the study end to end: tasks, one-pass statistics, timeline, report; how the tasks
+run side by side, with E8 beside them, is `jaxeac.experiments.study_runs`.)
 
 Each task (a registered environment, `jaxeac.registered()`, optionally with a slip
 probability) runs every algorithm — AC, EAC, EAC's ablations and the value-based
@@ -16,10 +17,11 @@ Fixed costs are paid once per study, not per task: a finite task's tables are in
 compiled programs (`jaxeac.envs.tabular.TableLayout`, C among them), padded to the largest task of
 its group (tasks with the same actions and r̃ rule: every default task), so one program per
 algorithm serves every task of the group (the run's and E8's); the figure is one, a panel per
-task drawn as the task ends (`StudyFigure`). On accelerators several tasks run side by side (`TASKS_SIDE_BY_SIDE`; tasks of one
-group share each program, compiled by the first to need it), E8's programs compile
-ahead of the runs, and a tuned study's tuning runs start with the study's and its evaluation runs
-beside the statistics (`jaxeac.experiments.tune_runs`).
+task drawn as the task ends (`StudyFigure`). On accelerators several tasks run side by side
+(`jaxeac.experiments.study_runs`; tasks of one group share each program, compiled by the first to
+need it), E8's programs compile ahead of the runs (on GPUs in a helper process), and a tuned
+study's tuning runs start with the study's and its evaluation runs beside the statistics
+(`jaxeac.experiments.tune_runs`).
 
 A task's run folder is kept under ``tasks/`` (its results.parquet streamed a chunk at a time)
 and reused by a rerun with the same settings, so a study killed midway resumes where it
@@ -38,7 +40,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +50,7 @@ from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_algos, check_key, check_positive_int, finished_run, plain_json
 from jaxeac.experiments.grid import GridSettings
 from jaxeac.experiments.study_figure import STUDY_FIGURE, StudyFigure
-from jaxeac.running.helper import HelperError
+from jaxeac.experiments.study_runs import TaskRunner, as_they_end, side_by_side, start_tasks, task_folder
 from jaxeac.running.threads import in_background
 
 #: The tasks of a full study: the classic tabular tasks, the paper's grid, and the grid made slippery.
@@ -135,11 +137,6 @@ class StudySettings:
         return GridSettings(env=name, slip=slip, algos=tuple(self.algos), seeds=self.seeds,
                             trials=self.trials, key=self.key, epsilon=self.epsilon,
                             chunk_size=self.chunk_size, lanes=self.lanes).resolved()
-
-
-def folder_name(task: str) -> str:
-    """A task's folder under ``tasks/``: its name, ``:slip=P`` as ``-slipP``."""
-    return task.replace(":slip=", "-slip")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,10 +271,10 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
         envs = task_envs(grids)
         tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
         todo = {t: g for t, g in tasks.items()
-                if not finished_run(_folder(out, t), plain_json(dataclasses.asdict(g)))}
+                if not finished_run(task_folder(out, t), plain_json(dataclasses.asdict(g)))}
     kept = {}
     n = len(settings.tasks)
-    side = _side_by_side(todo)
+    side = side_by_side(todo)
     tuned = None
     if tuning is not None and side:  # the tuning's runs beside the study's: the device has room
         from jaxeac.experiments.tune import tuning_runs
@@ -288,11 +285,11 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     stats = TaskStatistics(settings.tasks, first.algos, settings.seeds, first.trials, resamples=settings.resamples,
                            key=settings.key)
     timed = functools.partial(_timed, tl, "figure")
-    with (_TaskRunner(todo, tl) as runner, _stopped_on_error(stats),
+    with (TaskRunner(todo, tl) as runner, _stopped_on_error(stats),
           StudyFigure(settings.tasks, settings.seeds, timed) as figure):
-        ahead = _start_tasks(runner, todo, out, side, progress)
-        for task in _as_they_end(list(tasks), ahead):  # a task's statistics start as soon as its runs end
-            i, grid, folder = settings.tasks.index(task), tasks[task], _folder(out, task)
+        ahead = start_tasks(runner, todo, out, side, progress)
+        for task in as_they_end(list(tasks), ahead):  # a task's statistics start as soon as its runs end
+            i, grid, folder = settings.tasks.index(task), tasks[task], task_folder(out, task)
             if task not in todo:
                 if progress:
                     print(f"study: task {i + 1}/{n} {task}: done earlier, reusing {folder}", file=sys.stderr,
@@ -378,10 +375,6 @@ def _timed(tl: Timeline, phase: str, work: Callable, *args):
         return work(*args)
 
 
-def _folder(out: Path, task: str) -> Path:
-    return out / "tasks" / folder_name(task)
-
-
 class TaskStatistics:
     """Every task's statistics and the aggregate across tasks: one pass of the statistics engine
     (`jaxeac.stats.core.compare_as_tasks_end`, with the settings of
@@ -456,263 +449,6 @@ def _seed_ids(n: int) -> np.ndarray:
     ids = np.arange(n).astype(f"<U{len(str(max(n - 1, 0)))}")
     ids.flags.writeable = False
     return ids
-
-
-#: A study's task folders hold per-trial steps, policies and per_seed.csv up to this many seeds; beyond,
-#: the per-seed measures (taken on the device) and success curves, as a grid run's above
-#: `jaxeac.results.FULL_OUTPUT_SEEDS`: 11 tasks x 8 algorithms of whole trial logs, 4 tasks at a time.
-STUDY_FULL_OUTPUT_SEEDS = 10_000
-
-
-#: Per platform, how many of the study's tasks run side by side (threads, each taking every k-th
-#: task in turn), so that one task's host work (dispatch, copies, its folder) overlaps another's
-#: device runs and a tuning's runs start with the study's; 4, as many as the chance-budget groups
-#: that ran side by side before C was data. Not on CPUs: there compiles and runs share the cores.
-TASKS_SIDE_BY_SIDE = {"gpu": 4, "tpu": 4}
-
-
-def _side_by_side(todo: dict) -> bool:
-    import jax
-
-    return bool(todo) and TASKS_SIDE_BY_SIDE.get(jax.default_backend(), 0) > 1
-
-
-def _as_they_end(order: list[str], ahead: dict):
-    """The tasks of `order`: first those not run side by side (loaded, or run in the study's loop,
-    in order), then those of `ahead` (`_start_tasks`) as their runs end."""
-    from concurrent.futures import as_completed
-
-    yield from (task for task in order if task not in ahead)
-    by_future = {ahead[task]: task for task in order if task in ahead}
-    for done in as_completed(by_future):
-        yield by_future[done]
-
-
-def _start_tasks(runner: _TaskRunner, todo: dict, out: Path, side: bool, progress: bool) -> dict:
-    """Where tasks go side by side (`TASKS_SIDE_BY_SIDE`): {task: future of its run's results}, the
-    tasks dealt in order to that many threads, each running its own in turn; else {} (run in the
-    loop). Tasks of one program layout on different threads share its programs (the first compiles)."""
-    if not side:
-        return {}
-    import jax
-
-    width = TASKS_SIDE_BY_SIDE[jax.default_backend()]
-    order = list(todo)
-    lanes = [order[i::width] for i in range(min(width, len(order)))]
-    ahead: dict = {}
-
-    def lane(tasks: list) -> None:
-        for task in tasks:
-            done = ahead[task]
-            try:
-                done.set_result(runner.run(task, todo[task], _folder(out, task), None))
-                if progress:
-                    print(f"study: {task}: runs done", file=sys.stderr, flush=True)
-            except BaseException as e:  # noqa: BLE001 (the task's future carries it)
-                done.set_exception(e)
-                for later in tasks[tasks.index(task) + 1:]:
-                    ahead[later].set_exception(e)  # not run: whichever the study reads first, the cause
-                return
-
-    from concurrent.futures import Future
-
-    for task in order:
-        ahead[task] = Future()
-    for tasks in lanes:
-        threading.Thread(target=lane, args=(tasks,), daemon=True, name="jaxeac-study-tasks").start()
-    return ahead
-
-
-#: Per platform E8 runs on (`DIAGNOSE_ON`), tasks whose E8 diagnostics run at once beside the runs
-#: (accelerators only). On the GPU, all 11 tasks' queued on 2 workers at the study's start slowed
-#: the runs of one H200 (grid-paper-v0:slip=0.1 at 1,000 seeds: 17.8 s against 2.2 s): one at a
-#: time, started with its task. On the host's CPU cores they queue with no run: several.
-DIAGNOSTIC_WORKERS = {"cpu": 4}
-
-
-#: Compiles of E8's programs at once, ahead of the runs (accelerators: `_prepare_diagnostics`).
-DIAGNOSTIC_COMPILERS = 8
-
-#: Per default backend, the platform E8's seeds run on beside a study's runs: on GPUs the host's idle
-#: CPU cores, where E8's latency-bound `trials` loops no longer queue with the runs' kernels
-#: (`jaxeac study --seeds 1000`, one H200, first runs of two builds in one sitting: 101.3 -> 64.0 s;
-#: the same counts, R2).
-DIAGNOSE_ON = {"gpu": "cpu"}
-
-#: Per default backend, whether E8 beside the runs goes to a helper process on the host's CPU
-#: (`jaxeac.running.helper`), so that its compiles and runs neither hold this process's interpreter
-#: lock nor take the cores its compiles need first (`jaxeac study --seeds 1000`, one H100: 28.5-29.6
-#: -> 20.7-20.8 s, with the tasks taken as they end).
-DIAGNOSE_IN_HELPER = {"gpu": True}
-#: Jobs the E8 helper runs at once (compiles ahead, then tasks): each compile at once adds about
-#: 75 MiB to its peak memory (the default study's 5 programs on a 2-core CPU: 527 MiB on 2 threads,
-#: 977 MiB on 8, the compiles 5.1 against 6.1 s).
-HELPER_THREADS = 3
-
-
-def _prepare_diagnostics(todo: dict, diagnostic_seeds, submit: Callable) -> None:
-    """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
-    memories and layout), several at once (`submit(fn, *args, **kwargs)`: a pool's or a helper's), so
-    that each task's diagnostics find theirs compiled instead of compiling group after group. Jobs of
-    one layout, algorithm, seed count and best-action input go once; the rest that share a program
-    wait for its compile (`_EXECUTABLES`)."""
-    from jaxeac.envs.grid import shortest_actions
-    from jaxeac.running.diagnostics import prepare_diagnostics
-    from jaxeac.running.loops import program_key
-
-    jobs: dict = {}
-    for grid in todo.values():
-        env, grid_map = grid.make_env(), grid.grid_map()
-        best = shortest_actions(grid_map) if grid_map is not None else None
-        for algo, seeds in diagnostic_seeds(grid).items():
-            key = (program_key(env), algo, seeds.size, best is not None)
-            jobs.setdefault(key, (env, grid.run_config(algo), seeds.size, best))
-    for env, cfg, n, best in jobs.values():
-        submit(prepare_diagnostics, env, cfg, n_seeds=n, best=best)
-
-
-class _TaskRunner:
-    """Runs a study's tasks into their folders. Where E8's diagnostics go beside the run
-    (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), a task's start with its run
-    (queued behind the earlier tasks'), and its folder is finished (summary.json, then moved in
-    place) by a finisher thread when they are in, so that the next task's run need not wait for
-    them; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
-
-    def __init__(self, todo: dict, tl: Timeline) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        import jax
-
-        from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnose_grid, diagnostic_seeds
-
-        self.tl, self.open, self.done, self.lock = tl, [], [], threading.Lock()
-        backend = jax.default_backend()
-        self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(backend, False)
-        self.diagnosed: dict = {}
-        self.pool = self.finisher = self.compiler = self.helper = None
-        self._seeds = diagnostic_seeds
-        if not self.beside:
-            return
-        self.finisher = ThreadPoolExecutor(max_workers=1)
-        try:
-            self._start_diagnostics(todo, backend, diagnose_grid, diagnostic_seeds)
-        except BaseException as exc:  # nothing left running behind the error
-            self.__exit__(type(exc), exc, exc.__traceback__)
-            raise
-
-    def _start_diagnostics(self, todo: dict, backend: str, diagnose_grid, diagnostic_seeds) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
-            from jaxeac.running.helper import Helper
-
-            self.helper = Helper(threads=HELPER_THREADS)
-            self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
-            with suppress(HelperError):  # ended already: each task's E8 is counted in this process
-                _prepare_diagnostics(todo, diagnostic_seeds, self.helper.submit)
-            return
-        platform = DIAGNOSE_ON.get(backend)
-        self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
-        self._diagnose = functools.partial(self.pool.submit, diagnose_grid, platform=platform)
-        self.compiler = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
-        _prepare_diagnostics(todo, diagnostic_seeds, functools.partial(self.compiler.submit, platform=platform))
-
-    def __enter__(self) -> _TaskRunner:
-        return self
-
-    def run(self, task: str, grid, folder: Path, progress) -> dict:
-        """Run `task` into `folder` (finished now or later); its `CompactSeeds` per algorithm."""
-        from jaxeac.experiments.grid import GridRun
-        from jaxeac.io import RUN_FOLDER_FILES, staged_dir
-        from jaxeac.results import RESULTS_FILE, OutputOptions, ResultsWriter
-        from jaxeac.running.batch import run_algorithms
-        from jaxeac.running.outputs import CompactCollector
-
-        options = OutputOptions.auto(grid.seeds, full=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS,
-                                     csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
-        env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
-        if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
-            with suppress(HelperError):  # the helper has ended: counted when the folder is finished
-                self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
-        stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
-        stage = stage_cm.__enter__()
-        self.open.append(stage_cm)
-        t0 = time.perf_counter()
-        try:
-            with ResultsWriter(stage / RESULTS_FILE, grid.trials, env.n_states, options) as writer:
-                collectors = [CompactCollector(seeds, grid.trials, env.n_states, n_chances=env.n_chances,
-                                               on_chunk=writer.chunk_writer(a, seeds),
-                                               whole_chunks=options.trial_steps or options.policies)
-                              for a in grid.algos]  # compact outputs: measures, not logs, come back
-                runs = run_algorithms(env, [grid.run_config(a) for a in grid.algos], root_key=grid.key,
-                                      n_seeds=grid.seeds, chunk_size=grid.chunk_size, progress=progress,
-                                      collectors=collectors)
-        except BaseException as exc:
-            self._close(stage_cm, exc)
-            raise
-        run = GridRun(grid, grid.grid_map(), dict(zip(grid.algos, runs, strict=True)))
-        self.tl.note(task, run=time.perf_counter() - t0, compile=sum(r.compile_seconds for r in runs),
-                     device_run=sum(r.run_seconds for r in runs))
-        if self.beside:
-            self.done.append(self.finisher.submit(self._finish, task, run, stage, stage_cm, options))
-        else:
-            with self.tl.phase("finish", task):
-                self._finish(task, run, stage, stage_cm, options)
-        return run.results
-
-    def _finish(self, task: str, run, stage: Path, stage_cm, options) -> None:
-        """The folder's summary.json (with E8's diagnostics), then the folder moved in place."""
-        from jaxeac.experiments.grid import memory_diagnostics, per_seed_csv, summarize
-        from jaxeac.io import atomic_write_json
-
-        try:
-            summary = summarize(run)
-            summary["outputs"] = dataclasses.asdict(options)
-            diagnosed = None
-            if task in self.diagnosed:
-                try:
-                    diagnosed = self.diagnosed.pop(task).result()
-                except HelperError as exc:  # the helper process ended: E8 counted here instead (R2)
-                    print(f"study: {task}: {exc}; counting its E8 diagnostics in this process", file=sys.stderr,
-                          flush=True)
-            summary |= memory_diagnostics(run, diagnosed=diagnosed)
-            if options.per_seed_csv:
-                (stage / "per_seed.csv").write_text(per_seed_csv(run))
-            atomic_write_json(stage / "summary.json", summary)
-        except BaseException as exc:
-            self._close(stage_cm, exc)
-            raise
-        self._close(stage_cm, None)
-        self.tl.note(task, diagnostics=summary.get("diagnostics_seconds", 0.0))
-
-    def _close(self, stage_cm, exc: BaseException | None) -> None:
-        """Move a finished stage in place (`exc` None) or drop it; once, whichever thread comes first."""
-        with self.lock:
-            if stage_cm not in self.open:
-                return
-            self.open.remove(stage_cm)
-            info = (type(exc), exc, exc.__traceback__) if exc is not None else (None, None, None)
-            stage_cm.__exit__(*info)
-
-    def finish(self) -> None:
-        """Wait for every folder to be finished (re-raising the first failure)."""
-        for f in self.done:
-            f.result()
-
-    def __exit__(self, *exc) -> None:
-        for pool in (self.pool, self.finisher, self.compiler):
-            if pool is not None:
-                pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
-        if self.helper is not None:
-            with self.tl.phase("helper_close"):
-                self.helper.close() if exc[0] is None else self.helper.kill()
-            if (peak := self.helper.peak_rss_bytes) is not None:
-                self.tl.values["helper_peak_rss_gib"] = round(peak / 2**30, 3)
-        for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were
-            try:
-                self._close(stage_cm, RuntimeError("study stopped"))
-            except RuntimeError:
-                pass
 
 
 def _successes(folder: Path, grid: GridSettings) -> tuple[dict, dict[str, np.ndarray]]:
