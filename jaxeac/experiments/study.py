@@ -50,7 +50,14 @@ from jaxeac.errors import UsageError
 from jaxeac.experiments.common import check_algos, check_key, check_positive_int, finished_run, plain_json
 from jaxeac.experiments.grid import GridSettings
 from jaxeac.experiments.study_figure import STUDY_FIGURE, StudyFigure
-from jaxeac.experiments.study_runs import TaskRunner, as_they_end, side_by_side, start_tasks, task_folder
+from jaxeac.experiments.study_runs import (
+    TaskRunner,
+    Timeline,
+    as_they_end,
+    side_by_side,
+    start_tasks,
+    task_folder,
+)
 from jaxeac.running.threads import in_background
 
 #: The tasks of a full study: the classic tabular tasks, the paper's grid, and the grid made slippery.
@@ -178,43 +185,6 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
         for t in tasks:
             envs[t] = envs[t].padded(layout)
     return envs
-
-
-class Timeline:
-    """Wall seconds of a study's phases (study.json's ``timeline``): per task its run (compile, device
-    run and E8 diagnostics inside, from the run folder's summary), loading and curves; then the
-    study's own: ``statistics`` (the wait, once the last task is in, for the tasks' statistics still
-    running, the aggregate and Holm), the wait for E8 (and for its helper process to end), tuning,
-    the figure (its panels as tasks end and its PNG beside the statistics, summed) and the wait for
-    its PNG; ``helper_peak_rss_gib``: the E8 helper's peak memory, where there was one."""
-
-    def __init__(self) -> None:
-        self.t0 = time.perf_counter()
-        self.tasks: dict[str, dict[str, float]] = {}
-        self.study: dict[str, float] = {}
-        self.values: dict[str, float] = {}  # other measures (the E8 helper's peak memory)
-
-    @contextmanager
-    def phase(self, name: str, task: str | None = None):
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            where = self.study if task is None else self.tasks.setdefault(task, {})
-            where[name] = where.get(name, 0.0) + time.perf_counter() - t0
-
-    def note(self, task: str, **seconds: float) -> None:
-        self.tasks.setdefault(task, {}).update(seconds)
-
-    def record(self) -> dict:
-        total = time.perf_counter() - self.t0
-        r = {k: round(v, 3) for k, v in self.study.items()}
-        per = {t: {k: round(v, 3) for k, v in p.items()} for t, p in self.tasks.items()}
-        sums = {}
-        for p in per.values():
-            for k, v in p.items():
-                sums[k] = round(sums.get(k, 0.0) + v, 3)
-        return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per, **self.values}
 
 
 def _said(tl: Timeline, progress: bool):

@@ -4,7 +4,8 @@ E8's diagnostics beside the runs (on GPUs in a helper process, `jaxeac.running.h
 `jaxeac.experiments.study.run_study` starts the tasks (`start_tasks`), takes each as its runs end
 (`as_they_end`) and finishes with the runner (`TaskRunner`): one task's host work (dispatch,
 copies, its folder) overlaps another's device runs, and a task's folder is finished (summary.json
-with E8's counts, then moved in place) while later tasks run.
+with E8's counts, then moved in place) while later tasks run. The `Timeline` records where a
+study's time went, per task and phase.
 """
 
 from __future__ import annotations
@@ -15,16 +16,49 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from contextlib import suppress
+from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from jaxeac.running.helper import HelperError
 
-if TYPE_CHECKING:
-    from jaxeac.experiments.study import Timeline
+
+class Timeline:
+    """Wall seconds of a study's phases (study.json's ``timeline``): per task its run (compile, device
+    run and E8 diagnostics inside, from the run folder's summary), loading and curves; then the
+    study's own: ``statistics`` (the wait, once the last task is in, for the tasks' statistics still
+    running, the aggregate and Holm), the wait for E8 (and for its helper process to end), tuning,
+    the figure (its panels as tasks end and its PNG beside the statistics, summed) and the wait for
+    its PNG; ``helper_peak_rss_gib``: the E8 helper's peak memory, where there was one."""
+
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+        self.tasks: dict[str, dict[str, float]] = {}
+        self.study: dict[str, float] = {}
+        self.values: dict[str, float] = {}  # other measures (the E8 helper's peak memory)
+
+    @contextmanager
+    def phase(self, name: str, task: str | None = None):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            where = self.study if task is None else self.tasks.setdefault(task, {})
+            where[name] = where.get(name, 0.0) + time.perf_counter() - t0
+
+    def note(self, task: str, **seconds: float) -> None:
+        self.tasks.setdefault(task, {}).update(seconds)
+
+    def record(self) -> dict:
+        total = time.perf_counter() - self.t0
+        r = {k: round(v, 3) for k, v in self.study.items()}
+        per = {t: {k: round(v, 3) for k, v in p.items()} for t, p in self.tasks.items()}
+        sums = {}
+        for p in per.values():
+            for k, v in p.items():
+                sums[k] = round(sums.get(k, 0.0) + v, 3)
+        return {"total_s": round(total, 3), "tasks_summed": sums, "study": r, "tasks": per, **self.values}
 
 
 def folder_name(task: str) -> str:
