@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor, as_completed
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -93,8 +94,6 @@ def side_by_side(todo: dict) -> bool:
 def as_they_end(order: list[str], ahead: dict):
     """The tasks of `order`: first those not run side by side (loaded, or run in the study's loop,
     in order), then those of `ahead` (`start_tasks`) as their runs end."""
-    from concurrent.futures import as_completed
-
     yield from (task for task in order if task not in ahead)
     by_future = {ahead[task]: task for task in order if task in ahead}
     for done in as_completed(by_future):
@@ -126,8 +125,6 @@ def start_tasks(runner: TaskRunner, todo: dict, out: Path, side: bool, progress:
                 for later in tasks[tasks.index(task) + 1:]:
                     ahead[later].set_exception(e)  # not run: whichever the study reads first, the cause
                 return
-
-    from concurrent.futures import Future
 
     for task in order:
         ahead[task] = Future()
@@ -192,11 +189,9 @@ class TaskRunner:
     them; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
 
     def __init__(self, todo: dict, tl: Timeline) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
         import jax
 
-        from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnose_grid, diagnostic_seeds
+        from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnostic_seeds
 
         self.tl, self.open, self.done, self.lock = tl, [], [], threading.Lock()
         backend = jax.default_backend()
@@ -208,13 +203,13 @@ class TaskRunner:
             return
         self.finisher = ThreadPoolExecutor(max_workers=1)
         try:
-            self._start_diagnostics(todo, backend, diagnose_grid, diagnostic_seeds)
+            self._start_diagnostics(todo, backend)
         except BaseException as exc:  # nothing left running behind the error
             self.__exit__(type(exc), exc, exc.__traceback__)
             raise
 
-    def _start_diagnostics(self, todo: dict, backend: str, diagnose_grid, diagnostic_seeds) -> None:
-        from concurrent.futures import ThreadPoolExecutor
+    def _start_diagnostics(self, todo: dict, backend: str) -> None:
+        from jaxeac.experiments.grid import diagnose_grid
 
         if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
             from jaxeac.running.helper import Helper
@@ -222,13 +217,13 @@ class TaskRunner:
             self.helper = Helper(threads=HELPER_THREADS)
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
             with suppress(HelperError):  # ended already: each task's E8 is counted in this process
-                prepare_diagnostics_ahead(todo, diagnostic_seeds, self.helper.submit)
+                prepare_diagnostics_ahead(todo, self._seeds, self.helper.submit)
             return
         platform = DIAGNOSE_ON.get(backend)
         self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
         self._diagnose = functools.partial(self.pool.submit, diagnose_grid, platform=platform)
         self.compiler = ThreadPoolExecutor(max_workers=DIAGNOSTIC_COMPILERS, thread_name_prefix="jaxeac-e8-compile")
-        prepare_diagnostics_ahead(todo, diagnostic_seeds, functools.partial(self.compiler.submit, platform=platform))
+        prepare_diagnostics_ahead(todo, self._seeds, functools.partial(self.compiler.submit, platform=platform))
 
     def __enter__(self) -> TaskRunner:
         return self

@@ -1,5 +1,7 @@
 """The steps of `jaxeac reproduce`: each runs its experiments into a subfolder of ``out``.
 
+(Over 400 lines: every step of the replication in one place, each with its fingerprint and record.)
+
 Layout of ``out`` (each step a subfolder, finished when its ``reproduce.json`` marker
 exists with the same fingerprint; a rerun with the same settings skips finished steps)::
 
