@@ -51,6 +51,23 @@ def test_per_value_bootstrap_agrees_with_pairs_drawn_one_by_one(rng, monkeypatch
     np.testing.assert_allclose(exact["d_z_ci95"], drawn["d_z_ci95"], atol=0.02)
 
 
+@pytest.mark.parametrize("path, integer, max_distinct, n", [(large.PER_VALUE, True, None, 300),
+                                                            (large.RAW, True, 0, 300),
+                                                            (large.ASYMPTOTIC, False, None, large.LARGE_N + 10)])
+def test_mean_only_is_the_same_interval_without_the_rest(rng, monkeypatch, path, integer, max_distinct, n):
+    """The engine's paired rows ask for the mean difference's interval alone (`mean_only`): the
+    same draws give the same endpoints, bit for bit, on each resampling path, and no sign-flip
+    test or d_z interval is computed."""
+    if max_distinct is not None:
+        monkeypatch.setattr(large, "MAX_DISTINCT", max_distinct)
+    x, y = correlated(n, rng, integer=integer)
+    full = paired_analysis(x, y, 7, resamples=2_000)
+    alone = paired_analysis(x, y, 7, resamples=2_000, mean_only=True)
+    assert alone["path"] == full["path"] == path and alone["mean_diff_ci95"] == full["mean_diff_ci95"]
+    assert "p_sign_flip" in full and "d_z_ci95" in full
+    assert "p_sign_flip" not in alone and "d_z_ci95" not in alone
+
+
 def test_sign_flip_matches_full_enumeration(rng):
     d = np.array([3.0, -1.0, 2.0, 2.0, 5.0, -2.0, 1.0, 4.0, 0.0, 3.0, 1.0, -1.0])
     signs = np.array(list(itertools.product([-1, 1], repeat=d.size)))

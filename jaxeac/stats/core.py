@@ -253,6 +253,22 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
         if ready is not None:
             ready(task)
         tkey = jax.random.fold_in(root, i)
+        shared, order = shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
+                                     chunk)
+        # the paired rows first: their host draws run on `beside` while this thread makes the groups
+        by_pair = {}
+        for x, y in family:
+            if order is not None and x in order and y in order:
+                d = order[x] - order[y]
+                pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
+                raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
+                by_pair[x, y] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey, resamples)
+            elif paired == "paired":
+                raise UsageError(
+                    f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
+                    f"{' on task ' + excerpt(task, 20) if task else ''}; drop --paired to compare "
+                    "them unpaired"
+                )
         groups = task_groups({a: per.values[task][a] for a in per.algos},
                              {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
         entries, rows, drawn, paths = [], [], None, {}
@@ -262,27 +278,11 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
             est, lo, hi = g.iqm(alpha)
             entries.append({"task": task, "algo": a, "n": g.n, "mean": g.mean, "iqm": est, "iqm_ci": [lo, hi],
                             "excluded": per.excluded.get(task, {}).get(a, 0)})
-        shared, order = shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
-                                     chunk)
         if aggregating:
             drawn = aggregate_draws(per, task, tkey, groups, shared, order, resamples, chunk, keep)
         for x, y in family:
-            row = {"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha)}
-            if order is not None and x in order and y in order:
-                d = order[x] - order[y]
-                pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
-                raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
-                row["paired"] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey,
-                                              resamples)
-            elif paired == "paired":
-                raise UsageError(
-                    f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
-                    f"{' on task ' + excerpt(task, 20) if task else ''}; drop --paired to compare "
-                    "them unpaired"
-                )
-            else:
-                row["paired"] = None
-            rows.append(row)
+            rows.append({"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha),
+                         "paired": by_pair.get((x, y))})
         return entries, rows, drawn, paths
 
     try:

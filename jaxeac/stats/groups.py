@@ -196,7 +196,7 @@ def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples
         star = d @ C.astype(np.float64) / n
         out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
         return out
-    res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha)
+    res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha, mean_only=True)
     out["mean_diff_ci"] = res["mean_diff_ci95"]
     return out
 

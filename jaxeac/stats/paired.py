@@ -80,8 +80,11 @@ def paired_tests(d: np.ndarray) -> dict:
             "p_paired_t": p, "d_z": dz}
 
 
-def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05) -> dict:
-    """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i."""
+def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05,
+                    mean_only: bool = False) -> dict:
+    """The paired comparison of one measure: x_treatment,i − x_baseline,i over seeds i. `mean_only`
+    (the engine's paired rows, which report no more): the mean difference's interval without d_z's
+    interval and the sign-flip test; the same draws, so the same interval."""
     xb, xt = np.asarray(baseline, np.float64), np.asarray(treatment, np.float64)
     del baseline, treatment  # arrays made for the call go with xb and xt below
     if xb.shape != xt.shape or xb.ndim != 1 or xb.size < 2:
@@ -124,15 +127,17 @@ def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha:
         jk, jk_dz = [jk_mean], [jk_dz]
         out["bootstrap"] = "pairs resampled one by one"
     else:  # the bootstrap's normal limit
-        lo, hi = normal_bca(mean, jk_mean, alpha)
-        dlo, dhi = normal_bca(dz, jk_dz, alpha)
-        out |= {"mean_diff_ci95": [lo, hi], "d_z_ci95": [dlo, dhi],
+        out |= {"mean_diff_ci95": list(normal_bca(mean, jk_mean, alpha)),
                 "bootstrap": large.REFERENCES["normal_bca"]}
+        if not mean_only:
+            out["d_z_ci95"] = list(normal_bca(dz, jk_dz, alpha))
         boot_mean = None
     if boot_mean is not None:
         out["mean_diff_ci95"] = list(bca_interval(mean, boot_mean, jk, alpha))
-        out["d_z_ci95"] = list(bca_interval(dz, _dz(boot_mean, boot_sq, n), jk_dz, alpha))
-    out |= sign_flip_p(d, values, counts, k_flip, resamples)
+        if not mean_only:
+            out["d_z_ci95"] = list(bca_interval(dz, _dz(boot_mean, boot_sq, n), jk_dz, alpha))
+    if not mean_only:
+        out |= sign_flip_p(d, values, counts, k_flip, resamples)
     return out
 
 
