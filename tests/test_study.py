@@ -188,10 +188,12 @@ def test_diagnostics_beside_the_runs_give_the_same_folders(tmp_path, monkeypatch
     assert "helper_peak_rss_gib" not in results["threads"]["timeline"]
     assert "counting its E8 diagnostics in this process" in results["helper_dies", "stderr"]
     assert "counting" not in results["helper", "stderr"]
+    png = (tmp_path / "after" / "fig_study.png").read_bytes()
     for how in ("threads", "helper", "helper_dies"):
         for task in settings.tasks:
             assert results[how, task] == results["after", task]
         assert results[how]["comparisons"] == results["after"]["comparisons"]
+        assert (tmp_path / how / "fig_study.png").read_bytes() == png  # drawn here, or by the helper
 
 
 @pytest.mark.parametrize("argv, match", [
@@ -319,6 +321,32 @@ def test_study_figure_draws_a_panel_per_task_as_each_ends():
         broken.add("a", {"ac": np.zeros(3)})  # not [T, T + 1] counts
         with pytest.raises(ValueError):
             broken.finish().result()
+
+
+def test_study_figure_drawn_by_a_helper_is_the_same_png():
+    """Given a helper, the panels are drawn there (the lines computed here): the same PNG, byte for
+    byte; a helper that has gone before the figure is finished leaves it to be drawn here."""
+    from jaxeac.experiments.study_figure import StudyFigure
+    from jaxeac.plots import cumulative_counts
+    from jaxeac.running.helper import Helper
+
+    rng = np.random.default_rng(3)
+    counts = {t: {a: cumulative_counts(rng.random((20, 12)) < p) for a, p in (("ac", 0.3), ("eac", 0.6))}
+              for t in ("a", "b", "c")}
+
+    def draw(helper=None, kill=False):
+        with StudyFigure(list(counts), 20, helper=helper) as fig:
+            for task in ("c", "a", "b"):
+                fig.add(task, counts[task])
+            if kill:
+                helper.kill()
+            return fig.finish().result(), hasattr(fig, "_fig")  # a matplotlib figure in this process
+
+    here, _ = draw()
+    with Helper(threads=2) as helper:
+        assert draw(helper) == (here, False)
+    with Helper(threads=2) as helper:
+        assert draw(helper, kill=True) == (here, True)
 
 
 def test_tasks_of_one_program_share_their_state_size_traced_once(monkeypatch):

@@ -256,7 +256,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                            key=settings.key)
     timed = functools.partial(_timed, tl, "figure")
     with (TaskRunner(todo, tl) as runner, _stopped_on_error(stats),
-          StudyFigure(settings.tasks, settings.seeds, timed) as figure):
+          StudyFigure(settings.tasks, settings.seeds, timed, helper=runner.helper) as figure):
         ahead = start_tasks(runner, todo, out, side, progress)
         for task in as_they_end(list(tasks), ahead):  # a task's statistics start as soon as its runs end
             i, grid, folder = settings.tasks.index(task), tasks[task], task_folder(out, task)
@@ -300,6 +300,8 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             per_task, rows, aggregate = stats.result()
         with said("diagnostics_wait"):
             runner.finish()
+        with tl.phase("figure_wait"):  # before the runner's helper, which may draw it, is closed
+            png = png.result()
     for task, info in per_task.items():
         g = grids[task]
         per_task[task] = {"env": g.env, "slip": g.slip, "chances": g.chances, "trials": g.trials, **info}
@@ -320,8 +322,6 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
                                           runs=tuner if tuned else None, scores=tuned, samples=evaluated,
                                           phase=said)
     with staged_dir(out, replaces=("study.json", "report.md", "fig_*.png")) as stage:
-        with tl.phase("figure_wait"):
-            png = png.result()
         atomic_write_bytes(stage / STUDY_FIGURE, png)
         result["figures"] = {task: STUDY_FIGURE for task in settings.tasks}
         result["timeline"] = tl.record()  # writing study.json itself is the one phase left out

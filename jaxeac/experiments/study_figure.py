@@ -4,12 +4,18 @@ Each algorithm's mean cumulative successes over trials, with a pointwise 95 % CI
 per-trial counts of the cumulative values (`jaxeac.plots.cumulative_counts`, [T, T + 1] per
 algorithm). The panels are drawn on a thread of the figure's own, beside the later tasks' runs, so
 the study's end waits only for the legend and the PNG; the layout is fixed (no tight-layout pass:
-0.7 s of a 2.8 s figure of 11 panels on a 2-core CPU).
+0.7 s of a 2.8 s figure of 11 panels on a 2-core CPU). Given a `jaxeac.running.helper.Helper` (a
+study on a GPU), the figure's thread computes each panel's lines (means and CI bands, [T] per
+algorithm) and the helper process draws them, so that drawing never holds this process's
+interpreter lock beside the statistics; if the helper has gone, the figure is drawn here instead.
 """
 
 from __future__ import annotations
 
 import io
+import itertools
+import os
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -23,25 +29,31 @@ _LEFT, _RIGHT, _TOP, _LABEL, _LEGEND = 0.62, 0.12, 0.28, 0.42, 0.62
 
 class StudyFigure:
     """`STUDY_FIGURE` of `tasks` (in order) at `n` seeds per algorithm: `add` draws a task's panel
-    as its counts come in, `png` finishes the figure (legend, PNG bytes) once every panel is
+    as its counts come in, `finish` finishes the figure (legend, PNG bytes) once every panel is
     drawn. A `matplotlib.figure.Figure` of its own (no pyplot state), used by one thread only;
-    `timed(work)` wraps each piece of drawing (e.g. a timeline's phase)."""
+    `timed(work)` wraps each piece of work on this process's side (e.g. a timeline's phase);
+    `helper`: a `Helper` that draws instead (module docstring)."""
 
-    def __init__(self, tasks: Sequence[str], n: int, timed: Callable[[Callable], object] | None = None) -> None:
-        self._tasks, self._n = list(tasks), n
+    def __init__(self, tasks: Sequence[str], n: int, timed: Callable[[Callable], object] | None = None,
+                 helper=None) -> None:
+        self._tasks, self._n, self._helper = list(tasks), n, helper
         self._timed = timed or (lambda work: work())
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="jaxeac-study-figure")
-        self._axes: Future = self._pool.submit(self._timed, self._start)
+        self._lines: dict[str, dict] = {}  # each task's lines, kept while a helper draws them
+        self._id = f"{os.getpid()}-{next(_IDS)}"
+        self._axes: Future | None = None if helper else self._pool.submit(self._timed, self._start)
         self._drawn: list[Future] = []
 
     def add(self, task: str, counts: dict[str, np.ndarray]) -> None:
         """Draw `task`'s panel: `counts[algo]`, int [T, T + 1] (`cumulative_counts`)."""
-        self._drawn.append(self._pool.submit(self._timed, lambda: self._panel(task, counts)))
+        self._drawn.append(self._pool.submit(self._timed, lambda: self._add(task, counts)))
 
     def finish(self) -> Future:
         """Finish the figure once its panels are drawn: a future of its PNG bytes (raising what
         drawing raised)."""
-        return self._pool.submit(self._timed, self._finish)
+        if self._helper is None:
+            return self._pool.submit(self._timed, self._finish)
+        return self._pool.submit(self._timed, self._finish_in_helper)
 
     def close(self, drop: bool = False) -> None:
         """End the figure's thread once its work is done (`drop`: the work still queued is dropped)."""
@@ -52,6 +64,34 @@ class StudyFigure:
 
     def __exit__(self, kind, *exc) -> None:
         self.close(drop=kind is not None)  # a study that stops draws no more
+
+    def _add(self, task: str, counts: dict[str, np.ndarray]):
+        lines = panel_lines(counts, self._n)
+        if self._helper is None:
+            return self._panel(task, lines)
+        from jaxeac.running.helper import HelperError
+
+        self._lines[task] = lines
+        try:
+            return self._helper.submit(_draw_panel, self._id, self._tasks, self._n, task, lines)
+        except HelperError:  # gone: `finish` draws here
+            return None
+
+    def _finish_in_helper(self) -> bytes:
+        from jaxeac.running.helper import HelperError
+
+        sent = [drawn.result() for drawn in self._drawn]  # raises what a panel's lines raised
+        try:
+            if all(s is not None for s in sent):
+                for s in sent:
+                    s.result()
+                return self._helper.submit(_draw_finish, self._id, self._tasks, self._n).result()
+        except HelperError:
+            pass
+        self._start()  # the helper has gone: the figure is drawn here
+        for task, lines in self._lines.items():
+            self._panel(task, lines)
+        return self._png()
 
     def _start(self):
         from matplotlib.figure import Figure
@@ -73,20 +113,14 @@ class StudyFigure:
             ax.set_ylabel("successes so far", fontsize=8)
         self._fig, self._by_task = fig, dict(zip(self._tasks, axes.flat, strict=False))
 
-    def _panel(self, task: str, counts: dict[str, np.ndarray]) -> None:
-        from scipy import special
-
+    def _panel(self, task: str, lines: dict) -> None:
         from jaxeac import style
 
-        ax, n = self._by_task[task], self._n
-        for algo, c in counts.items():
-            t = c.shape[0]
-            values, trials = np.arange(t + 1), np.arange(1, t + 1)
-            mean = c @ values / n
+        ax = self._by_task[task]
+        for algo, (mean, half) in lines.items():
+            trials = np.arange(1, mean.size + 1)
             ax.plot(trials, mean, color=style.color(algo), lw=1.4, label=style.label(algo))
-            if n > 1:
-                sd = np.sqrt((c * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
-                half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
+            if half is not None:
                 ax.fill_between(trials, mean - half, mean + half, color=style.color(algo), alpha=0.25, lw=0)
         ax.set_title(task, fontsize=8)
         ax.tick_params(labelsize=7)
@@ -95,6 +129,9 @@ class StudyFigure:
     def _finish(self) -> bytes:
         for drawn in [self._axes, *self._drawn]:  # done (one thread, in order): raises what a panel raised
             drawn.result()
+        return self._png()
+
+    def _png(self) -> bytes:
         handles, labels = self._by_task[self._tasks[0]].get_legend_handles_labels()
         self._fig.legend(handles, labels, loc="lower center", ncol=min(8, max(1, len(labels))), fontsize=7,
                          title=f"mean cumulative successes of {self._n:,} seeds per algorithm "
@@ -104,3 +141,50 @@ class StudyFigure:
         self._fig.savefig(png, dpi=110)
         return png.getvalue()
 
+
+def panel_lines(counts: dict[str, np.ndarray], n: int) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """{algo: (mean cumulative successes per trial [T], the half-width of its 95 % CI [T], or None
+    for one seed)} from `counts[algo]`, int [T, T + 1] (`cumulative_counts`) of `n` seeds."""
+    from scipy import special
+
+    lines = {}
+    for algo, c in counts.items():
+        values = np.arange(c.shape[0] + 1)
+        mean = c @ values / n
+        half = None
+        if n > 1:
+            sd = np.sqrt((c * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
+            half = special.stdtrit(n - 1, 0.975) * sd / np.sqrt(n)
+        lines[algo] = (mean, half)
+    return lines
+
+
+_IDS = itertools.count()
+#: In a helper process: the figures it draws, by id (`_draw_panel`, `_draw_finish`).
+_FIGURES: dict[str, StudyFigure] = {}
+_FIGURES_LOCK = threading.Lock()
+
+
+def _figure(fid: str, tasks, n: int) -> StudyFigure:
+    with _FIGURES_LOCK:
+        if fid not in _FIGURES:
+            _FIGURES[fid] = StudyFigure(tasks, n)
+        return _FIGURES[fid]
+
+
+def _draw_panel(fid: str, tasks, n: int, task: str, lines: dict) -> None:
+    """(In a helper.) Draw `task`'s panel of figure `fid`, on that figure's own thread."""
+    figure = _figure(fid, tasks, n)
+    figure._pool.submit(figure._panel, task, lines).result()
+
+
+def _draw_finish(fid: str, tasks, n: int) -> bytes:
+    """(In a helper, once every panel's `_draw_panel` has returned.) Figure `fid`'s PNG; the figure
+    is then let go."""
+    figure = _figure(fid, tasks, n)
+    with _FIGURES_LOCK:
+        del _FIGURES[fid]
+    try:
+        return figure._pool.submit(figure._finish).result()
+    finally:
+        figure.close()
