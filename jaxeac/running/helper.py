@@ -1,4 +1,4 @@
-"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs.
+"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs, and its figure.
 
 A study on a GPU counts E8's seeds again on the host's CPU (`jaxeac.experiments.study`). In the
 study's own process, tracing and compiling those programs held the interpreter lock that the
