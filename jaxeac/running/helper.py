@@ -1,4 +1,4 @@
-"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs, and its figure.
+"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs, its figure.
 
 A study on a GPU counts E8's seeds again on the host's CPU (`jaxeac.experiments.study`). In the
 study's own process, tracing and compiling those programs held the interpreter lock that the
@@ -36,8 +36,9 @@ def helper_environment(environ: dict | None = None) -> dict[str, str]:
     """The variables a helper starts JAX with: the CPU only, one host device (the XLA flags
     otherwise kept)."""
     environ = os.environ if environ is None else environ
-    flags = [f for f in environ.get("XLA_FLAGS", "").split() if not f.startswith("--xla_force_host_platform_device_count")]
-    return {"JAX_PLATFORMS": "cpu", "XLA_FLAGS": " ".join([*flags, "--xla_force_host_platform_device_count=1"])}
+    count = "--xla_force_host_platform_device_count"
+    flags = [f for f in environ.get("XLA_FLAGS", "").split() if not f.startswith(count)]
+    return {"JAX_PLATFORMS": "cpu", "XLA_FLAGS": " ".join([*flags, f"{count}=1"])}
 
 
 class Helper:
@@ -144,7 +145,8 @@ class Helper:
                 try:
                     value = pickle.loads(blob)
                 except Exception as exc:  # noqa: BLE001 (e.g. a class that does not unpickle here)
-                    ok, value = False, HelperError(f"a job's result could not be read here ({type(exc).__name__}: {exc})")
+                    why_not = f"a job's result could not be read here ({type(exc).__name__}: {exc})"
+                    ok, value = False, HelperError(why_not)
                 future.set_result(value) if ok else future.set_exception(value)
         except Exception as exc:  # noqa: BLE001 (every waiting job is told, and the process ends)
             why = f"a message from the helper process could not be read ({type(exc).__name__}: {exc})"
@@ -200,7 +202,8 @@ def _serve(conn, threads: int, nice: int, environment: dict[str, str]) -> None:
         try:
             blob = pickle.dumps(outcome[2])
         except Exception as exc:  # noqa: BLE001 (a result that cannot be pickled)
-            outcome, blob = (job, False, None), pickle.dumps(HelperError(f"the result of {name} cannot come back: {exc}"))
+            failed = HelperError(f"the result of {name} cannot come back: {exc}")
+            outcome, blob = (job, False, None), pickle.dumps(failed)
         reply((outcome[0], outcome[1], blob))
 
     with ThreadPoolExecutor(threads, thread_name_prefix="jaxeac-helper") as pool:
