@@ -163,3 +163,26 @@ def test_the_helper_ignores_ctrl_c_its_parent_handles():
         pid = h.submit(os.getpid).result(timeout=30)
         os.kill(pid, signal.SIGINT)
         assert h.submit(_sleep_then, 0.2, "alive").result(timeout=30) == "alive"
+
+
+def test_a_script_without_a_main_guard_runs_once(tmp_path):
+    """The helper does not import the caller's main module again (what spawning does by default):
+    a script that starts one at its top level, with no ``if __name__ == "__main__":``, runs once,
+    and its job runs."""
+    import subprocess
+    import sys
+
+    script, marker = tmp_path / "unguarded.py", tmp_path / "ran.txt"
+    script.write_text(
+        "import operator, sys\n"
+        "from pathlib import Path\n"
+        "with Path(sys.argv[1]).open('a') as f:\n"
+        "    f.write('ran\\n')\n"
+        "from jaxeac.running.helper import Helper\n"
+        "with Helper(threads=1) as helper:\n"
+        "    print(helper.submit(operator.add, 2, 3).result())\n")
+    done = subprocess.run([sys.executable, str(script), str(marker)], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["5"]
+    assert marker.read_text() == "ran\n"

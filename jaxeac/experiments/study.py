@@ -223,9 +223,9 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
     On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
-    summary.json) when they are in, while later tasks run (on GPUs in a helper process, spawned: a
-    script calling this keeps its top level under ``if __name__ == "__main__":``); the
-    statistics of all tasks are one pass (`TaskStatistics`), each task's from when its successes are in."""
+    summary.json) when they are in, while later tasks run (on GPUs in a helper process, which also
+    draws the figure); the statistics of all tasks are one pass (`TaskStatistics`), each task's from
+    when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.plots import cumulative_counts

@@ -17,9 +17,11 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import sys
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from contextlib import contextmanager
 
 #: The helper's scheduling priority, above its parent's (lower priority): the parent's threads
 #: (the runs' compiles and dispatch) come first on a busy host.
@@ -47,8 +49,9 @@ class Helper:
     whose function raises gives that exception; one the process did not finish, or whose job or
     result could not cross between the processes, `HelperError`.
 
-    The process is spawned, so it imports the caller's main module again: a script that starts a
-    helper (a study on a GPU) keeps its top level under ``if __name__ == "__main__":``."""
+    The process is spawned without importing the caller's main module again (`_main_not_imported`),
+    so a script need not keep its top level under ``if __name__ == "__main__":``; jobs are functions
+    of importable modules."""
 
     def __init__(self, *, threads: int = THREADS, nice: int = NICE, name: str = "jaxeac-helper") -> None:
         import multiprocessing
@@ -57,7 +60,8 @@ class Helper:
         self._conn, child = context.Pipe()
         self._process = context.Process(target=_serve, args=(child, threads, nice, helper_environment()),
                                         name=name, daemon=True)
-        self._process.start()
+        with _main_not_imported():
+            self._process.start()
         child.close()
         self._lock = threading.Lock()  # the pending jobs and whether more may come
         self._sending = threading.Lock()  # one message on the pipe at a time
@@ -160,6 +164,25 @@ class Helper:
             future.set_exception(HelperError(why))
 
 
+@contextmanager
+def _main_not_imported():
+    """While a helper starts: its process is not told the caller's main module, which spawning
+    otherwise imports there (running a script's unguarded top level again: the study it starts, on
+    the GPU, before the helper serves a job); the helper's code and jobs are in importable modules."""
+    main = sys.modules.get("__main__")
+    if main is None:
+        yield
+        return
+    saved = {name: getattr(main, name) for name in ("__spec__", "__file__") if hasattr(main, name)}
+    try:
+        for name in saved:
+            setattr(main, name, None)
+        yield
+    finally:
+        for name, value in saved.items():
+            setattr(main, name, value)
+
+
 def _portable(exc: BaseException) -> BaseException:
     """`exc` if it survives pickling, else a `HelperError` naming it."""
     try:
@@ -216,7 +239,6 @@ def _serve(conn, threads: int, nice: int, environment: dict[str, str]) -> None:
                 break
             pool.submit(run, *message)
     import resource
-    import sys
 
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
     reply(("closed", peak * (1 if sys.platform == "darwin" else 1024)))
