@@ -166,3 +166,22 @@ def test_figures_are_drawn_from_the_kept_records(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     for name in ("throughput_vs_seeds.png", "end_to_end_vs_seeds.png", "peers.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="reads /proc")
+def test_e2e_measures_the_peak_of_a_commands_processes_together():
+    """`e2e.TreePeak`: the resident memory of a process and its child, summed while both hold theirs
+    (a study's helper beside its process), where each process's own peak sees one of them."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("e2e", ROOT / "scripts" / "e2e.py")
+    e2e = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(e2e)
+    child = "import time; b = bytearray(160 * 2**20); b[::4096] = b'x' * len(b[::4096]); time.sleep(1.5)"
+    parent = (f"import subprocess, sys; a = bytearray(240 * 2**20); a[::4096] = b'y' * len(a[::4096]); "
+              f"subprocess.run([sys.executable, '-c', {child!r}])")
+    proc = subprocess.Popen([sys.executable, "-c", parent])
+    together = e2e.TreePeak(proc.pid)
+    _, _, usage = os.wait4(proc.pid, 0)
+    peak = together.stop()
+    assert peak >= 400 * 2**20 > usage.ru_maxrss * 1024  # both at once; the parent alone held less
