@@ -171,7 +171,7 @@ def test_figures_are_drawn_from_the_kept_records(tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="reads /proc")
 def test_e2e_measures_the_peak_of_a_commands_processes_together():
     """`e2e.TreePeak`: the resident memory of a process and its child, summed while both hold theirs
-    (a study's helper beside its process), where each process's own peak sees one of them."""
+    (a study's helper beside its process), and nothing of the processes around them."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("e2e", ROOT / "scripts" / "e2e.py")
@@ -182,6 +182,6 @@ def test_e2e_measures_the_peak_of_a_commands_processes_together():
               f"subprocess.run([sys.executable, '-c', {child!r}])")
     proc = subprocess.Popen([sys.executable, "-c", parent])
     together = e2e.TreePeak(proc.pid)
-    _, _, usage = os.wait4(proc.pid, 0)
-    peak = together.stop()
-    assert peak >= 400 * 2**20 > usage.ru_maxrss * 1024  # both at once; the parent alone held less
+    proc.wait()
+    # both at once (each alone holds under 300 MiB); not this test's own process (its caller's memory)
+    assert 400 * 2**20 <= together.stop() < 600 * 2**20
