@@ -257,11 +257,10 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
         shared, order = shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
                                      chunk)
         # the paired rows first: their host draws run on `beside` while this thread makes the groups
-        by_pair = {}
+        by_pair, pkey = {}, jax.random.fold_in(tkey, PAIRED_STREAM + 1)  # every paired row's key
         for x, y in family:
             if order is not None and x in order and y in order:
                 d = order[x] - order[y]
-                pkey = jax.random.fold_in(tkey, PAIRED_STREAM + 1)
                 raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
                 by_pair[x, y] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey, resamples)
             elif paired == "paired":
