@@ -30,7 +30,8 @@ The settings, each with its reason:
   core): a 100,000-seed study's many threads each kept what they had freed (peak host RSS
   4.64 -> 2.32 GiB on one H100's 16-core host, walls within the host's noise).
 - `trim_host_memory`: what XLA's compiler and pyarrow freed goes back to the system.
-- `start_device`: a GPU's context starts on a thread while the host reads files.
+- `start_device`: a GPU's context starts on a thread while the host reads files, or while a
+  command imports its modules and checks its settings (`jaxeac.cli.DEVICE_COMMANDS`).
 """
 
 from __future__ import annotations
@@ -221,9 +222,12 @@ def start_device() -> threading.Thread:
         with contextlib.suppress(Exception):  # a failure shows up, with its message, at first use
             jax.block_until_ready(jax.numpy.zeros(1))
 
-    thread = threading.Thread(target=work, daemon=True)
+    thread = threading.Thread(target=work, daemon=True, name=DEVICE_START_THREAD)
     thread.start()
     return thread
+
+
+DEVICE_START_THREAD = "jaxeac-device-start"
 
 
 def versions(packages: tuple[str, ...] = RUN_PACKAGES,

@@ -308,3 +308,28 @@ def test_sequential_error_rate_names_the_flag(tmp_path, capsys):
     assert main([*argv, "--error-rate", "0.7"]) == 2
     err = capsys.readouterr().err
     assert err == "error: --error-rate must lie in (0, 0.5) (got 0.7)\n", err
+
+
+def test_device_commands_start_the_device_at_once_and_end_after_it(tmp_path, monkeypatch):
+    """`run`, `grid`, `study` and `sweep` start the device on a thread as soon as their flags parse
+    (`jaxeac.cli.DEVICE_COMMANDS`), and return only once that thread has ended, also on bad input;
+    a multi-host run (--coordinator) does not, as its JAX starts after jax.distributed.initialize."""
+    import threading
+
+    from jaxeac import runtime
+
+    started = []
+
+    def start():
+        started.append(threading.Thread(target=threading.Event().wait, args=(0.3,),
+                                        name=runtime.DEVICE_START_THREAD))
+        started[-1].start()
+        return started[-1]
+
+    monkeypatch.setattr(runtime, "start_device", start)
+    assert main(["study", "--algos", "ac", "--seeds", "4", "--out", str(tmp_path / "s")]) == 2
+    assert main(["grid", *SMALL, "--out", str(tmp_path / "g"), "--coordinator", "localhost:1",
+                 "--num-processes", "1"]) == 2
+    assert len(started) == 1 and not started[0].is_alive()
+    assert not (tmp_path / "s").exists() and not (tmp_path / "g").exists()
+    assert main(["compare", str(tmp_path / "nothing")]) == 2 and len(started) == 1

@@ -20,6 +20,11 @@ from jaxeac.cli import bowling, compare, merge, reproduce, run, study, sweep, th
 from jaxeac.cli.flags import Parser
 from jaxeac.cli.process import run_command
 
+#: Commands whose device starts on a thread as soon as their flags parse, while the command imports
+#: its modules and checks its settings (`jaxeac.runtime.start_device`; not for a multi-host run,
+#: whose JAX starts after `jax.distributed.initialize`).
+DEVICE_COMMANDS = frozenset({"run", "grid", "study", "sweep"})
+
 #: Each subcommand's function; `grid` is an alias of `run`.
 COMMANDS = {
     "run": run.cmd_run, "grid": run.cmd_run, "merge": merge.cmd_merge, "compare": compare.cmd_compare,
@@ -55,6 +60,8 @@ def _main(argv: Sequence[str] | None, cleanup: contextlib.ExitStack) -> int:
     runtime.configure(words[0] if words else None, force=True)
     args = build_parser().parse_args(argv)
     args._cleanup = cleanup
+    if args.command in DEVICE_COMMANDS and getattr(args, "coordinator", None) is None:
+        cleanup.callback(runtime.start_device().join)  # the command never ends inside JAX's start-up
     from jaxeac.experiments import common
 
     common.COMMAND = ("jaxeac", *words)  # what summary.json records as the command
