@@ -10,7 +10,6 @@ returns their file names.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import matplotlib
@@ -24,101 +23,27 @@ from matplotlib.patches import Patch  # noqa: E402
 from jaxeac import style  # noqa: E402
 from jaxeac.envs.grid import ACTION_DELTAS, GridMap, transition_tables  # noqa: E402
 from jaxeac.paper import GRID_SUCCESSES, GRID_TRIALS  # noqa: E402
-from jaxeac.stats.closed_form import t_half_width  # noqa: E402
 
 COLORS = style.PALETTE  # one colour per algorithm, every figure (jaxeac/style.py)
 LABELS = style.LABELS
 
 
-def _prefix_popcounts() -> np.ndarray:
-    """uint8 [9, 256]: row j, column b: how many of byte b's lowest j bits are set."""
-    low_first = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1, bitorder="little")
-    return np.concatenate([np.zeros((1, 256), np.uint8), np.cumsum(low_first, axis=1).T]).astype(np.uint8)
-
-
-_PREFIX = _prefix_popcounts()
-
-
-#: `cumulative_counts` counts at most this many seed-trials directly (the packed histogram's fixed
-#: cost, about 0.1 s a call, is 80x the direct count at 1,000 x 200; at 10^5 x 200 it is 5x faster)
-DIRECT_CELLS = 1 << 20
-
-
-def cumulative_counts(success, chunk: int = 1 << 14) -> np.ndarray:
-    """int64 [T, T + 1]: per trial t, how many seeds have v successes in trials 1..t (exact).
-
-    `success`: bool [N, T] or `SuccessBits`. Up to `DIRECT_CELLS` seed-trials, one histogram of
-    (trial, running count). Beyond, it works on the packed bits, eight trials a byte: a
-    seed's count after trial 8b + j is its count before byte b plus the set bits among byte b's
-    lowest j + 1, so one histogram of (byte position, count before it, byte value) per block of
-    `chunk` seeds, on host threads, gives every trial's counts: N·T/8 entries instead of N·T,
-    and no unpacking. Temporaries ~ 50 bytes a seed per thread."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from jaxeac.bits import SuccessBits
-
-    n, t = success.shape
-    if n * t <= DIRECT_CELLS:  # one cumsum and one histogram of (trial, count): 1.2 ms at 1,000 x 200
-        cells = success.rows() if isinstance(success, SuccessBits) else np.asarray(success, bool)
-        at = np.arange(t, dtype=np.int64) * (t + 1) + np.cumsum(cells, axis=1, dtype=np.int64)
-        return np.bincount(at.ravel(), minlength=t * (t + 1)).reshape(t, t + 1)
-    bits = success if isinstance(success, SuccessBits) else SuccessBits.pack(success)
-    nb = bits.bits.shape[1]
-    width = nb * (t + 1) * 256  # bins: (byte position, count before it, byte value)
-    start_of = (np.arange(nb, dtype=np.int64) * (t + 1) * 256)[None, :]
-
-    def block(start: int) -> np.ndarray:  # numpy frees the GIL in take, cumsum and bincount
-        b = bits.bits[start:start + chunk]
-        before = np.cumsum(_PREFIX[8].take(b), axis=1, dtype=np.int64)
-        before -= _PREFIX[8].take(b)  # exclusive: the count before each byte
-        return np.bincount((start_of + before * 256 + b).ravel(), minlength=width)
-
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        joint = sum(pool.map(block, range(0, n, chunk)), np.zeros(width, np.int64))
-    joint = joint.reshape(nb, t + 1, 256)
-    counts = np.zeros((nb, 8, t + 1 + 8), np.int64)
-    for j in range(8):  # after trial 8b + j: the count before byte b plus its lowest j + 1 bits
-        ones = _PREFIX[j + 1]
-        for p in range(j + 2):
-            counts[:, j, p:p + t + 1] += joint[:, :, ones == p].sum(axis=2)
-    return counts.reshape(nb * 8, t + 1 + 8)[:t, :t + 1]
-
-
-def count_percentile(counts: np.ndarray, q: float) -> np.ndarray:
-    """Per row, the q-th percentile of the values 0..V counted in `counts` [rows, V + 1], by
-    numpy's default (linear) rule on the sorted values: exact from the counts."""
-    n = int(counts[0].sum())
-    cdf = np.cumsum(counts, axis=1)
-    pos = q / 100 * (n - 1)
-    lo = int(np.floor(pos))
-
-    def order_statistic(k):  # the k-th smallest value (0-based) per row
-        return np.argmax(cdf > k, axis=1)
-
-    a, b = order_statistic(lo), order_statistic(min(lo + 1, n - 1))
-    return a + (b - a) * (pos - lo)
-
-
-def cumulative_success_figure(success: dict[str, np.ndarray], path: Path, *, paper: dict | None = None):
+def cumulative_success_figure(lines: dict[str, dict], path: Path, *, paper: dict | None = None):
     """Fig. 3: mean cumulative successes over trials per algorithm, with a pointwise 95 % CI band
-    and the seeds' 5–95 % spread, all from per-trial counts of the cumulative values."""
+    and the seeds' 5–95 % spread: `lines[algo]`, `jaxeac.stats.cumulative.cumulative_lines` of its
+    per-trial counts (with the spread)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     spread = False
-    for algo, s in success.items():
-        counts = cumulative_counts(s)
-        n, t = s.shape
-        values = np.arange(t + 1)
-        mean = counts @ values / n
+    for algo, line in lines.items():
+        n, mean, half = line["n"], line["mean"], line["half"]
+        t = mean.size
         trials = np.arange(1, t + 1)
         color = style.color(algo)
         ax.plot(trials, mean, color=color, lw=1.8, label=f"{style.label(algo)}: mean of {n:,} seeds")
-        if n > 1:
-            sd = np.sqrt((counts * (values[None, :] - mean[:, None]) ** 2).sum(axis=1) / (n - 1))
-            half = t_half_width(sd, n)
+        if half is not None:
             ax.fill_between(trials, mean - half, mean + half, color=color, alpha=0.25, lw=0)
-            lo, hi = count_percentile(counts, 5), count_percentile(counts, 95)
-            ax.plot(trials, lo, color=color, lw=0.7, ls=":")
-            ax.plot(trials, hi, color=color, lw=0.7, ls=":")
+            ax.plot(trials, line["low"], color=color, lw=0.7, ls=":")
+            ax.plot(trials, line["high"], color=color, lw=0.7, ls=":")
             spread = True
         if paper and algo in paper and t == GRID_TRIALS:
             ax.plot([t], [paper[algo]], marker="*", ms=12, color=color, mec="black", ls="none",
@@ -217,20 +142,17 @@ def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *,
     plt.close(fig)
 
 
-def grid_figures(run, folder: Path, *, seed: int = 0, paper: dict[str, int] | None = None) -> list[str]:
-    """Both grid figures of a `GridRun` into `folder`; returns the file names.
-
-    `paper`: the paper's successes per algorithm (its preset's ``paper_successes``), marked on
-    the curves when the run used the preset's own world (no map file, environment or slip)."""
-    s = run.settings
-    paper_world = s.map_file is None and s.env is None and not s.slip
-    paper = paper if paper_world else None  # the paper's curve on its own world only
-    cumulative_success_figure({a: r.success for a, r in run.results.items()},
-                              folder / "fig3_cumulative_successes.png", paper=paper)
-    if run.grid_map is None:  # a non-grid environment: no map to draw the policies on
+def grid_figures(folder: Path, *, lines: dict[str, dict], grid_map: GridMap | None,
+                 policies: dict[str, np.ndarray] | None, seed: int, max_steps: int,
+                 paper: dict[str, int] | None = None) -> list[str]:
+    """Both grid figures of a run into `folder` (`jaxeac.experiments.grid.figure_inputs` gives the
+    arguments from its results); returns the file names. `lines`: Fig. 3's per algorithm;
+    `policies`: each algorithm's final policy of seed `seed`, drawn on `grid_map` (Fig. 2; none
+    off a grid map); `paper`: the paper's successes per algorithm, marked on the curves."""
+    cumulative_success_figure(lines, folder / "fig3_cumulative_successes.png", paper=paper)
+    if grid_map is None:  # a non-grid environment: no map to draw the policies on
         return ["fig3_cumulative_successes.png"]
-    policy_figure(run.grid_map, {a: r.policy_of(seed) for a, r in run.results.items()},
-                  folder / "fig2_policies.png", seed=seed, max_steps=s.chances)
+    policy_figure(grid_map, policies, folder / "fig2_policies.png", seed=seed, max_steps=max_steps)
     return ["fig3_cumulative_successes.png", "fig2_policies.png"]
 
 

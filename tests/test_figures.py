@@ -14,6 +14,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 import jaxeac  # noqa: E402
 from jaxeac import plots, style  # noqa: E402
+from jaxeac.stats.cumulative import cumulative_counts, cumulative_lines  # noqa: E402
 
 ALGOS = list(style.PALETTE)
 
@@ -84,7 +85,8 @@ def test_scales_diverge_only_for_differences_of_both_signs():
 
 def test_cumulative_figure_colours_every_algorithm_and_keys_the_spread(drawn, tmp_path):
     rng = np.random.default_rng(0)
-    plots.cumulative_success_figure({a: rng.random((20, 30)) < 0.3 for a in ALGOS}, tmp_path / "f.png")
+    lines = {a: cumulative_lines(cumulative_counts(rng.random((20, 30)) < 0.3), spread=True) for a in ALGOS}
+    plots.cumulative_success_figure(lines, tmp_path / "f.png")
     (fig,) = drawn
     handles = legend_handles(fig)
     for algo in ALGOS:

@@ -9,8 +9,6 @@ import pyarrow.parquet as pq
 import pytest
 
 from jaxeac.errors import UsageError
-from jaxeac import plots
-from jaxeac.plots import count_percentile, cumulative_counts
 from jaxeac.results import (
     CSV_SEEDS,
     FULL_OUTPUT_SEEDS,
@@ -21,6 +19,8 @@ from jaxeac.results import (
     write_grid_results,
 )
 from jaxeac.running.outputs import CompactSeeds, SeedsResult, SuccessBits, as_bool
+from jaxeac.stats import cumulative
+from jaxeac.stats.cumulative import count_percentile, cumulative_counts
 
 
 def fake_results(rng, n, trials=13, states=7, algos=("ac", "eac")):
@@ -289,7 +289,7 @@ def test_cumulative_counts_from_bytes_match_the_literal_count(rng, monkeypatch, 
     histogram of running counts); each must equal the literal count of seeds per cumulative
     value, trial by trial (T not a multiple of 8, T > 255, all failures, all successes, blocks
     of one seed)."""
-    monkeypatch.setattr(plots, "DIRECT_CELLS", direct_cells)
+    monkeypatch.setattr(cumulative, "DIRECT_CELLS", direct_cells)
     for n, t, p in [(1, 1, 0.5), (9, 7, 0.5), (40, 8, 0.3), (33, 17, 0.9), (25, 300, 0.6),
                     (6, 9, 0.0), (6, 9, 1.0)]:
         success = rng.random((n, t)) < p

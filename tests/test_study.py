@@ -304,7 +304,7 @@ def test_study_figure_draws_a_panel_per_task_as_each_ends():
     order of arrival, with the mean cumulative successes of its counts; `finish` gives the PNG
     and raises what a panel's drawing raised."""
     from jaxeac.experiments.study_figure import StudyFigure
-    from jaxeac.plots import cumulative_counts
+    from jaxeac.stats.cumulative import cumulative_counts
 
     success = np.array([[1, 0, 1], [0, 0, 1]], bool)  # 2 seeds x 3 trials: means 0.5, 0.5, 1.5
     counts = {"ac": cumulative_counts(success), "eac": cumulative_counts(~success)}
@@ -327,7 +327,7 @@ def test_study_figure_drawn_by_a_helper_is_the_same_png():
     """Given a helper, the panels are drawn there (the lines computed here): the same PNG, byte for
     byte; a helper that has gone before the figure is finished leaves it to be drawn here."""
     from jaxeac.experiments.study_figure import StudyFigure
-    from jaxeac.plots import cumulative_counts
+    from jaxeac.stats.cumulative import cumulative_counts
     from jaxeac.running.helper import Helper
 
     rng = np.random.default_rng(3)

@@ -228,7 +228,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
-    from jaxeac.plots import cumulative_counts
+    from jaxeac.stats.cumulative import cumulative_counts
 
     settings.validate()
     out = Path(out)
