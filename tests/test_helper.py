@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from jaxeac.running.helper import Helper, HelperError, helper_environment
+from jaxeac.running.helper import Helper, HelperError, helper_environment, in_helper
 
 
 def _jax_as_seen() -> tuple:
@@ -186,3 +186,28 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["5"]
     assert marker.read_text() == "ran\n"
+
+
+def _pid_plus(x: int) -> tuple:
+    return os.getpid(), x + 1
+
+
+def _pid_after(seconds: float) -> int:
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_in_helper_runs_there_and_here_once_the_helper_has_gone():
+    """`in_helper`: the job's value from the helper; without a helper, or once it has ended (before
+    the job is sent, or while it runs), computed here; what the job raises is raised."""
+    with Helper(threads=1) as h:
+        pid, value = in_helper(h, _pid_plus, 1)()
+        assert pid != os.getpid() and value == 2
+        with pytest.raises(ValueError):
+            in_helper(h, int, "not a number")()
+        running = in_helper(h, _pid_after, 1.0)
+        time.sleep(0.3)  # sent and under way
+        h.kill()
+        assert running() == os.getpid()  # its value never came back: computed here
+        assert in_helper(h, _pid_plus, 2)() == (os.getpid(), 3)
+    assert in_helper(None, _pid_plus, 3)() == (os.getpid(), 4)

@@ -93,3 +93,29 @@ def test_a_two_algorithm_run_has_no_family_section(tmp_path):
     report = (out / "report.md").read_text(encoding="utf-8")
     assert report.startswith("# EAC versus AC on the paper preset's grid world, C = 10, 6 trials\n")
     assert "## Every algorithm against" not in report
+
+
+FIGURES_IN_HELPER = """
+import hashlib, json, pathlib, sys
+from jaxeac.experiments import pipeline
+from jaxeac.cli import main
+if sys.argv[1] == "helper":  # as on a GPU: statistics beside the figures, drawn in a helper process
+    pipeline.STATISTICS_BESIDE_FIGURES = pipeline.FIGURES_IN_HELPER = {"cpu": True}
+rc = main(["grid", "--preset", "paper", "--seeds", "40", "--trials", "12", "--out", sys.argv[2], "--quiet"])
+pngs = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in pathlib.Path(sys.argv[2]).glob("*.png")}
+print(json.dumps([rc, "matplotlib" in sys.modules, pngs]))
+"""
+
+
+def test_a_grid_runs_figures_drawn_in_a_helper_are_those_drawn_here(tmp_path):
+    """With its figures in a helper process (`FIGURES_IN_HELPER`, GPUs), a grid run and its report
+    write the same PNGs, byte for byte, and matplotlib is never imported in the command's process."""
+    env = dict(os.environ, JAXEAC_COMPILATION_CACHE="off", MPLBACKEND="Agg")
+    seen = {}
+    for where in ("here", "helper"):
+        proc = subprocess.run([sys.executable, "-c", FIGURES_IN_HELPER, where, str(tmp_path / where)],
+                              capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        seen[where] = json.loads(proc.stdout.splitlines()[-1])
+    assert seen["here"][:2] == [0, True] and seen["helper"][:2] == [0, False]
+    assert len(seen["here"][2]) == 5 and seen["helper"][2] == seen["here"][2]

@@ -409,20 +409,47 @@ def per_seed_csv(run: GridRun) -> str:
     return buf.getvalue()
 
 
+def figure_inputs(run: GridRun, seed: int = 0) -> dict:
+    """The grid figures' arguments (`jaxeac.plots.grid_figures`, but the folder) from a run's results,
+    computed without matplotlib: Fig. 3's lines per algorithm, and on a grid map seed `seed`'s final
+    policies; the paper's successes are marked on its own world only (no map file, env or slip)."""
+    from jaxeac.stats.cumulative import cumulative_counts, cumulative_lines
+
+    s = run.settings
+    paper_world = s.map_file is None and s.env is None and not s.slip
+    grid = run.grid_map is not None
+    results = run.results
+    lines = {a: cumulative_lines(cumulative_counts(r.success), spread=True) for a, r in results.items()}
+    return {"lines": lines, "grid_map": run.grid_map,
+            "policies": {a: r.policy_of(seed) for a, r in results.items()} if grid else None,
+            "seed": seed, "max_steps": s.chances,
+            "paper": make_preset(s.preset).paper_successes if paper_world else None}
+
+
+def draw_grid_figures(folder: Path, inputs: dict) -> list[str]:
+    """`jaxeac.plots.grid_figures` of `figure_inputs` into `folder` (a job a helper process can run)."""
+    from jaxeac import plots
+
+    return plots.grid_figures(folder, **inputs)
+
+
 def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOptions, figures: bool,
                    diagnosed: tuple[dict, float] | Future | None = None,
-                   timeline: dict | None = None) -> dict:
+                   timeline: dict | None = None, helper=None) -> dict:
     """Everything of a run folder but results.parquet, into the staging folder. `diagnosed`: E8's
     counts, or a future of them, waited for once the figures are drawn; `timeline`: summary.json's
-    ``timeline`` (`_run_into`), stamped when the figures are drawn and E8's counts are in."""
+    ``timeline`` (`_run_into`), stamped when the figures are drawn and E8's counts are in; `helper`:
+    a `jaxeac.running.helper.Helper` that draws the figures (None: drawn here)."""
+    from jaxeac.running.helper import in_helper
+
     summary["outputs"] = dataclasses.asdict(options)
+    drawn = None
+    if figures:  # drawn in the helper while per_seed.csv is written and E8's counts come in
+        drawn = in_helper(helper, draw_grid_figures, stage, figure_inputs(run))
     if options.per_seed_csv:
         (stage / "per_seed.csv").write_text(per_seed_csv(run))
-    drawn = None
     if figures:
-        from jaxeac import plots
-
-        drawn = plots.grid_figures(run, stage, paper=make_preset(run.settings.preset).paper_successes)
+        drawn = drawn()
     if timeline is not None:
         timeline["figures"] = time.time()
     if isinstance(diagnosed, Future):
@@ -451,14 +478,16 @@ def write_grid_outputs(run: GridRun, out: str | Path, *, figures: bool = True,
 
 def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: OutputOptions | None = None,
                        figures: bool = True, progress: Callable[[int], None] | None = None,
-                       on_results: Callable[[GridRun], None] | None = None) -> tuple[GridRun, dict]:
+                       on_results: Callable[[GridRun], None] | None = None,
+                       helper=None) -> tuple[GridRun, dict]:
     """Run every algorithm of `settings` (already `resolved()`) and write the run folder as the
     run goes (`run_algorithms`: one pipeline of compiles and chunks): each
     chunk's rows go to results.parquet while the next chunk computes, and only `CompactSeeds`
     stay in memory. The folder appears all at once when everything is written (a run killed
     midway leaves it as it was). `on_results(run)` is called as soon as the results are in, before
-    the folder's figures and summary (`jaxeac grid` starts its statistics there). Returns the run
-    and its summary.json content.
+    the folder's figures and summary (`jaxeac grid` starts its statistics there); `helper`: a
+    `jaxeac.running.helper.Helper` that draws the figures (None: drawn here). Returns the run and
+    its summary.json content.
     """
     options = options or OutputOptions.auto(settings.seeds)
     grid_map, env = settings.grid_map(), settings.make_env()
@@ -484,17 +513,18 @@ def run_grid_to_folder(settings: GridSettings, out: str | Path, *, options: Outp
                             early.set_exception(e)
             else:
                 early = pool.submit(diagnose_grid, settings, grid_map, diagnosed)
-        if figures:
+        if figures and helper is None:
             pool.submit(importlib.import_module, "jaxeac.plots")
     try:
         return _run_into(settings, out, options, figures, progress, grid_map, env, seeds, early,
-                         on_results, on_drained, started)
+                         on_results, on_drained, started, helper)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool, progress, grid_map, env,
-              seeds: np.ndarray, early, on_results, on_drained, started: float) -> tuple[GridRun, dict]:
+              seeds: np.ndarray, early, on_results, on_drained, started: float,
+              helper=None) -> tuple[GridRun, dict]:
     """`run_grid_to_folder`'s run and folder; `early`: a future of E8's counts, or None (set by
     `on_drained`, when given, once the devices hold their last chunks). summary.json's
     ``timeline``: clock times (`time.time()`) of the run's start, its results in memory, the
@@ -520,7 +550,7 @@ def _run_into(settings: GridSettings, out, options: OutputOptions, figures: bool
             on_results(run)
         # the figures are drawn while E8's counts, started late (`DIAGNOSE_ONCE_DISPATCHED`), finish
         summary = _finish_folder(run, stage, summarize(run), options, figures, diagnosed=early,
-                                 timeline=timeline)
+                                 timeline=timeline, helper=helper)
         behind.finish()  # the whole file before the folder appears
         return run, summary
 

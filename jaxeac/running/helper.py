@@ -1,4 +1,5 @@
-"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs, its figure.
+"""Host work in a process of its own: a study's E8 diagnostics on the CPU beside its GPU runs, the
+figures of a study and of a grid run on a GPU.
 
 A study on a GPU counts E8's seeds again on the host's CPU (`jaxeac.experiments.study`). In the
 study's own process, tracing and compiling those programs held the interpreter lock that the
@@ -9,7 +10,8 @@ A `Helper` is a spawned process with JAX on the CPU alone (one host device, as E
 beside a GPU), at a lower scheduling priority (`NICE`), that runs jobs (a module-level function
 and its arguments, pickled) on a few threads of its own and hands back futures. It ignores
 Ctrl-C (its parent handles it and ends the helper) and ends when its parent's end of the pipe
-closes, so an interrupted or killed command leaves no process behind.
+closes, so an interrupted or killed command leaves no process behind. `in_helper` runs a job there
+and, if the helper has gone, here instead.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import sys
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 #: The helper's scheduling priority, above its parent's (lower priority): the parent's threads
 #: (the runs' compiles and dispatch) come first on a busy host.
@@ -162,6 +164,24 @@ class Helper:
             self._peak_rss.set_exception(HelperError("the helper process was ended"))
         for future in pending.values():
             future.set_exception(HelperError(why))
+
+
+def in_helper(helper: Helper | None, fn: Callable, /, *args, **kwargs) -> Callable[[], object]:
+    """Start ``fn(*args, **kwargs)`` in `helper`'s process and return a function that waits for its
+    value. Without a helper, or where it has ended (`HelperError`, before or while the job ran),
+    that function computes the value here instead; what `fn` itself raises is raised."""
+    future = None
+    if helper is not None:
+        with suppress(HelperError):
+            future = helper.submit(fn, *args, **kwargs)
+
+    def value():
+        if future is not None:
+            with suppress(HelperError):
+                return future.result()
+        return fn(*args, **kwargs)
+
+    return value
 
 
 @contextmanager

@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import json
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -297,6 +298,18 @@ def analyse_run_data(data: RunData, *, baseline: str = "ac", treatment: str = "e
                               paired=paired, **settings)
 
 
+def draw_comparison(stats: dict, plot: dict, folder: Path, files: dict[str, str]) -> None:
+    """`jaxeac.plots.comparison_figures` (the figures' layer, imported only to draw them; a job a
+    helper process can run)."""
+    from jaxeac.plots import comparison_figures
+
+    comparison_figures(stats, plot, folder, files)
+
+
+def _called(fn: Callable, *args):
+    return fn(*args)
+
+
 def compare_run_dir(
     run_dir,
     *,
@@ -313,15 +326,18 @@ def compare_run_dir(
     unpaired: bool = False,
     require_paired: bool = False,
     analysed: Future | None = None,
+    draw: Callable | None = None,
 ) -> dict:
     """Compare two methods of a grid or bowling run directory; write stats.json, report.md, figures.
 
     `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
     the run it just wrote), instead of reading them back; `analysed`: a future of
     `analyse_run_data`'s result for them with the same settings, started earlier (`jaxeac grid`
-    starts it while the run's own figures are drawn). The comparison is paired when both
-    methods ran the same seeds (a jaxeac run: seed i of each shares its key, R1), unless
-    `unpaired`; `require_paired` makes other seeds an error. Returns the content of stats.json.
+    starts it while the run's own figures are drawn); `draw(fn, *args)`: fn(*args) computed where
+    the figures are drawn (`jaxeac grid` on a GPU: a helper process; default: here). The
+    comparison is paired when both methods ran the same seeds (a jaxeac run: seed i of each shares
+    its key, R1), unless `unpaired`; `require_paired` makes other seeds an error. Returns the
+    content of stats.json.
     Bad input raises `jaxeac.errors.UsageError`.
     """
     t0 = time.perf_counter()
@@ -360,10 +376,8 @@ def compare_run_dir(
     stats["files"] = {"stats": f"stats{suffix}.json", "report": f"report{suffix}.md", "figures": figures}
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()
-    from jaxeac.plots import comparison_figures  # the figures' layer, imported only to draw them
-
-    with staged_dir(run_dir) as stage:
-        comparison_figures(stats, plot, stage, figures)  # a second comparison's beside the first's
+    with staged_dir(run_dir) as stage:  # a second comparison's figures beside the first's
+        (draw or _called)(draw_comparison, stats, plot, stage, figures)
         stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
