@@ -211,3 +211,12 @@ def test_in_helper_runs_there_and_here_once_the_helper_has_gone():
         assert running() == os.getpid()  # its value never came back: computed here
         assert in_helper(h, _pid_plus, 2)() == (os.getpid(), 3)
     assert in_helper(None, _pid_plus, 3)() == (os.getpid(), 4)
+
+
+def test_a_lanes_jobs_run_beside_the_helpers_own_and_an_unknown_lane_is_refused():
+    with Helper(threads=1, lanes={"figure": 1}) as h:
+        busy = h.submit(_sleep_then, 20, None)  # the one thread of `submit`'s jobs is taken
+        assert h.submit_to("figure", _pid_plus, 1).result(timeout=60)[1] == 2 and not busy.done()
+        with pytest.raises(ValueError, match="no lane 'drawing' in this helper"):
+            h.submit_to("drawing", abs, -1)
+        h.kill()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -326,9 +327,9 @@ def test_study_figure_draws_a_panel_per_task_as_each_ends():
 def test_study_figure_drawn_by_a_helper_is_the_same_png():
     """Given a helper, the panels are drawn there (the lines computed here): the same PNG, byte for
     byte; a helper that has gone before the figure is finished leaves it to be drawn here."""
-    from jaxeac.experiments.study_figure import StudyFigure
-    from jaxeac.stats.cumulative import cumulative_counts
+    from jaxeac.experiments.study_figure import FIGURE_LANE, StudyFigure
     from jaxeac.running.helper import Helper
+    from jaxeac.stats.cumulative import cumulative_counts
 
     rng = np.random.default_rng(3)
     counts = {t: {a: cumulative_counts(rng.random((20, 12)) < p) for a, p in (("ac", 0.3), ("eac", 0.6))}
@@ -343,9 +344,12 @@ def test_study_figure_drawn_by_a_helper_is_the_same_png():
             return fig.finish().result(), hasattr(fig, "_fig")  # a matplotlib figure in this process
 
     here, _ = draw()
-    with Helper(threads=2) as helper:
-        assert draw(helper) == (here, False)
-    with Helper(threads=2) as helper:
+    lanes = {FIGURE_LANE: 1}
+    with Helper(threads=1, lanes=lanes) as helper:
+        busy = helper.submit(time.sleep, 20)  # E8's jobs hold every thread of the helper's own
+        assert draw(helper) == (here, False) and not busy.done()  # the figure's lane never waits for them
+        helper.kill()
+    with Helper(threads=2, lanes=lanes) as helper:
         assert draw(helper, kill=True) == (here, True)
 
 

@@ -212,9 +212,10 @@ class TaskRunner:
         from jaxeac.experiments.grid import diagnose_grid
 
         if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
+            from jaxeac.experiments.study_figure import FIGURE_LANE
             from jaxeac.running.helper import Helper
 
-            self.helper = Helper(threads=HELPER_THREADS)
+            self.helper = Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the figure apart from E8
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
             with suppress(HelperError):  # ended already: each task's E8 is counted in this process
                 prepare_diagnostics_ahead(todo, self._seeds, self.helper.submit)

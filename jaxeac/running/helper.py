@@ -8,7 +8,8 @@ runs' programs need, and running them took the cores: with E8 in a helper, `jaxe
 
 A `Helper` is a spawned process with JAX on the CPU alone (one host device, as E8's calls use
 beside a GPU), at a lower scheduling priority (`NICE`), that runs jobs (a module-level function
-and its arguments, pickled) on a few threads of its own and hands back futures. It ignores
+and its arguments, pickled) on a few threads of its own, or on a lane of threads apart (jobs that
+must not wait behind the others: `submit_to`), and hands back futures. It ignores
 Ctrl-C (its parent handles it and ends the helper) and ends when its parent's end of the pipe
 closes, so an interrupted or killed command leaves no process behind. `in_helper` runs a job there
 and, if the helper has gone, here instead.
@@ -55,13 +56,15 @@ class Helper:
     so a script need not keep its top level under ``if __name__ == "__main__":``; jobs are functions
     of importable modules."""
 
-    def __init__(self, *, threads: int = THREADS, nice: int = NICE, name: str = "jaxeac-helper") -> None:
+    def __init__(self, *, threads: int = THREADS, lanes: dict[str, int] | None = None, nice: int = NICE,
+                 name: str = "jaxeac-helper") -> None:
         import multiprocessing
 
+        self._lanes = dict(lanes or {})  # lane name -> its threads, beside the `threads` of `submit`'s jobs
         context = multiprocessing.get_context("spawn")  # no fork of a process running JAX's threads
         self._conn, child = context.Pipe()
-        self._process = context.Process(target=_serve, args=(child, threads, nice, helper_environment()),
-                                        name=name, daemon=True)
+        self._process = context.Process(target=_serve, args=(child, threads, nice, helper_environment(),
+                                                             self._lanes), name=name, daemon=True)
         with _main_not_imported():
             self._process.start()
         child.close()
@@ -75,6 +78,17 @@ class Helper:
         self._reader.start()
 
     def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        """A future of ``fn(*args, **kwargs)``, run on the helper's `threads` in the order sent."""
+        return self._send(None, fn, args, kwargs)
+
+    def submit_to(self, lane: str, fn: Callable, /, *args, **kwargs) -> Future:
+        """As `submit`, on the threads of `lane` (one of the helper's `lanes`), so that the job never
+        waits behind `submit`'s (a figure's panels behind E8's diagnostics)."""
+        if lane not in self._lanes:
+            raise ValueError(f"no lane {lane!r} in this helper (its lanes: {sorted(self._lanes)})")
+        return self._send(lane, fn, args, kwargs)
+
+    def _send(self, lane: str | None, fn: Callable, args: tuple, kwargs: dict) -> Future:
         payload = pickle.dumps((fn, args, kwargs))  # what cannot be pickled is the caller's error, here
         future: Future = Future()
         future.set_running_or_notify_cancel()  # a job sent cannot be called back
@@ -85,7 +99,7 @@ class Helper:
             self._pending[job] = future
         try:
             with self._sending:
-                self._conn.send((job, payload))
+                self._conn.send((job, payload, lane))
         except OSError as exc:  # the process has gone
             with self._lock:
                 self._pending.pop(job, None)
@@ -212,7 +226,7 @@ def _portable(exc: BaseException) -> BaseException:
         return HelperError(f"{type(exc).__name__}: {exc}")
 
 
-def _serve(conn, threads: int, nice: int, environment: dict[str, str]) -> None:
+def _serve(conn, threads: int, nice: int, environment: dict[str, str], lanes: dict[str, int]) -> None:
     """The helper process: read jobs until the parent closes (None) or goes away (end of file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends this process
     os.environ.update(environment)
@@ -249,15 +263,20 @@ def _serve(conn, threads: int, nice: int, environment: dict[str, str]) -> None:
             outcome, blob = (job, False, None), pickle.dumps(failed)
         reply((outcome[0], outcome[1], blob))
 
-    with ThreadPoolExecutor(threads, thread_name_prefix="jaxeac-helper") as pool:
-        while True:
-            try:
-                message = conn.recv()
-            except (EOFError, OSError):  # the parent has gone: nobody waits for the jobs
-                os._exit(0)
-            if message is None:
-                break
-            pool.submit(run, *message)
+    pools = {None: ThreadPoolExecutor(threads, thread_name_prefix="jaxeac-helper"),
+             **{lane: ThreadPoolExecutor(n, thread_name_prefix=f"jaxeac-helper-{lane}")
+                for lane, n in lanes.items()}}
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):  # the parent has gone: nobody waits for the jobs
+            os._exit(0)
+        if message is None:
+            break
+        job, payload, lane = message
+        pools[lane].submit(run, job, payload)
+    for pool in pools.values():
+        pool.shutdown(wait=True)
     import resource
 
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, bytes on macOS
