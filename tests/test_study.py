@@ -448,3 +448,25 @@ def test_a_task_that_fails_side_by_side_stops_the_study_with_its_own_error(tmp_p
     with pytest.raises(MemoryError, match="the real cause"):
         run_study(settings, tmp_path, progress=False)
     assert not (tmp_path / "study.json").exists()
+
+
+def test_the_cli_starts_e8s_helper_before_its_checks_and_never_leaves_it_running(tmp_path, monkeypatch):
+    """`jaxeac study` (where E8 goes to a helper: GPUs) starts the helper process before its checks,
+    so that its start overlaps them; the study then runs E8 there, and a study refused by a check
+    leaves no helper behind."""
+    from jaxeac.experiments import grid, study_runs
+
+    monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", True)
+    started = []
+    start = study_runs.diagnostics_helper
+    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda: started.append(start()) or started[-1])
+    (tmp_path / "a_file").write_text("not a folder")
+    argv = ["study", "--tasks", "FrozenLake-4x4-v1", "--algos", "ac", "eac", "--seeds", "6", "--trials", "8",
+            "--resamples", "400", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "a_file")]) == 2  # refused by the output folder's check
+    assert len(started) == 1 and not started[0]._process.is_alive()
+    assert main([*argv, "--out", str(tmp_path / "s")]) == 0
+    assert len(started) == 2 and not started[1]._process.is_alive()
+    study = json.loads((tmp_path / "s" / "study.json").read_text())
+    assert 0 < study["timeline"]["helper_peak_rss_gib"] < 4  # the runner used (and closed) the early helper

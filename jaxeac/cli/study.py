@@ -53,6 +53,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         summary_table,
         task_envs,
     )
+    from jaxeac.experiments.study_runs import diagnostics_helper
 
     settings = StudySettings(
         tasks=tuple(args.tasks or DEFAULT_TASKS), algos=tuple(args.algos or DEFAULT_ALGOS), seeds=args.seeds,
@@ -70,10 +71,14 @@ def cmd_study(args: argparse.Namespace) -> int:
                               out=args.out)  # a folder tuned with another setup is refused here
     grids = {task: settings.task_settings(task) for task in settings.tasks}
     envs = task_envs(grids)  # the runs' own environments: tasks of one layout share their kernel probes
+    helper = diagnostics_helper()  # E8's helper process starts (on GPUs) while the checks run; no job yet
+    if helper is not None and getattr(args, "_cleanup", None) is not None:
+        args._cleanup.callback(helper.kill)  # refused below, or the study ended: never left running
     for task, grid in grids.items():  # sizes that cannot fit or finish fail here, for every task
         check_grid_resources(grid, envs[task])
     _claim_out(args, args.out, kind="study")
-    result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning, timeline=args.timeline)
+    result = run_study(settings, args.out, progress=not args.quiet, tuning=tuning, timeline=args.timeline,
+                       helper=helper)
     print(summary_table(result))
     if tuning is not None:
         from jaxeac.experiments.tune import tuned_summary

@@ -218,14 +218,15 @@ def timeline_text(tl: dict) -> str:
 
 def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True,
               on_task: Callable[[str, dict], None] | None = None, tuning=None,
-              timeline: bool = False) -> dict:
+              timeline: bool = False, helper=None) -> dict:
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
     On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
     summary.json) when they are in, while later tasks run (on GPUs in a helper process, which also
-    draws the figure); the statistics of all tasks are one pass (`TaskStatistics`), each task's from
-    when its successes are in."""
+    draws the figure: `helper`, one started earlier by `jaxeac.experiments.study_runs.diagnostics_helper`,
+    which the study then owns); the statistics of all tasks are one pass (`TaskStatistics`), each
+    task's from when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.stats.cumulative import cumulative_counts
@@ -255,7 +256,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     stats = TaskStatistics(settings.tasks, first.algos, settings.seeds, first.trials, resamples=settings.resamples,
                            key=settings.key)
     timed = functools.partial(_timed, tl, "figure")
-    with (TaskRunner(todo, tl) as runner, _stopped_on_error(stats),
+    with (TaskRunner(todo, tl, helper) as runner, _stopped_on_error(stats),
           StudyFigure(settings.tasks, settings.seeds, timed, helper=runner.helper) as figure):
         ahead = start_tasks(runner, todo, out, side, progress)
         for task in as_they_end(list(tasks), ahead):  # a task's statistics start as soon as its runs end

@@ -160,6 +160,23 @@ DIAGNOSE_IN_HELPER = {"gpu": True}
 HELPER_THREADS = 3
 
 
+def diagnostics_helper():
+    """Where a study's E8 goes to a helper process (`DIAGNOSE_IN_HELPER`), that helper, started now
+    with no job yet (a `TaskRunner` given it sends them, and owns it); else None. `jaxeac study`
+    starts it before its checks: its start (a Python with JAX and jaxeac) overlaps them instead of
+    the runs' first seconds."""
+    import jax
+
+    from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN
+    from jaxeac.experiments.study_figure import FIGURE_LANE
+    from jaxeac.running.helper import Helper
+
+    backend = jax.default_backend()
+    if not (DIAGNOSE_BESIDE_THE_RUN.get(backend, False) and DIAGNOSE_IN_HELPER.get(backend, False)):
+        return None
+    return Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the study's figure apart from E8
+
+
 def prepare_diagnostics_ahead(todo: dict, diagnostic_seeds, submit: Callable) -> None:
     """Start compiling every program the tasks' E8 diagnostics will run (one per algorithm with
     memories and layout), several at once (`submit(fn, *args, **kwargs)`: a pool's or a helper's), so
@@ -186,9 +203,10 @@ class TaskRunner:
     (`jaxeac.experiments.grid.DIAGNOSE_BESIDE_THE_RUN`: accelerators), a task's start with its run
     (queued behind the earlier tasks'), and its folder is finished (summary.json, then moved in
     place) by a finisher thread when they are in, so that the next task's run need not wait for
-    them; elsewhere (CPUs: the run has every core) each folder is finished after its run."""
+    them; elsewhere (CPUs: the run has every core) each folder is finished after its run. `helper`:
+    E8's helper process, started earlier (`diagnostics_helper`), which the runner then owns."""
 
-    def __init__(self, todo: dict, tl: Timeline) -> None:
+    def __init__(self, todo: dict, tl: Timeline, helper=None) -> None:
         import jax
 
         from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnostic_seeds
@@ -197,9 +215,13 @@ class TaskRunner:
         backend = jax.default_backend()
         self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(backend, False)
         self.diagnosed: dict = {}
-        self.pool = self.finisher = self.compiler = self.helper = None
+        self.pool = self.finisher = self.compiler = None
+        self.helper = helper
         self._seeds = diagnostic_seeds
         if not self.beside:
+            if helper is not None:  # nothing to diagnose (every task done earlier)
+                helper.kill()
+                self.helper = None
             return
         self.finisher = ThreadPoolExecutor(max_workers=1)
         try:
@@ -212,10 +234,7 @@ class TaskRunner:
         from jaxeac.experiments.grid import diagnose_grid
 
         if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
-            from jaxeac.experiments.study_figure import FIGURE_LANE
-            from jaxeac.running.helper import Helper
-
-            self.helper = Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the figure apart from E8
+            self.helper = self.helper or diagnostics_helper()
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
             with suppress(HelperError):  # ended already: each task's E8 is counted in this process
                 prepare_diagnostics_ahead(todo, self._seeds, self.helper.submit)
