@@ -96,20 +96,24 @@ def test_a_two_algorithm_run_has_no_family_section(tmp_path):
 
 
 FIGURES_IN_HELPER = """
-import hashlib, json, pathlib, sys
+import hashlib, json, multiprocessing, pathlib, sys
 from jaxeac.experiments import pipeline
 from jaxeac.cli import main
 if sys.argv[1] == "helper":  # as on a GPU: statistics beside the figures, drawn in a helper process
     pipeline.STATISTICS_BESIDE_FIGURES = pipeline.FIGURES_IN_HELPER = {"cpu": True}
-rc = main(["grid", "--preset", "paper", "--seeds", "40", "--trials", "12", "--out", sys.argv[2], "--quiet"])
+argv = ["grid", "--preset", "paper", "--seeds", "40", "--trials", "12", "--quiet", "--out"]
+pathlib.Path(sys.argv[2] + ".txt").write_text("a file, not a folder")
+refused = main([*argv, sys.argv[2] + ".txt"])  # the helper starts before this check, and is ended
+rc = main([*argv, sys.argv[2]])
 pngs = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in pathlib.Path(sys.argv[2]).glob("*.png")}
-print(json.dumps([rc, "matplotlib" in sys.modules, pngs]))
+print(json.dumps([rc, "matplotlib" in sys.modules, pngs, refused, len(multiprocessing.active_children())]))
 """
 
 
 def test_a_grid_runs_figures_drawn_in_a_helper_are_those_drawn_here(tmp_path):
     """With its figures in a helper process (`FIGURES_IN_HELPER`, GPUs), a grid run and its report
-    write the same PNGs, byte for byte, and matplotlib is never imported in the command's process."""
+    write the same PNGs, byte for byte, and matplotlib is never imported in the command's process;
+    the helper, started before the checks, is gone after a run refused by one and after a run."""
     env = dict(os.environ, JAXEAC_COMPILATION_CACHE="off", MPLBACKEND="Agg")
     seen = {}
     for where in ("here", "helper"):
@@ -119,3 +123,4 @@ def test_a_grid_runs_figures_drawn_in_a_helper_are_those_drawn_here(tmp_path):
         seen[where] = json.loads(proc.stdout.splitlines()[-1])
     assert seen["here"][:2] == [0, True] and seen["helper"][:2] == [0, False]
     assert len(seen["here"][2]) == 5 and seen["helper"][2] == seen["here"][2]
+    assert seen["helper"][3:] == [2, 0] and seen["here"][3:] == [2, 0]

@@ -53,7 +53,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from jaxeac.experiments.grid import part_folder
-    from jaxeac.experiments.pipeline import run_and_compare
+    from jaxeac.experiments.pipeline import figure_helper, run_and_compare
 
     settings = grid_settings(args).resolved()
     if settings.seeds < 2:
@@ -68,6 +68,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--coordinator only applies to a multi-process run; add --num-processes P "
                          "--process-id I, or drop --coordinator")
     _init_distributed(args)  # before the size check: JAX's backends must not have started yet
+    helper = None
+    if args.num_processes == 1 and not args.sequential:  # on GPUs the figures' helper starts meanwhile
+        helper = figure_helper(settings, compare=not args.no_compare)
+        if helper is not None and getattr(args, "_cleanup", None) is not None:
+            args._cleanup.callback(helper.kill)  # refused below, or the run ended: never left running
     settings = fit_grid(args, settings, env)  # sizes that cannot fit or finish fail here
     design = sequential_design(args, settings)  # a bad design fails here too
     part = part_folder(args.out, args.process_id, args.num_processes) if args.num_processes > 1 else None
@@ -95,7 +100,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             _, _, stats = run_and_compare(settings, out, options=output_options(args, settings.seeds),
                                           compare=compare, quiet=args.quiet, progress=bar.update,
-                                          on_folder=on_folder)
+                                          on_folder=on_folder, helper=helper)
     if stats is not None:
         print_comparison(stats, out)
     return 0

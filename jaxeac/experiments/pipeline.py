@@ -32,23 +32,53 @@ FIGURES_IN_HELPER = {"gpu": True, "tpu": True}
 def run_and_compare(settings, out, *, options=None, compare: bool = True,
                     progress: Callable[[int], None] | None = None, quiet: bool = False, design=None,
                     on_look: Callable[[dict], None] | None = None, run=None,
-                    on_folder: Callable[[object, dict], None] | None = None) -> tuple:
+                    on_folder: Callable[[object, dict], None] | None = None, helper=None) -> tuple:
     """Run `settings` (a resolved `GridSettings`) into the folder `out`, then compare it.
 
     `options`: the folder's `OutputOptions`; `progress(n)`: seeds done; `design`: a
     `SequentialDesign` (batches of seeds until a look decides, `on_look(result)` after each);
     `run`: a `GridRun` already computed (`jaxeac merge`), only written and compared;
-    `on_folder(run, summary)`: called once the folder is written, before the statistics start.
-    The report is made when `compare` and the run has AC and EAC with two seeds or more
-    (`quiet`: no progress bar). Returns (run, summary.json content, stats.json content or None).
+    `on_folder(run, summary)`: called once the folder is written, before the statistics start;
+    `helper`: the figures' helper process, started earlier (`figure_helper`; the call then owns
+    it), else one is started here where the figures go to one. The report is made when `compare`
+    and the run has AC and EAC with two seeds or more (`quiet`: no progress bar). Returns (run,
+    summary.json content, stats.json content or None).
     """
-    beside = run is None and design is None and compare and {"ac", "eac"} <= set(settings.algos)
-    if not (beside and settings.seeds >= 2 and _statistics_beside_figures(settings.seeds)):
+    if run is not None or design is not None:
+        if helper is not None:
+            helper.kill()
         return _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
                                 on_folder, None)
-    with _figure_helper() as helper:
-        return _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
-                                on_folder, helper)
+    helper = helper if helper is not None else figure_helper(settings, compare=compare)
+    try:
+        result = _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
+                                  on_folder, helper)
+    except BaseException:
+        if helper is not None:
+            helper.kill()
+        raise
+    if helper is not None:
+        helper.close()
+    return result
+
+
+def figure_helper(settings, *, compare: bool = True):
+    """Where a grid run's figures go to a helper process (`FIGURES_IN_HELPER`: the statistics run
+    beside them, AC and EAC compared), that helper, started now and loading matplotlib; else None.
+    `jaxeac grid` starts it before its checks, so that it is ready when the results are in (a warm
+    run's come about two seconds after its start)."""
+    import jax
+
+    compared = compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2
+    if not (compared and _statistics_beside_figures(settings.seeds)
+            and FIGURES_IN_HELPER.get(jax.default_backend(), False)):
+        return None
+    from jaxeac.running.helper import Helper, HelperError
+
+    helper = Helper(threads=2, name="jaxeac-figures")
+    with contextlib.suppress(HelperError):  # ended already: the figures are drawn here
+        helper.submit(_load_plots)
+    return helper
 
 
 def _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run, on_folder,
@@ -81,27 +111,6 @@ def _run_and_compare(settings, out, options, compare, progress, quiet, design, o
                      sequential=summary["sequential"] if design is not None else None, analysed=analysed,
                      helper=helper)
     return run, summary, stats
-
-
-@contextlib.contextmanager
-def _figure_helper():
-    """Where the figures go to a helper process (`FIGURES_IN_HELPER`), one, started now so that it
-    has loaded matplotlib by the time the results are in; else None. Ended with the block."""
-    import jax
-
-    if not FIGURES_IN_HELPER.get(jax.default_backend(), False):
-        yield None
-        return
-    from jaxeac.running.helper import Helper
-
-    helper = Helper(threads=2, name="jaxeac-figures")
-    try:
-        helper.submit(_load_plots)
-        yield helper
-    except BaseException:
-        helper.kill()
-        raise
-    helper.close()
 
 
 def _load_plots() -> None:
