@@ -175,12 +175,13 @@ def _timeline(folder: Path) -> dict | None:
     return None
 
 
-def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, command: list[str] | None = None
-                  ) -> dict:
+def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, command: list[str] | None = None,
+                  cached_repeats: int = 1) -> dict:
     """A comparison on one machine of source trees (`git worktree` checkouts or `git archive`
     exports of commits, each put first on PYTHONPATH): the plain grid command (or `command`, the
     arguments of another jaxeac command, without --out) with an empty compilation cache, the
-    builds taking turns, `repeats` rounds, then once each with its cache."""
+    builds taking turns, `repeats` rounds, then `cached_repeats` rounds with each build's cache
+    (``cached``: the first; ``cached_runs``: all, where more than one)."""
     base = command or ["grid", "--preset", "paper", "--seeds", str(seeds), "--quiet"]
     rows = {str(b): {"first_runs": []} for b in builds}
     caches = {}
@@ -197,9 +198,16 @@ def builds_record(out: Path, seeds: int, builds: list[Path], repeats: int, comma
                 rows[str(build)]["first_runs"][-1]["timeline"] = timeline
             print(json.dumps({k: v for k, v in rows[str(build)]["first_runs"][-1].items() if k != "timeline"}),
                   flush=True)
-    for i, build in enumerate(builds):
-        env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
-        rows[str(build)]["cached"] = jaxeac([*base, "--out", str(out / f"build{i}")], env)
+    for _ in range(cached_repeats):
+        for i, build in enumerate(builds):
+            env = {"PYTHONPATH": str(build.resolve()), "JAXEAC_COMPILATION_CACHE": str(caches[i])}
+            row = rows[str(build)]
+            row.setdefault("cached_runs", []).append(jaxeac([*base, "--out", str(out / f"build{i}")], env))
+            row["cached"] = row["cached_runs"][0]
+            print(json.dumps({"cached": row["cached_runs"][-1]}), flush=True)
+    for row in rows.values():
+        if cached_repeats == 1:
+            row.pop("cached_runs", None)
     return {"seeds": seeds, "command": " ".join(["jaxeac", *base]), "builds": rows}
 
 
@@ -217,6 +225,8 @@ def main() -> None:
     p.add_argument("--builds", type=Path, nargs="+", metavar="DIR",
                    help="grid only: compare these source trees on one machine, taking turns (`builds_record`)")
     p.add_argument("--repeats", type=int, default=3, help="--builds: rounds of first runs")
+    p.add_argument("--cached-repeats", type=int, default=1,
+                   help="--builds: rounds with each build's compilation cache, after the first runs")
     p.add_argument("--builds-command", metavar="ARGS",
                    help="--builds: time `jaxeac ARGS --out DIR` instead of the grid command (e.g. 'run --env "
                         "FourRooms-stochastic-v0 --seeds 10000 --quiet')")
@@ -229,7 +239,7 @@ def main() -> None:
         record["warm_up_s"] = warm_up()
     if args.builds:
         command = args.builds_command.split() if args.builds_command else None
-        record["grid"] = [builds_record(args.out, n, args.builds, args.repeats, command)
+        record["grid"] = [builds_record(args.out, n, args.builds, args.repeats, command, args.cached_repeats)
                           for n in (args.grid_seeds if command is None else [None])]
         (args.record or args.out / "timings.json").write_text(json.dumps(record, indent=2) + "\n")
         return

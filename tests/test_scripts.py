@@ -185,3 +185,30 @@ def test_e2e_measures_the_peak_of_a_commands_processes_together():
     proc.wait()
     # both at once (each alone holds under 300 MiB); not this test's own process (its caller's memory)
     assert 400 * 2**20 <= together.stop() < 600 * 2**20
+
+
+def test_e2e_builds_take_turns_first_runs_then_cached_rounds(tmp_path, monkeypatch):
+    """`e2e.builds_record`: each round runs every build once, with an empty cache for its first runs
+    and its own cache kept for the cached rounds (``cached``: the first, ``cached_runs``: all)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("e2e", ROOT / "scripts" / "e2e.py")
+    e2e = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(e2e)
+    calls = []
+
+    def fake(argv, env):
+        calls.append((Path(env["PYTHONPATH"]).name, Path(env["JAXEAC_COMPILATION_CACHE"]).name))
+        return {"wall_s": float(len(calls))}
+
+    monkeypatch.setattr(e2e, "jaxeac", fake)
+    builds = [tmp_path / "old", tmp_path / "new"]
+    rows = e2e.builds_record(tmp_path, 10, builds, repeats=2, cached_repeats=3)["builds"]
+    assert calls[:4] == [("old", "xla_cache_build0_0"), ("new", "xla_cache_build1_0"),
+                         ("old", "xla_cache_build0_1"), ("new", "xla_cache_build1_1")]
+    assert calls[4:] == [("old", "xla_cache_build0_1"), ("new", "xla_cache_build1_1")] * 3
+    assert [r["wall_s"] for r in rows[str(builds[1])]["first_runs"]] == [2.0, 4.0]
+    assert [r["wall_s"] for r in rows[str(builds[1])]["cached_runs"]] == [6.0, 8.0, 10.0]
+    assert rows[str(builds[1])]["cached"] == {"wall_s": 6.0}
+    once = e2e.builds_record(tmp_path, 10, builds, repeats=1)["builds"]
+    assert "cached_runs" not in once[str(builds[0])] and "cached" in once[str(builds[0])]
