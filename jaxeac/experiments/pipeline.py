@@ -24,8 +24,8 @@ STATISTICS_BESIDE_FIGURES = {"gpu": True, "tpu": True}
 STATISTICS_BESIDE_FIGURES_SEEDS = 1 << 22
 #: Per JAX backend, whether the figures (the run's and the report's) are drawn in a helper process
 #: (`jaxeac.running.helper`) where the statistics run beside them, so that matplotlib never holds
-#: this process's interpreter lock while they run: on one H100, a warm 10^6-seed run and report
-#: without drawing took 7.2-7.7 s against 8.6-9.0 s.
+#: this process's interpreter lock while they run: a 10^6-seed run and report on one H100, 1.07x
+#: first runs and 1.03x warm, faster in each of 6 rounds (BENCHMARKS.md).
 FIGURES_IN_HELPER = {"gpu": True, "tpu": True}
 
 
