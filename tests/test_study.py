@@ -470,3 +470,32 @@ def test_the_cli_starts_e8s_helper_before_its_checks_and_never_leaves_it_running
     assert len(started) == 2 and not started[1]._process.is_alive()
     study = json.loads((tmp_path / "s" / "study.json").read_text())
     assert 0 < study["timeline"]["helper_peak_rss_gib"] < 4  # the runner used (and closed) the early helper
+
+
+def test_the_helper_ends_once_its_jobs_are_done_while_the_statistics_run(tmp_path, monkeypatch):
+    """Once every task's E8 job and the figure have gone to the helper, it is ended as soon as they
+    are done (`TaskRunner.release_helper`): the statistics still running do not share the host's
+    memory with an idle helper."""
+    from jaxeac.experiments import grid, study, study_runs
+
+    monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", True)
+    started, alive_at_the_statistics = [], []
+    start = study_runs.diagnostics_helper
+    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda: started.append(start()) or started[-1])
+    result = study.TaskStatistics.result
+
+    def statistics_after_the_helper(self):
+        deadline = time.monotonic() + 60
+        while started[0]._process.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        alive_at_the_statistics.append(started[0]._process.is_alive())
+        return result(self)
+
+    monkeypatch.setattr(study.TaskStatistics, "result", statistics_after_the_helper)
+    settings = StudySettings(tasks=("FrozenLake-4x4-v1",), algos=("ac", "eac"), seeds=6, trials=8,
+                             resamples=400)
+    out = study.run_study(settings, tmp_path / "s", progress=False)
+    assert alive_at_the_statistics == [False]  # ended before the statistics were read, not by the study's end
+    assert 0 < out["timeline"]["helper_peak_rss_gib"] < 4
+    assert (tmp_path / "s" / "fig_study.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

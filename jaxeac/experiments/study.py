@@ -297,6 +297,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
             evaluated = in_background(lambda: tuner.evaluate(
                 select(tuning, tuned.result(), list(tasks), algos, first.trials), kept), "jaxeac-evaluation")
         png = figure.finish()  # the legend and the PNG, beside the statistics
+        runner.release_helper(png)  # every job has gone to the helper: it ends once they are done
         with said("statistics"):  # the last tasks' and the aggregate, while the last diagnostics finish
             per_task, rows, aggregate = stats.result()
         with said("diagnostics_wait"):

@@ -215,7 +215,7 @@ class TaskRunner:
         backend = jax.default_backend()
         self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(backend, False)
         self.diagnosed: dict = {}
-        self.pool = self.finisher = self.compiler = None
+        self.pool = self.finisher = self.compiler = self._closer = None
         self.helper = helper
         self._seeds = diagnostic_seeds
         if not self.beside:
@@ -322,6 +322,24 @@ class TaskRunner:
             info = (type(exc), exc, exc.__traceback__) if exc is not None else (None, None, None)
             stage_cm.__exit__(*info)
 
+    def release_helper(self, *waits: Future) -> None:
+        """End the helper, on a thread, once `waits` (the figure's PNG) and every task's E8 job are
+        done: called when no more jobs will go to it, so that the statistics still running do not
+        share the host's memory with an idle helper (a 100,000-seed study ended at 2.41 GiB in its
+        own process plus 0.82 GiB in the helper)."""
+        if self.helper is None:
+            return
+        pending = [*waits, *list(self.diagnosed.values())]
+
+        def close() -> None:
+            for job in pending:
+                with suppress(BaseException):  # failures are the study's to report, where it reads them
+                    job.result()
+            self.helper.close()
+
+        self._closer = threading.Thread(target=close, daemon=True, name="jaxeac-helper-close")
+        self._closer.start()
+
     def finish(self) -> None:
         """Wait for every folder to be finished (re-raising the first failure)."""
         for f in self.done:
@@ -333,7 +351,11 @@ class TaskRunner:
                 pool.shutdown(wait=exc[0] is None, cancel_futures=exc[0] is not None)
         if self.helper is not None:
             with self.tl.phase("helper_close"):
-                self.helper.close() if exc[0] is None else self.helper.kill()
+                if exc[0] is not None:
+                    self.helper.kill()
+                if self._closer is not None:
+                    self._closer.join()
+                self.helper.close()
             if (peak := self.helper.peak_rss_bytes) is not None:
                 self.tl.values["helper_peak_rss_gib"] = round(peak / 2**30, 3)
         for stage_cm in list(self.open):  # a failure midway: unfinished folders are left as they were
