@@ -231,6 +231,8 @@ def main() -> None:
                    help="--builds: time `jaxeac ARGS --out DIR` instead of the grid command (e.g. 'run --env "
                         "FourRooms-stochastic-v0 --seeds 10000 --quiet')")
     args = p.parse_args()
+    if args.cached_repeats < 1 or args.repeats < 1:
+        p.error("--repeats and --cached-repeats must be at least 1")
     args.out.mkdir(parents=True, exist_ok=True)
     record = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},

@@ -349,8 +349,10 @@ def test_study_figure_drawn_by_a_helper_is_the_same_png():
         busy = helper.submit(time.sleep, 20)  # E8's jobs hold every thread of the helper's own
         assert draw(helper) == (here, False) and not busy.done()  # the figure's lane never waits for them
         helper.kill()
-    with Helper(threads=2, lanes=lanes) as helper:
+    with Helper(threads=2) as helper:  # without a figure lane: drawn with its other jobs; killed: here
         assert draw(helper, kill=True) == (here, True)
+    with Helper(threads=2) as helper:
+        assert draw(helper) == (here, False)
 
 
 def test_tasks_of_one_program_share_their_state_size_traced_once(monkeypatch):
@@ -499,3 +501,23 @@ def test_the_helper_ends_once_its_jobs_are_done_while_the_statistics_run(tmp_pat
     assert alive_at_the_statistics == [False]  # ended before the statistics were read, not by the study's end
     assert 0 < out["timeline"]["helper_peak_rss_gib"] < 4
     assert (tmp_path / "s" / "fig_study.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_helper_is_released_only_after_every_e8_job_even_one_whose_folder_is_done():
+    """`release_helper` waits for every task's E8 job, also those `diagnosed` has given up (their
+    folders finished), before it ends the helper."""
+    from jaxeac.experiments.study_runs import TaskRunner
+    from jaxeac.running.helper import Helper
+
+    helper = Helper(threads=1)
+    try:
+        job = helper.submit(time.sleep, 1.0)
+        runner = TaskRunner.__new__(TaskRunner)  # only what `release_helper` reads
+        runner.helper, runner.diagnosed, runner._jobs, runner._closer = helper, {}, [job], None
+        closed = []
+        helper.close = lambda *a, **k: closed.append(job.done())  # when the helper is ended, is the job done?
+        runner.release_helper()
+        runner._closer.join(60)
+        assert closed == [True]
+    finally:
+        Helper.close(helper)

@@ -17,6 +17,7 @@ the summary and the folder.)
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import io
@@ -446,8 +447,14 @@ def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOpti
     drawn = None
     if figures:  # drawn in the helper while per_seed.csv is written and E8's counts come in
         drawn = in_helper(helper, draw_grid_figures, stage, figure_inputs(run))
-    if options.per_seed_csv:
-        (stage / "per_seed.csv").write_text(per_seed_csv(run))
+    try:
+        if options.per_seed_csv:
+            (stage / "per_seed.csv").write_text(per_seed_csv(run))
+    except BaseException:
+        if figures and helper is not None:
+            with contextlib.suppress(Exception):
+                drawn()  # the helper no longer writes in the folder when it is dropped
+        raise
     if figures:
         drawn = drawn()
     if timeline is not None:

@@ -4,8 +4,9 @@
 (results.parquet, summary.json, figures) and then compares AC with EAC from the results still
 in memory (`jaxeac.stats.compare_run_dir`: stats.json, report.md and its figures). On
 accelerators the comparison's programs compile while the run computes, its statistics are
-computed on a thread as soon as the results are in, and every figure is drawn in a helper process
-meanwhile (`FIGURES_IN_HELPER`); the outputs are the same either way.
+computed on a thread as soon as the results are in, and (up to `STATISTICS_BESIDE_FIGURES_SEEDS`)
+the run's and the report's figures are drawn in a helper process meanwhile (`FIGURES_IN_HELPER`);
+the outputs are the same either way.
 """
 
 from __future__ import annotations
@@ -69,13 +70,15 @@ def figure_helper(settings, *, compare: bool = True):
     run's come about two seconds after its start)."""
     import jax
 
-    compared = compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2
-    if not (compared and _statistics_beside_figures(settings.seeds)
+    if not (_compares(settings, compare=compare) and _statistics_beside_figures(settings.seeds)
             and FIGURES_IN_HELPER.get(jax.default_backend(), False)):
         return None
     from jaxeac.running.helper import Helper, HelperError
 
-    helper = Helper(threads=2, name="jaxeac-figures")
+    try:
+        helper = Helper(threads=2, name="jaxeac-figures")
+    except OSError:  # no process could start: the figures are drawn here
+        return None
     with contextlib.suppress(HelperError):  # ended already: the figures are drawn here
         helper.submit(_load_plots)
     return helper
@@ -97,7 +100,7 @@ def _run_and_compare(settings, out, options, compare, progress, quiet, design, o
         started: list[Future] = []  # the statistics, started as soon as the results are in
 
         def start_statistics(run) -> None:
-            if _compares(run, compare=compare) and _statistics_beside_figures(settings.seeds):
+            if _compares(run.settings, compare=compare) and _statistics_beside_figures(settings.seeds):
                 started.append(_start_statistics(run, out, ahead))
 
         run, summary = run_grid_to_folder(settings, out, options=options, progress=progress,
@@ -118,9 +121,9 @@ def _load_plots() -> None:
     import jaxeac.plots  # noqa: F401
 
 
-def _compares(run, *, compare: bool) -> bool:
-    """Whether a grid run is compared (AC and EAC, at least two seeds each)."""
-    return compare and {"ac", "eac"} <= set(run.settings.algos) and run.settings.seeds >= 2
+def _compares(settings, *, compare: bool) -> bool:
+    """Whether a grid run of `settings` is compared (AC and EAC, at least two seeds each)."""
+    return compare and {"ac", "eac"} <= set(settings.algos) and settings.seeds >= 2
 
 
 def _statistics_beside_figures(seeds: int) -> bool:
@@ -140,9 +143,10 @@ def _grid_run_data(run, out, sequential: dict | None = None):
 
 
 def _start_statistics(run, out, ahead) -> Future:
-    """`analyse_run_data` of a grid run just finished, on a thread, while the main thread draws
-    and writes the run's own figures: a future of (stats, figures' data). It starts once the
-    comparison's programs compiled ahead (`ahead`, a thread or None) are in the cache."""
+    """`analyse_run_data` of a grid run just finished, on a thread, while the run's own figures are
+    drawn (in a helper process or on the main thread): a future of (stats, figures' data). It
+    starts once the comparison's programs compiled ahead (`ahead`, a thread or None) are in the
+    cache."""
     from jaxeac.stats.run import analyse_run_data
 
     data = _grid_run_data(run, out)
@@ -184,7 +188,7 @@ def _compare(run, out, *, compare: bool, quiet: bool, sequential: dict | None = 
     its statistics, already started by `_start_statistics`). The folder is written, so all but
     the success curves are dropped from `run` first: the statistics get the memory of the other
     per-seed columns. Returns stats.json's content, or None when the run is not compared."""
-    if not _compares(run, compare=compare):
+    if not _compares(run.settings, compare=compare):
         return None
     from jaxeac.runtime import trim_host_memory
     from jaxeac.stats import compare_run_dir

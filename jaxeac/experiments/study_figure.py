@@ -73,8 +73,7 @@ class StudyFigure:
 
         self._lines[task] = lines
         try:
-            return self._helper.submit_to(FIGURE_LANE, _draw_panel, self._id, self._tasks, self._n, task,
-                                          lines)
+            return self._submit(_draw_panel, self._id, self._tasks, self._n, task, lines)
         except HelperError:  # gone: `finish` draws here
             return None
 
@@ -86,14 +85,20 @@ class StudyFigure:
             if all(s is not None for s in sent):
                 for s in sent:
                     s.result()
-                done = self._helper.submit_to(FIGURE_LANE, _draw_finish, self._id, self._tasks, self._n)
-                return done.result()
+                return self._submit(_draw_finish, self._id, self._tasks, self._n).result()
         except HelperError:
             pass
         self._start()  # the helper has gone: the figure is drawn here
         for task, lines in self._lines.items():
             self._panel(task, lines)
         return self._png()
+
+    def _submit(self, fn, *args):
+        """`fn(*args)` in the helper: on its figure lane where it has one (`FIGURE_LANE`), so that
+        E8's jobs never hold it up; else with its other jobs."""
+        if FIGURE_LANE in self._helper.lanes:
+            return self._helper.submit_to(FIGURE_LANE, fn, *args)
+        return self._helper.submit(fn, *args)
 
     def _start(self):
         from matplotlib.figure import Figure

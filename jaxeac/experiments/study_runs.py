@@ -174,7 +174,10 @@ def diagnostics_helper():
     backend = jax.default_backend()
     if not (DIAGNOSE_BESIDE_THE_RUN.get(backend, False) and DIAGNOSE_IN_HELPER.get(backend, False)):
         return None
-    return Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the study's figure apart from E8
+    try:
+        return Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the study's figure apart from E8
+    except OSError:  # no process could start: E8 runs on this process's threads
+        return None
 
 
 def prepare_diagnostics_ahead(todo: dict, diagnostic_seeds, submit: Callable) -> None:
@@ -215,6 +218,7 @@ class TaskRunner:
         backend = jax.default_backend()
         self.beside = bool(todo) and DIAGNOSE_BESIDE_THE_RUN.get(backend, False)
         self.diagnosed: dict = {}
+        self._jobs: list[Future] = []  # every task's E8 job (`diagnosed` gives them up as folders end)
         self.pool = self.finisher = self.compiler = self._closer = None
         self.helper = helper
         self._seeds = diagnostic_seeds
@@ -235,6 +239,7 @@ class TaskRunner:
 
         if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
             self.helper = self.helper or diagnostics_helper()
+        if self.helper is not None:
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
             with suppress(HelperError):  # ended already: each task's E8 is counted in this process
                 prepare_diagnostics_ahead(todo, self._seeds, self.helper.submit)
@@ -262,6 +267,7 @@ class TaskRunner:
         if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
             with suppress(HelperError):  # the helper has ended: counted when the folder is finished
                 self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
+                self._jobs.append(self.diagnosed[task])
         stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
         stage = stage_cm.__enter__()
         self.open.append(stage_cm)
@@ -329,7 +335,7 @@ class TaskRunner:
         own process plus 0.82 GiB in the helper)."""
         if self.helper is None:
             return
-        pending = [*waits, *list(self.diagnosed.values())]
+        pending = [*waits, *self._jobs]
 
         def close() -> None:
             for job in pending:

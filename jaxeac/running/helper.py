@@ -77,6 +77,11 @@ class Helper:
         self._reader = threading.Thread(target=self._read, daemon=True, name=f"{name}-reader")
         self._reader.start()
 
+    @property
+    def lanes(self) -> tuple[str, ...]:
+        """The names of the helper's lanes (`submit_to`)."""
+        return tuple(self._lanes)
+
     def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
         """A future of ``fn(*args, **kwargs)``, run on the helper's `threads` in the order sent."""
         return self._send(None, fn, args, kwargs)
@@ -183,7 +188,9 @@ class Helper:
 def in_helper(helper: Helper | None, fn: Callable, /, *args, **kwargs) -> Callable[[], object]:
     """Start ``fn(*args, **kwargs)`` in `helper`'s process and return a function that waits for its
     value. Without a helper, or where it has ended (`HelperError`, before or while the job ran),
-    that function computes the value here instead; what `fn` itself raises is raised."""
+    that function computes the value here instead; what `fn` itself raises is raised. A job whose
+    result (or error) cannot come back is also run again here: jobs must be safe to repeat (the
+    figures' jobs write the same files)."""
     future = None
     if helper is not None:
         with suppress(HelperError):

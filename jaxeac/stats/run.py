@@ -306,10 +306,6 @@ def draw_comparison(stats: dict, plot: dict, folder: Path, files: dict[str, str]
     comparison_figures(stats, plot, folder, files)
 
 
-def _called(fn: Callable, *args):
-    return fn(*args)
-
-
 def compare_run_dir(
     run_dir,
     *,
@@ -377,7 +373,10 @@ def compare_run_dir(
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()
     with staged_dir(run_dir) as stage:  # a second comparison's figures beside the first's
-        (draw or _called)(draw_comparison, stats, plot, stage, figures)
+        if draw is None:
+            draw_comparison(stats, plot, stage, figures)
+        else:
+            draw(draw_comparison, stats, plot, stage, figures)
         stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
