@@ -57,6 +57,7 @@ from jaxeac.results import (
 from jaxeac.running.batch import run_algorithms, run_seeds
 from jaxeac.running.config import RunConfig
 from jaxeac.running.outputs import ChunksBehind, CompactCollector, CompactSeeds, SeedsResult, as_bool
+from jaxeac.runtime import trim_host_memory
 
 
 @dataclasses.dataclass(frozen=True)
@@ -320,6 +321,7 @@ def diagnose_grid(settings: GridSettings, grid_map: GridMap | None, seeds: dict[
 
     with ThreadPoolExecutor(max_workers=len(seeds)) as pool:
         counts = dict(zip(seeds, pool.map(one, seeds), strict=True))
+    trim_host_memory()  # what the seeds' runs freed goes back (a study's helper idles between tasks)
     return counts, time.perf_counter() - t0
 
 

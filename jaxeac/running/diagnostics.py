@@ -43,6 +43,7 @@ from jaxeac.running.loops import (
 from jaxeac.running.outputs import KEEP_LOGS
 from jaxeac.running.programs import load_or_build
 from jaxeac.running.threads import OnceCache
+from jaxeac.runtime import trim_host_memory
 
 #: A grid run diagnoses its first `diagnostic_seed_count` seeds (summary.json: ``diagnostics_seeds``):
 #: at most DIAGNOSTIC_SEEDS, and at most DIAGNOSTIC_STEPS chance evaluations (T × C a seed in the
@@ -236,7 +237,9 @@ def _executable(env: Env, cfg: RunConfig, devices: tuple, has_best: bool, args: 
     key = ((program_key(env), cfg, has_best, devices), args[1].shape, shapes)
 
     def build():
-        return _program(env, cfg, has_best, devices).lower(*args).compile()
+        program = _program(env, cfg, has_best, devices).lower(*args).compile()
+        trim_host_memory()  # what XLA's compiler freed goes back (as after a run's compile: `batch`)
+        return program
 
     identity = (program_key(env), cfg, has_best, [(d.platform, d.id) for d in devices])
     return _EXECUTABLES.get(key, lambda: load_or_build("diagnostics", identity, args, build,
