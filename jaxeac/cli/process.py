@@ -127,6 +127,15 @@ def _caused_by_ctrl_c(exc: BaseException) -> bool:
     return False
 
 
+def _ended_with_command(args: argparse.Namespace, helper):
+    """`helper` (a `jaxeac.running.helper.Helper` or None), killed when the command ends if nothing
+    has ended it before (a check refuses the command after the helper started); returned."""
+    stack = getattr(args, "_cleanup", None)
+    if helper is not None and stack is not None:
+        stack.callback(helper.kill)
+    return helper
+
+
 def _claim_out(args: argparse.Namespace, path, lock_path=None, kind: str = "run", reads: bool = False):
     """Check the output folder `path` and hold it (or `lock_path`, a part of it) for the rest of the
     command: a second run into the same folder is refused until this one ends, and a folder holding

@@ -21,7 +21,7 @@ from jaxeac.cli.groups import (
     output_options,
     sequential_design,
 )
-from jaxeac.cli.process import _claim_out, _init_distributed
+from jaxeac.cli.process import _claim_out, _ended_with_command, _init_distributed
 from jaxeac.errors import UsageError
 
 #: Where `jaxeac run` and `jaxeac grid` write when no --out is given.
@@ -70,9 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     _init_distributed(args)  # before the size check: JAX's backends must not have started yet
     helper = None
     if args.num_processes == 1 and not args.sequential:  # on GPUs the figures' helper starts meanwhile
-        helper = figure_helper(settings, compare=not args.no_compare)
-        if helper is not None and getattr(args, "_cleanup", None) is not None:
-            args._cleanup.callback(helper.kill)  # refused below, or the run ended: never left running
+        helper = _ended_with_command(args, figure_helper(settings, compare=not args.no_compare))
     settings = fit_grid(args, settings, env)  # sizes that cannot fit or finish fail here
     design = sequential_design(args, settings)  # a bad design fails here too
     part = part_folder(args.out, args.process_id, args.num_processes) if args.num_processes > 1 else None

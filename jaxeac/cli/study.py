@@ -43,7 +43,7 @@ def add_parser(sub) -> None:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    from jaxeac.cli.process import _claim_out
+    from jaxeac.cli.process import _claim_out, _ended_with_command
     from jaxeac.experiments.common import check_grid_resources
     from jaxeac.experiments.study import (
         DEFAULT_ALGOS,
@@ -71,9 +71,7 @@ def cmd_study(args: argparse.Namespace) -> int:
                               out=args.out)  # a folder tuned with another setup is refused here
     grids = {task: settings.task_settings(task) for task in settings.tasks}
     envs = task_envs(grids)  # the runs' own environments: tasks of one layout share their kernel probes
-    helper = diagnostics_helper()  # E8's helper process starts (on GPUs) while the checks run; no job yet
-    if helper is not None and getattr(args, "_cleanup", None) is not None:
-        args._cleanup.callback(helper.kill)  # refused below, or the study ended: never left running
+    helper = _ended_with_command(args, diagnostics_helper())  # E8's (GPUs) starts while the checks run
     for task, grid in grids.items():  # sizes that cannot fit or finish fail here, for every task
         check_grid_resources(grid, envs[task])
     _claim_out(args, args.out, kind="study")

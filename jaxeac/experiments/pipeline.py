@@ -51,16 +51,12 @@ def run_and_compare(settings, out, *, options=None, compare: bool = True,
         return _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
                                 on_folder, None)
     helper = helper if helper is not None else figure_helper(settings, compare=compare)
-    try:
-        result = _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
-                                  on_folder, helper)
-    except BaseException:
-        if helper is not None:
-            helper.kill()
-        raise
-    if helper is not None:
-        helper.close()
-    return result
+    if helper is None:
+        return _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
+                                on_folder, None)
+    with helper:  # closed once its jobs are done; killed if the run fails
+        return _run_and_compare(settings, out, options, compare, progress, quiet, design, on_look, run,
+                                on_folder, helper)
 
 
 def figure_helper(settings, *, compare: bool = True):
