@@ -462,16 +462,53 @@ def test_the_cli_starts_e8s_helper_before_its_checks_and_never_leaves_it_running
     monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", True)
     started = []
     start = study_runs.diagnostics_helper
-    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda: started.append(start()) or started[-1])
+    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda *a: started.append(start(*a)) or started[-1])
     (tmp_path / "a_file").write_text("not a folder")
     argv = ["study", "--tasks", "FrozenLake-4x4-v1", "--algos", "ac", "eac", "--seeds", "6", "--trials", "8",
             "--resamples", "400", "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "a_file")]) == 2  # refused by the output folder's check
-    assert len(started) == 1 and not started[0]._process.is_alive()
+    assert len(started) == 1 and not started[0].process._process.is_alive()
     assert main([*argv, "--out", str(tmp_path / "s")]) == 0
-    assert len(started) == 2 and not started[1]._process.is_alive()
+    assert len(started) == 2 and not started[1].process._process.is_alive()
     study = json.loads((tmp_path / "s" / "study.json").read_text())
     assert 0 < study["timeline"]["helper_peak_rss_gib"] < 4  # the runner used (and closed) the early helper
+
+
+def test_the_cli_sends_every_task_e8_to_the_helper_before_its_checks(tmp_path, monkeypatch):
+    """`jaxeac study` (E8 in a helper: GPUs) sends each task's E8 to the helper once, before its
+    checks: its programs' compiles, then its seeds, which need nothing from the run (R1, R2); the
+    study then counts every task's from those jobs, the same counts as in its own process."""
+    from jaxeac.experiments import common, grid, study_runs
+    from jaxeac.running import helper
+
+    sent, at_the_checks = [], []
+
+    class Counting(helper.Helper):
+        def submit(self, fn, /, *args, **kwargs):
+            sent.append(fn.__name__)
+            return super().submit(fn, *args, **kwargs)
+
+    check = common.check_grid_resources
+
+    def checked_after_the_jobs(*args, **kwargs):
+        at_the_checks.append(list(sent))
+        return check(*args, **kwargs)
+
+    argv = ["study", "--tasks", "FrozenLake-4x4-v1", "CliffWalking-v1", "--algos", "ac", "eac", "--seeds", "6",
+            "--trials", "8", "--resamples", "400", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "here")]) == 0  # CPUs: E8 in the study's process
+    monkeypatch.setitem(grid.DIAGNOSE_BESIDE_THE_RUN, "cpu", True)
+    monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", True)
+    monkeypatch.setattr(helper, "Helper", Counting)
+    monkeypatch.setattr(common, "check_grid_resources", checked_after_the_jobs)
+    assert main([*argv, "--out", str(tmp_path / "helper")]) == 0
+    assert at_the_checks[0].count("prepare_diagnostics") == 1  # one program: eac's, both tasks' layout
+    assert at_the_checks[0].count("diagnose_grid") == 2  # a job per task, before the first check
+    assert sent.count("diagnose_grid") == 2  # and none sent again as the runs start
+    for task in ("FrozenLake-4x4-v1", "CliffWalking-v1"):
+        counts = [json.loads((tmp_path / how / "tasks" / task / "summary.json").read_text())["memory_diagnostics"]
+                  for how in ("here", "helper")]
+        assert counts[0] == counts[1] and counts[1]["eac"]["successes_match_run"]
 
 
 def test_the_helper_ends_once_its_jobs_are_done_while_the_statistics_run(tmp_path, monkeypatch):
@@ -484,14 +521,14 @@ def test_the_helper_ends_once_its_jobs_are_done_while_the_statistics_run(tmp_pat
     monkeypatch.setitem(study_runs.DIAGNOSE_IN_HELPER, "cpu", True)
     started, alive_at_the_statistics = [], []
     start = study_runs.diagnostics_helper
-    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda: started.append(start()) or started[-1])
+    monkeypatch.setattr(study_runs, "diagnostics_helper", lambda *a: started.append(start(*a)) or started[-1])
     result = study.TaskStatistics.result
 
     def statistics_after_the_helper(self):
         deadline = time.monotonic() + 60
-        while started[0]._process.is_alive() and time.monotonic() < deadline:
+        while started[0].process._process.is_alive() and time.monotonic() < deadline:
             time.sleep(0.05)
-        alive_at_the_statistics.append(started[0]._process.is_alive())
+        alive_at_the_statistics.append(started[0].process._process.is_alive())
         return result(self)
 
     monkeypatch.setattr(study.TaskStatistics, "result", statistics_after_the_helper)

@@ -50,6 +50,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         DEFAULT_TASKS,
         StudySettings,
         run_study,
+        study_tasks,
         summary_table,
         task_envs,
     )
@@ -71,7 +72,8 @@ def cmd_study(args: argparse.Namespace) -> int:
                               out=args.out)  # a folder tuned with another setup is refused here
     grids = {task: settings.task_settings(task) for task in settings.tasks}
     envs = task_envs(grids)  # the runs' own environments: tasks of one layout share their kernel probes
-    helper = _ended_with_command(args, diagnostics_helper())  # E8's (GPUs) starts while the checks run
+    _, todo = study_tasks(settings, args.out, grids, envs)
+    helper = _ended_with_command(args, diagnostics_helper(todo))  # E8 (GPUs) starts while the checks run
     for task, grid in grids.items():  # sizes that cannot fit or finish fail here, for every task
         check_grid_resources(grid, envs[task])
     _claim_out(args, args.out, kind="study")

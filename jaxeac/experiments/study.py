@@ -187,6 +187,18 @@ def task_envs(grids: dict[str, GridSettings]) -> dict:
     return envs
 
 
+def study_tasks(settings: StudySettings, out: str | Path, grids: dict | None = None, envs: dict | None = None
+                ) -> tuple[dict, dict]:
+    """({task: its run's settings}, those of the tasks whose folder in `out` is not finished with
+    them): what `run_study` runs. `grids` and `envs`: `settings`'s tasks' and `task_envs`, if known."""
+    grids = grids or {task: settings.task_settings(task) for task in settings.tasks}
+    envs = envs or task_envs(grids)
+    tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
+    todo = {t: g for t, g in tasks.items()
+            if not finished_run(task_folder(Path(out), t), plain_json(dataclasses.asdict(g)))}
+    return tasks, todo
+
+
 def _said(tl: Timeline, progress: bool):
     """`tl.phase` of the study's, with a progress line as each ends (a study stopped midway says
     where it got)."""
@@ -222,11 +234,11 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     """Run (or reuse) every task's run folder, compare, and write study.json, report.md, the figure;
     with a `jaxeac.experiments.tune.Tuning`, also tune and evaluate at the selections (``tuning``).
 
-    On accelerators each task's E8 diagnostics start with its run and its folder is finished (its
-    summary.json) when they are in, while later tasks run (on GPUs in a helper process, which also
-    draws the figure: `helper`, one started earlier by `jaxeac.experiments.study_runs.diagnostics_helper`,
-    which the study then owns); the statistics of all tasks are one pass (`TaskStatistics`), each
-    task's from when its successes are in."""
+    On accelerators each task's E8 diagnostics run beside the runs and its folder is finished (its
+    summary.json) when they are in, while later tasks run (on GPUs in a helper process that has every
+    task's E8 from its start and also draws the figure: `helper`, one started earlier by
+    `jaxeac.experiments.study_runs.diagnostics_helper`, which the study then owns); the statistics of
+    all tasks are one pass (`TaskStatistics`), each task's from when its successes are in."""
     from jaxeac.experiments.tune import run_tuning
     from jaxeac.io import atomic_write_bytes, atomic_write_json, atomic_write_text, staged_dir
     from jaxeac.stats.cumulative import cumulative_counts
@@ -240,9 +252,7 @@ def run_study(settings: StudySettings, out: str | Path, *, progress: bool = True
     with tl.phase("setup"):
         grids = {task: settings.task_settings(task) for task in settings.tasks}
         envs = task_envs(grids)
-        tasks = {task: _TaskSettings.of(grids[task], envs[task]) for task in settings.tasks}
-        todo = {t: g for t, g in tasks.items()
-                if not finished_run(task_folder(out, t), plain_json(dataclasses.asdict(g)))}
+        tasks, todo = study_tasks(settings, out, grids, envs)
     kept = {}
     n = len(settings.tasks)
     side = side_by_side(todo)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxeac.running.helper import HelperError
+from jaxeac.running.helper import Helper, HelperError
 
 
 class Timeline:
@@ -160,11 +160,25 @@ DIAGNOSE_IN_HELPER = {"gpu": True}
 HELPER_THREADS = 3
 
 
-def diagnostics_helper():
-    """Where a study's E8 goes to a helper process (`DIAGNOSE_IN_HELPER`), that helper, started now
-    with no job yet (a `TaskRunner` given it sends them, and owns it); else None. `jaxeac study`
-    starts it before its checks: its start (a Python with JAX and jaxeac) overlaps them instead of
-    the runs' first seconds."""
+@dataclasses.dataclass(frozen=True)
+class DiagnosticsHelper:
+    """E8's helper process (`diagnostics_helper`) and the E8 jobs already sent to it: task -> a future
+    of `jaxeac.experiments.grid.diagnose_grid`'s counts. A `TaskRunner` given it adopts both."""
+
+    process: Helper
+    jobs: dict[str, Future]
+
+    def kill(self) -> None:
+        self.process.kill()
+
+
+def diagnostics_helper(todo: dict | None = None) -> DiagnosticsHelper | None:
+    """Where a study's E8 goes to a helper process (`DIAGNOSE_IN_HELPER`), that helper, started now;
+    else None. With `todo` ({task: its settings, as `TaskRunner` takes them}) every task's E8 goes to
+    it at once: the programs' compiles (`prepare_diagnostics_ahead`), then each task's seeds. They need
+    nothing from the task's run (the same keys, the same runs: R1, R2), so E8 starts with the command
+    instead of with each task's run. `jaxeac study` starts it before its checks: its start (a Python
+    with JAX and jaxeac) and E8's compiles overlap them instead of the runs' first seconds."""
     import jax
 
     from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN
@@ -175,9 +189,25 @@ def diagnostics_helper():
     if not (DIAGNOSE_BESIDE_THE_RUN.get(backend, False) and DIAGNOSE_IN_HELPER.get(backend, False)):
         return None
     try:
-        return Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the study's figure apart from E8
+        helper = Helper(threads=HELPER_THREADS, lanes={FIGURE_LANE: 1})  # the study's figure apart from E8
     except OSError:  # no process could start: E8 runs on this process's threads
         return None
+    return DiagnosticsHelper(helper, send_diagnostics(helper, todo or {}))
+
+
+def send_diagnostics(helper: Helper, todo: dict) -> dict[str, Future]:
+    """Every task's E8 to `helper` ({task: its settings}): the programs' compiles
+    (`prepare_diagnostics_ahead`), then each task's seeds; {task: a future of its counts}. A helper
+    that has ended takes no more (those tasks' E8 is counted in the study's process)."""
+    from jaxeac.experiments.grid import diagnose_grid, diagnostic_seeds
+
+    jobs: dict[str, Future] = {}
+    with suppress(HelperError):
+        prepare_diagnostics_ahead(todo, diagnostic_seeds, helper.submit)
+        for task, grid in todo.items():
+            if (seeds := diagnostic_seeds(grid)):
+                jobs[task] = helper.submit(diagnose_grid, grid, grid.grid_map(), seeds)
+    return jobs
 
 
 def prepare_diagnostics_ahead(todo: dict, diagnostic_seeds, submit: Callable) -> None:
@@ -207,9 +237,10 @@ class TaskRunner:
     (queued behind the earlier tasks'), and its folder is finished (summary.json, then moved in
     place) by a finisher thread when they are in, so that the next task's run need not wait for
     them; elsewhere (CPUs: the run has every core) each folder is finished after its run. `helper`:
-    E8's helper process, started earlier (`diagnostics_helper`), which the runner then owns."""
+    E8's helper process with the jobs sent to it, started earlier (`diagnostics_helper`), which the
+    runner then owns (with a job there for each task to run: `send_diagnostics`)."""
 
-    def __init__(self, todo: dict, tl: Timeline, helper=None) -> None:
+    def __init__(self, todo: dict, tl: Timeline, helper: DiagnosticsHelper | None = None) -> None:
         import jax
 
         from jaxeac.experiments.grid import DIAGNOSE_BESIDE_THE_RUN, diagnostic_seeds
@@ -220,7 +251,7 @@ class TaskRunner:
         self.diagnosed: dict = {}
         self._jobs: list[Future] = []  # every task's E8 job (`diagnosed` gives them up as folders end)
         self.pool = self.finisher = self.compiler = self._closer = None
-        self.helper = helper
+        self.helper: Helper | None = helper.process if helper is not None else None  # ended on an error
         self._seeds = diagnostic_seeds
         if not self.beside:
             if helper is not None:  # nothing to diagnose (every task done earlier)
@@ -229,20 +260,23 @@ class TaskRunner:
             return
         self.finisher = ThreadPoolExecutor(max_workers=1)
         try:
-            self._start_diagnostics(todo, backend)
+            self._start_diagnostics(todo, backend, helper)
         except BaseException as exc:  # nothing left running behind the error
             self.__exit__(type(exc), exc, exc.__traceback__)
             raise
 
-    def _start_diagnostics(self, todo: dict, backend: str) -> None:
+    def _start_diagnostics(self, todo: dict, backend: str, helper: DiagnosticsHelper | None) -> None:
         from jaxeac.experiments.grid import diagnose_grid
 
-        if DIAGNOSE_IN_HELPER.get(backend, False):  # E8 in a process of its own (its default: the CPU)
-            self.helper = self.helper or diagnostics_helper()
-        if self.helper is not None:
+        if helper is None and DIAGNOSE_IN_HELPER.get(backend, False):  # a process of its own (the CPU)
+            helper = diagnostics_helper(todo)
+        if helper is not None:  # its jobs adopted; a task without one gets it now
+            self.helper = helper.process
+            self.diagnosed = {task: job for task, job in helper.jobs.items() if task in todo}
+            missing = {task: grid for task, grid in todo.items() if task not in self.diagnosed}
+            self.diagnosed |= send_diagnostics(self.helper, missing)
+            self._jobs = list(self.diagnosed.values())
             self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
-            with suppress(HelperError):  # ended already: each task's E8 is counted in this process
-                prepare_diagnostics_ahead(todo, self._seeds, self.helper.submit)
             return
         platform = DIAGNOSE_ON.get(backend)
         self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
@@ -264,7 +298,8 @@ class TaskRunner:
         options = OutputOptions.auto(grid.seeds, full=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS,
                                      csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
-        if self.beside and (diagnosed := self._seeds(grid)):  # queued: one task's diagnostics at a time
+        # queued, one task's at a time, unless sent with the helper (`diagnostics_helper`)
+        if self.beside and task not in self.diagnosed and (diagnosed := self._seeds(grid)):
             with suppress(HelperError):  # the helper has ended: counted when the folder is finished
                 self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
                 self._jobs.append(self.diagnosed[task])
