@@ -139,23 +139,28 @@ def test_sending_to_a_helper_that_has_gone_is_a_helper_error_and_kill_ends_a_sto
 
     h = Helper()
     os.kill(h.submit(os.getpid).result(timeout=30), signal.SIGSTOP)  # reads nothing more
-    raised = []
-
-    def send_much() -> None:
-        try:
-            h.submit(len, b"x" * 2**26)  # 64 MiB: blocks on the full pipe
-        except HelperError as exc:
-            raised.append(exc)
-
-    sender = threading.Thread(target=send_much, daemon=True)
-    sender.start()
-    time.sleep(0.5)
-    assert sender.is_alive()  # still sending
     t0 = time.perf_counter()
+    jobs = [h.submit(len, b"x" * 2**26) for _ in range(2)]  # 128 MiB: the pipe is full, the caller goes on
+    assert time.perf_counter() - t0 < 5 and h._writer.is_alive()  # still sending, on the writer thread
     h.kill()
-    assert time.perf_counter() - t0 < 10
-    sender.join(10)
-    assert not sender.is_alive() and raised
+    assert time.perf_counter() - t0 < 10 and not h._writer.is_alive()
+    for job in jobs:
+        with pytest.raises(HelperError, match="ended"):
+            job.result(timeout=10)
+
+
+def test_jobs_go_out_in_order_without_the_caller_waiting_for_the_helper_to_start():
+    """Sending never waits for the helper's process (whose start, a Python with JAX, takes seconds):
+    the jobs go out in order from a thread of their own, and their results come back."""
+    t0 = time.perf_counter()
+    with Helper(threads=1) as h:
+        jobs = [h.submit(len, b"x" * (2**20 + i)) for i in range(16)]  # 16 MiB: far over the pipe's 64 KiB
+        sent = time.perf_counter() - t0
+        order = h.submit(_sleep_then, 0.0, "last")
+        assert [j.result(timeout=60) for j in jobs] == [2**20 + i for i in range(16)]
+        assert order.result(timeout=60) == "last"
+        started = time.perf_counter() - t0
+    assert sent < 0.5 * started  # the caller was back long before the helper had read them
 
 
 def test_the_helper_ignores_ctrl_c_its_parent_handles():

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import queue
 import signal
 import sys
 import threading
@@ -31,6 +32,9 @@ from contextlib import contextmanager, suppress
 NICE = 10
 #: Jobs the helper runs at once (a study's E8: one compile per algorithm ahead, then its tasks).
 THREADS = 8
+
+
+_STOP = object()  # ends a helper's writer thread (`Helper.kill`)
 
 
 class HelperError(RuntimeError):
@@ -69,11 +73,16 @@ class Helper:
             self._process.start()
         child.close()
         self._lock = threading.Lock()  # the pending jobs and whether more may come
-        self._sending = threading.Lock()  # one message on the pipe at a time
         self._pending: dict[int, Future] = {}
         self._jobs = 0
         self._open = True
         self._peak_rss: Future = Future()
+        # Messages go out on a thread of their own: the pipe holds 64 KiB, and until the process has
+        # started (a Python with JAX: 1-2 s) a study's first jobs (its E8, 1.1 s on one H200) would
+        # otherwise keep the caller writing.
+        self._outbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._writer = threading.Thread(target=self._write, daemon=True, name=f"{name}-writer")
+        self._writer.start()
         self._reader = threading.Thread(target=self._read, daemon=True, name=f"{name}-reader")
         self._reader.start()
 
@@ -102,15 +111,19 @@ class Helper:
                 raise HelperError("the helper process has ended; no more jobs can go to it")
             job, self._jobs = self._jobs, self._jobs + 1
             self._pending[job] = future
-        try:
-            with self._sending:
-                self._conn.send((job, payload, lane))
-        except OSError as exc:  # the process has gone
-            with self._lock:
-                self._pending.pop(job, None)
-                self._open = False
-            raise HelperError(f"the helper process has ended; no more jobs can go to it ({exc})") from exc
+            self._outbox.put((job, payload, lane))  # in the order sent (`_write`)
         return future
+
+    def _write(self) -> None:
+        """Send the outbox's messages in order until `close`'s None or the end; a pipe that breaks
+        (the process has gone) leaves the jobs sent to `_read`, which fails them as the process ends."""
+        while (message := self._outbox.get()) is not _STOP:
+            try:
+                self._conn.send(message)
+            except OSError:  # the process has gone: its reader fails what is pending
+                return
+            if message is None:
+                return
 
     @property
     def peak_rss_bytes(self) -> int | None:
@@ -123,12 +136,8 @@ class Helper:
         """End the helper once its jobs are done (at most `timeout` s, then it is killed)."""
         with self._lock:
             was_open, self._open = self._open, False
-        if was_open:
-            try:
-                with self._sending:
-                    self._conn.send(None)
-            except OSError:
-                pass
+            if was_open:
+                self._outbox.put(None)  # after every job sent: the helper ends once they are done
         self._reader.join(timeout)
         self.kill()
 
@@ -140,8 +149,9 @@ class Helper:
         with self._lock:
             self._open = False
         self._reader.join()
-        with self._sending:  # a send under way has failed by now (the process is gone)
-            self._conn.close()
+        self._outbox.put(_STOP)
+        self._writer.join()  # a send under way has failed by now (the process is gone)
+        self._conn.close()
 
     def __enter__(self) -> Helper:
         return self
