@@ -3,7 +3,7 @@ and where the failure flags (E6) landed: the numbers that explain a result.
 
 The run loops count nothing (their per-seed results and speed stay as they are). A grid run's
 diagnostics re-run its first seeds (`diagnostic_seed_count`) through the `trials` loop's chances
-(`count_run`), adding each chance's `StepRoute` from the agent's own `select_action` to the counts
+(`count_runs`), adding each chance's `StepRoute` from the agent's own `select_action` to the counts
 of its chance index. C may be data there (a mixed layout's), so a study's tasks share E8's programs.
 Seed i uses ``fold_in(root, i)`` in every loop (R1) and the loops agree bit for bit (R2), so the
 diagnosed seeds are the run's own; `diagnose_seeds` returns their successes to show it. Bowling
@@ -113,45 +113,63 @@ def trials_config(env: Env, cfg: RunConfig) -> RunConfig:
     return dataclasses.replace(cfg, loop="trials", kernel="auto", jump="auto", lanes=None).resolve(env)
 
 
-def count_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, StepRoute, jax.Array]:
-    """One seed's run in the `trials` loop (`jaxeac.running.loops.chance_of_trial`: every chance up
-    to C, masked once the trial has ended, then E4/E6), each chance's `StepRoute` added to the
-    counts of its chance index instead of kept per trial: (final agent, int32 [bound] counts per
-    field, successes bool [T]). C may be data (a mixed layout's): the loop stops at it, so tasks of
-    every C share one program and pay for their own chances only."""
+def count_runs(env: Env, cfg: RunConfig, keys: jax.Array, hyper: Hyper
+               ) -> tuple[AgentState, StepRoute, jax.Array]:
+    """The seeds of `keys` [M] run side by side in the `trials` loop
+    (`jaxeac.running.loops.chance_of_trial`: every chance up to C, masked once the trial has ended,
+    then E4/E6), each chance's `StepRoute` added to the counts of its chance index instead of kept
+    per trial: (final agents, int32 [M, bound] counts per field, successes bool [M, T]).
+
+    A trial's chances stop once every seed's trial has ended (a masked chance changes nothing and
+    counts nothing), and at C, which may be data (a mixed layout's), so tasks of every C share one
+    program and pay for their own chances only. The seeds share the chance index, so each count is
+    one slice's add (a per-seed index, as a vmapped loop has, is a scatter: 10x slower on a CPU)."""
     check_run_args(env, cfg, hyper)
     cfg = cfg.resolve(env)
     bound = chance_bound(env)
-    agent = init_agent(cfg.agent, env.n_states, env.n_actions, bound, cfg.trials)
-    words = seed_words(as_key(key, "key"))
-    zeros = jnp.zeros((bound,), jnp.int32)
+    words = jax.vmap(lambda k: seed_words(as_key(k, "key")))(keys)
+    agents = jax.vmap(lambda _: init_agent(cfg.agent, env.n_states, env.n_actions, bound, cfg.trials))(words)
+    zeros = jnp.zeros((words.shape[0], bound), jnp.int32)
+
+    def take(at, w):
+        return chance_of_trial(env, cfg, hyper, w, diagnose=True)(at)
 
     def trial(carry, _):
-        agent, counts = carry
-        take = chance_of_trial(env, cfg, hyper, words, diagnose=True)
+        agents, counts = carry
 
-        def chance(c, inner):
-            at, reached, counts = inner
-            at, (*_, hit, route) = take(at)
-            counts = jax.tree.map(lambda n, r: n.at[c].add(r.astype(jnp.int32)), counts, route)
-            return at, reached | hit, counts
+        def chance(inner):
+            c, at, reached, counts = inner
+            at, (*_, hit, route) = jax.vmap(take)(at, words)
+            counts = jax.tree.map(lambda n, r: n.at[:, c].add(r.astype(jnp.int32)), counts, route)
+            return c + 1, at, reached | hit, counts
 
-        end, reached, counts = jax.lax.fori_loop(0, env.n_chances, chance,
-                                                 (first_chance(env, agent, words), jnp.bool_(False), counts))
-        return (end_trial(cfg.agent, end.agent, reached, jnp.bool_(True)), counts), reached
+        def going(inner):
+            c, at, _, _ = inner
+            return (c < env.n_chances) & ~at.done.all()
 
-    (agent, counts), success = jax.lax.scan(trial, (agent, StepRoute(zeros, zeros, zeros, zeros)), None,
-                                            length=cfg.trials)
-    return agent, counts, success
+        first = jax.vmap(lambda a, w: first_chance(env, a, w))(agents, words)
+        _, end, reached, counts = jax.lax.while_loop(
+            going, chance, (jnp.int32(0), first, jnp.zeros(words.shape[0], bool), counts))
+        agents = jax.vmap(lambda a, r: end_trial(cfg.agent, a, r, jnp.bool_(True)))(end.agent, reached)
+        return (agents, counts), reached
+
+    (agents, counts), success = jax.lax.scan(trial, (agents, StepRoute(zeros, zeros, zeros, zeros)), None,
+                                             length=cfg.trials)
+    return agents, counts, success.T
 
 
-def seed_diagnostics(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper,
-                     best: jax.Array | None = None) -> SeedDiagnostics:
-    """One seed's run in the `trials` loop (`count_run`), reduced to its E8 counts."""
+def count_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, StepRoute, jax.Array]:
+    """One seed's `count_runs`: (final agent, int32 [bound] counts per field, successes bool [T])."""
+    return jax.tree.map(lambda x: x[0], count_runs(env, cfg, jnp.asarray(key)[None], hyper))
+
+
+def seeds_diagnostics(env: Env, cfg: RunConfig, keys: jax.Array, hyper: Hyper,
+                      best: jax.Array | None = None) -> SeedDiagnostics:
+    """The seeds of `keys` [M] in the `trials` loop (`count_runs`), reduced to their E8 counts."""
     cfg = trials_config(env, cfg)
-    agent, counts, success = count_run(env, cfg, key, hyper)
-    pairs = failure_pairs(cfg.agent, agent, env.n_states, env.n_actions)
-    return SeedDiagnostics(counts, *flag_counts(pairs, best), success)
+    agents, counts, success = count_runs(env, cfg, keys, hyper)
+    flags = jax.vmap(lambda a: flag_counts(failure_pairs(cfg.agent, a, env.n_states, env.n_actions), best))(agents)
+    return SeedDiagnostics(counts, *flags, success)
 
 
 def _program(env: Env, cfg: RunConfig, has_best: bool, devices: tuple):
@@ -175,7 +193,7 @@ def _keyed_program(key, env: Env, cfg: RunConfig, has_best: bool, devices: tuple
     def batch(root, seeds, hyper, best, tables):
         keys = jax.vmap(seed_key, in_axes=(None, 0))(root, seeds)
         bound = bind_inputs(env, tables)
-        return jax.vmap(lambda k: seed_diagnostics(bound, cfg, k, hyper, best if has_best else None))(keys)
+        return seeds_diagnostics(bound, cfg, keys, hyper, best if has_best else None)
 
     if n_devices > 1:
         from jax.sharding import PartitionSpec
