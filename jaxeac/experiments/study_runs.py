@@ -5,7 +5,8 @@ E8's diagnostics beside the runs (on GPUs in a helper process, `jaxeac.running.h
 (`as_they_end`) and finishes with the runner (`TaskRunner`): one task's host work (dispatch,
 copies, its folder) overlaps another's device runs, and a task's folder is finished (summary.json
 with E8's counts, then moved in place) while later tasks run. The `Timeline` records where a
-study's time went, per task and phase.
+study's time went, per task and phase. Over 400 lines: a task's run, its E8 job in the helper and
+its folder's finish share one lifecycle (started, failed or ended together), kept in one place.
 """
 
 from __future__ import annotations
