@@ -225,3 +225,16 @@ def test_a_lanes_jobs_run_beside_the_helpers_own_and_an_unknown_lane_is_refused(
         with pytest.raises(ValueError, match="no lane 'drawing' in this helper"):
             h.submit_to("drawing", abs, -1)
         h.kill()
+
+
+def test_the_peak_memory_is_the_helpers_own_not_its_parents():
+    """`peak_rss_bytes` is the helper's own high-water mark: a parent holding 1.5 GiB when it starts
+    the helper (the rusage maximum keeps it across the start's fork and exec) does not count."""
+    import numpy as np
+
+    held = np.ones(3 * 2**27, np.float32)  # 1.5 GiB, resident
+    with Helper(threads=1) as h:
+        assert h.submit(abs, -1).result(timeout=60) == 1
+    del held
+    assert 0 < h.peak_rss_bytes < 2**30
+
