@@ -121,7 +121,7 @@ def test_trials_loop_skips_chances_past_the_task_c(memory):
 
 
 def test_diagnostics_of_tasks_of_different_c_share_a_program_with_their_own_counts():
-    """E8 (`count_run`: the `trials` loop's chances up to the task's C, C read from the tables) of the
+    """E8 (`count_runs`: the `trials` loop's chances up to the task's C, C read from the tables) of the
     tasks of a mixed-C layout: one compiled program per algorithm for all of them, in chunks of
     `MIXED_CHUNK` seeds, and each task's counts, per chance index up to its own C, those of its own
     tables (dense and buffer memories)."""

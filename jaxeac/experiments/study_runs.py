@@ -277,7 +277,6 @@ class TaskRunner:
             missing = {task: grid for task, grid in todo.items() if task not in self.diagnosed}
             self.diagnosed |= send_diagnostics(self.helper, missing)
             self._jobs = list(self.diagnosed.values())
-            self._diagnose = functools.partial(self.helper.submit, diagnose_grid)
             return
         platform = DIAGNOSE_ON.get(backend)
         self.pool = ThreadPoolExecutor(max_workers=DIAGNOSTIC_WORKERS.get(platform or backend, 1))
@@ -299,11 +298,9 @@ class TaskRunner:
         options = OutputOptions.auto(grid.seeds, full=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS,
                                      csv=grid.seeds <= STUDY_FULL_OUTPUT_SEEDS)
         env, seeds = grid.make_env(), np.arange(grid.seeds, dtype=np.int64)
-        # queued, one task's at a time, unless sent with the helper (`diagnostics_helper`)
-        if self.beside and task not in self.diagnosed and (diagnosed := self._seeds(grid)):
-            with suppress(HelperError):  # the helper has ended: counted when the folder is finished
-                self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
-                self._jobs.append(self.diagnosed[task])
+        if self.pool is not None and (diagnosed := self._seeds(grid)):  # queued: one task's at a time
+            self.diagnosed[task] = self._diagnose(grid, grid.grid_map(), diagnosed)
+            self._jobs.append(self.diagnosed[task])
         stage_cm = staged_dir(folder, replaces=RUN_FOLDER_FILES)
         stage = stage_cm.__enter__()
         self.open.append(stage_cm)

@@ -158,11 +158,6 @@ def count_runs(env: Env, cfg: RunConfig, keys: jax.Array, hyper: Hyper
     return agents, counts, success.T
 
 
-def count_run(env: Env, cfg: RunConfig, key: jax.Array, hyper: Hyper) -> tuple[AgentState, StepRoute, jax.Array]:
-    """One seed's `count_runs`: (final agent, int32 [bound] counts per field, successes bool [T])."""
-    return jax.tree.map(lambda x: x[0], count_runs(env, cfg, jnp.asarray(key)[None], hyper))
-
-
 def seeds_diagnostics(env: Env, cfg: RunConfig, keys: jax.Array, hyper: Hyper,
                       best: jax.Array | None = None) -> SeedDiagnostics:
     """The seeds of `keys` [M] in the `trials` loop (`count_runs`), reduced to their E8 counts."""
@@ -294,7 +289,7 @@ def diagnose_seeds(env: Env, cfg: RunConfig, *, root_key: int, seeds: Sequence[i
                    best: np.ndarray | None = None, hyper: Hyper | None = None,
                    platform: str | None = None) -> SeedDiagnostics:
     """E8's counts of seeds `seeds` of a run with root key `root_key`: numpy arrays with a leading
-    seed axis, from the `trials` loop counting each chance's route (`count_run`; same keys, same
+    seed axis, from the `trials` loop counting each chance's route (`count_runs`; same keys, same
     runs: R1, R2).
     `best`: bool [S, A], the best actions of each state (None: none known). Chunks are sized to
     hold `CHUNK_BYTES` and split over the local devices of `platform` (default: JAX's default
