@@ -7,7 +7,8 @@ from `jaxeac.cli.main` on, its own handling takes over.
 
 When the command has finished, the process ends without the interpreter's teardown (`_end`):
 freeing JAX's client and the run's arrays object by object took about 1 s after a 10^6-seed
-grid run, and by then every file the command wrote is closed.
+grid run, and by then every file the command wrote is closed. JAX's own exit handler, which
+frees its client and caches the same way, is skipped too (0.1-0.2 s of a GPU study's exit).
 """
 
 import atexit
@@ -46,11 +47,27 @@ def _end(code: int) -> NoReturn:
     handler (JAX's) with a traceback."""
     with contextlib.suppress(ValueError):  # (not the main thread: signals stay as they are)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _skip_jax_teardown()
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):  # e.g. a reader of stdout that has gone away
             stream.flush()
     os._exit(code)
+
+
+def _skip_jax_teardown() -> None:
+    """Unregister JAX's exit handler (`jax._src.api.clean_up`: it frees the backends' clients and
+    the compiled programs one by one, then ends a distributed run), keeping the last part: the
+    process ends right after, so only a distributed run's shutdown is still owed."""
+    api = sys.modules.get("jax._src.api")
+    clean_up = getattr(api, "clean_up", None)
+    if clean_up is None:  # JAX not imported, or a version without it: its handler (if any) runs
+        return
+    atexit.unregister(clean_up)
+    with contextlib.suppress(Exception):
+        from jax._src import distributed
+
+        distributed.shutdown()  # a no-op unless jax.distributed was initialized
 
 
 if __name__ == "__main__":

@@ -154,6 +154,22 @@ def test_ctrl_c_while_the_exit_handlers_run_is_ignored():
     assert "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, proc.stderr
 
 
+def test_the_command_ends_without_jaxs_teardown_and_runs_the_other_exit_handlers():
+    """`jaxeac.__main__._end` runs the exit handlers but JAX's clean-up (`jax._src.api.clean_up`,
+    freeing its client and compiled programs one by one, the process ending right after): a
+    handler registered before JAX (so run after JAX's) still finds JAX's backend; the others run,
+    and the exit code is the command's. With JAX's handler the backend would be gone by then."""
+    code = ("import atexit, json; seen = []; atexit.register(lambda: print(json.dumps(seen + "
+            "[bool(__import__('jax._src.xla_bridge', fromlist=['x'])._backends)]), flush=True)); "
+            "import jax, jax.numpy as jnp; jnp.zeros(3).block_until_ready(); "
+            "atexit.register(lambda: seen.append('other')); from jaxeac.__main__ import _end; _end({end})")
+    for end, want in (("3", ["other", True]), ("__import__('sys').exit(3)", ["other", False])):
+        proc = subprocess.run([sys.executable, "-c", code.format(end=end)], capture_output=True, text=True,
+                              timeout=120, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+        assert proc.returncode == 3, proc.stderr
+        assert json.loads(proc.stdout.splitlines()[-1]) == want, (end, proc.stdout, proc.stderr)
+
+
 def test_ctrl_c_wrapped_by_an_import_is_still_an_interrupt(capsys):
     """Ctrl-C while a module's class body is set up reaches the command as a RuntimeError caused by
     it (Python 3.11's ``__set_name__``): still one line and exit code 130, never a traceback; any
