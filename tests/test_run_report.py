@@ -95,6 +95,22 @@ def test_a_two_algorithm_run_has_no_family_section(tmp_path):
     assert "## Every algorithm against" not in report
 
 
+def test_a_figure_helper_loads_its_jobs_modules_before_they_come():
+    """A figure helper's first job (`pipeline._load_plots`) loads matplotlib and the modules of the
+    jobs it is sent next (reading a job imports its function's module), while it waits for them."""
+    from jaxeac.experiments.grid import draw_grid_figures
+    from jaxeac.stats.run import draw_comparison
+
+    jobs = sorted({draw_grid_figures.__module__, draw_comparison.__module__, "matplotlib.pyplot"})
+    code = ("import json, sys; from jaxeac.experiments.pipeline import _load_plots; "
+            f"jobs = {jobs!r}; before = [m in sys.modules for m in jobs]; _load_plots(); "
+            "print(json.dumps([before, [m in sys.modules for m in jobs]]))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                          env=dict(os.environ, JAXEAC_COMPILATION_CACHE="off", MPLBACKEND="Agg"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout.splitlines()[-1]) == [[False] * 3, [True] * 3]
+
+
 FIGURES_IN_HELPER = """
 import hashlib, json, multiprocessing, pathlib, sys
 from jaxeac.experiments import pipeline
