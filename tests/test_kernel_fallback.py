@@ -7,6 +7,7 @@ failure by making the kernel's builder raise. Per-seed results are those of XLA 
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
@@ -140,3 +141,45 @@ def test_the_kernel_lowers_in_this_jax():
         cfg = RunConfig(trials=10, agent=algorithm(algo, tables="rows"))
         assert config_module._backend_problem(ENV, cfg, "gpu") is None
         assert resolved_kernel(ENV, cfg, "gpu") == "pallas"
+
+
+DIALECT_LOOKUPS = textwrap.dedent("""
+    import dataclasses, hashlib, importlib.abc, json, sys
+    tried = []  # the Triton dialect's module, looked up by the name MLIR's bindings import
+
+    class Tried(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path, target=None):
+            if name.rsplit(".", 1)[-1] == "tt":
+                tried.append(name)
+
+    sys.meta_path.insert(0, Tried())
+    from jaxeac.algorithm.config import algorithm
+    from jaxeac.envs.grid import GridWorld, get_map
+    from jaxeac.running import kernel
+    from jaxeac.running.config import RunConfig, resolved_jump
+
+    if sys.argv[1] == "as-before":
+        kernel._name_triton_dialect = lambda: None
+    env, texts = GridWorld(get_map("paper"), 40), []
+    for algo in ("ac", "eac"):
+        cfg = RunConfig(trials=10, agent=algorithm(algo, tables="rows"))
+        run = dataclasses.replace(cfg, agent=cfg.agent.resolve("gpu"), loop="flat", kernel="pallas", lanes=None)
+        run = dataclasses.replace(run, jump=resolved_jump(env, run))
+        texts.append(hashlib.sha256(kernel._lower(env, run, "cuda").as_text().encode()).hexdigest())
+    print(json.dumps([len(tried), texts]))
+""")
+
+
+def test_the_kernels_lowering_finds_the_triton_dialect_at_its_first_lookup():
+    """Lowering the kernel (for CUDA, from the CPU) imports the Triton dialect's module under the
+    name MLIR's bindings look for once (`kernel._name_triton_dialect`), where it failed three times
+    per op before (hundreds of imports through the import lock); the kernel is the same, byte
+    for byte."""
+    seen = {}
+    for how in ("named", "as-before"):
+        proc = subprocess.run([sys.executable, "-c", DIALECT_LOOKUPS, how], capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        seen[how] = json.loads(proc.stdout.splitlines()[-1])
+    assert seen["named"][0] <= 1 and seen["as-before"][0] > 500, seen
+    assert seen["named"][1] == seen["as-before"][1]

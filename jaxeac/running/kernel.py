@@ -30,11 +30,15 @@ JAX deprecated the Triton backend in 0.11: where it cannot be imported or cannot
 error (`jaxeac.running.config.resolved_kernel`). Pallas's Mosaic GPU backend cannot express the
 kernel's per-lane gathers and scatters yet (BENCHMARKS.md, "What did not help").
 SPEC ids (G1…, E1…, B1…, R1…) are defined in docs/SPEC.md.
+
+(Over 400 lines: the kernel and what decides whether this JAX can build it, which lowers the
+same program, kept together.)
 """
 
 from __future__ import annotations
 
 import functools
+import sys
 import threading
 
 import jax
@@ -255,12 +259,35 @@ def _chance_kernel(env, cfg, tables: KernelTables, names: tuple[str, ...], *refs
             put(state[k].at[lane], v)
 
 
+@functools.cache
+def _name_triton_dialect() -> None:
+    """Make the Triton dialect's module findable where MLIR's Python bindings look for it.
+
+    For each op they build, the bindings import "<prefix>.<namespace>" until one import succeeds,
+    and remember only successes; JAX's Triton dialect ("tt") is `jaxlib.triton.dialect`, so the
+    kernel's lowering made three failing imports per op (about 600 a program), each through the
+    interpreter's import lock: the threads lowering a study's programs side by side waited on it
+    7.5 thread-seconds (a profile of `jaxeac study --seeds 1000`, one H100). Naming the module under
+    the first prefix makes the first lookup succeed; the lowered kernel is the same, byte for byte.
+    """
+    try:
+        from jaxlib.mlir._mlir_libs import _mlir
+        from jaxlib.triton import _triton_ops_gen, dialect
+        prefix = list(_mlir.globals.dialect_search_modules)[0]
+        namespace = _triton_ops_gen._Dialect.DIALECT_NAMESPACE
+    except Exception:  # noqa: BLE001 - another layout of jaxlib: the bindings search as they did
+        return
+    sys.modules.setdefault(f"{prefix}.{namespace}", dialect)
+
+
 def _build(env, cfg, tables: KernelTables, names: tuple[str, ...], out_shape: list, *, n_in: int,
            interpret: bool):
     """The kernel as a callable of (inputs, state): one program per `LANES_PER_PROGRAM` lanes, the
     state's outputs aliased to its inputs."""
     from jax.experimental import pallas as pl
     from jax.experimental.pallas import triton as plgpu
+
+    _name_triton_dialect()  # before the kernel is lowered
 
     return pl.pallas_call(
         functools.partial(_chance_kernel, env, cfg, tables, names),
@@ -376,13 +403,14 @@ def backend_problem(env, cfg, *, lower: bool) -> str | None:
     return problem
 
 
-def _lower(env, cfg, platform: str) -> None:
-    """Trace and lower `advance_chances` for `platform` on one program's lanes (nothing runs)."""
+def _lower(env, cfg, platform: str):
+    """Trace and lower `advance_chances` for `platform` on one program's lanes (nothing runs); the
+    lowered program."""
     words = jax.ShapeDtypeStruct((LANES_PER_PROGRAM, 2), jnp.uint32)
     run = jax.eval_shape(lambda w: jax.vmap(lambda x: flat_init(env, cfg, x))(w), words)
     hyper = jax.tree.map(lambda x: jax.ShapeDtypeStruct((LANES_PER_PROGRAM,), x.dtype), cfg.hyper())
     advance = jax.jit(lambda r, w, h: advance_chances(env, cfg, r, w, h, interpret=False))
-    advance.trace(run, words, hyper).lower(lowering_platforms=(platform,))
+    return advance.trace(run, words, hyper).lower(lowering_platforms=(platform,))
 
 
 def _first_line(exc: BaseException) -> str:
