@@ -423,7 +423,8 @@ def test_each_tasks_share_of_the_aggregate_is_made_as_the_task_ends(monkeypatch)
     import time
 
     from jaxeac.experiments.study import TaskStatistics
-    from jaxeac.stats import core, groups, tasks as stats_tasks
+    from jaxeac.stats import core, groups
+    from jaxeac.stats import tasks as stats_tasks
 
     tasks, algos, n, trials = ("t0", "t1", "t2"), ("ac", "eac", "sarsa"), 30, 12
     rng = np.random.default_rng(6)
