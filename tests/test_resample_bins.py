@@ -58,20 +58,3 @@ def test_binned_draws_of_many_groups_are_each_group_own(monkeypatch, together):
             for g, w in zip(got, want, strict=True):
                 np.testing.assert_array_equal(g, w)
     assert not np.array_equal(own[1], shared[1])  # the keys matter
-
-
-def test_groups_drawn_together_share_one_program_for_every_count_of_bins(monkeypatch):
-    """Where groups are drawn together (`BINNED_TOGETHER`: GPUs), their bins are padded to at least
-    `BINNED_MIN_WIDTH`, so groups of 2 to 201 distinct values (a study's tasks: successes over 200
-    trials) share one program per layout, and their counts are still each bin's, bit for bit."""
-    monkeypatch.setattr(resample, "BINNED_TOGETHER", {jax.default_backend(): True})
-    resample._binned_chunk.clear_cache()
-    rng = np.random.default_rng(8)
-    n, r = 300, 40
-    key = jax.random.key(6)
-    for distinct in (2, 17, 90, 201):  # four buckets of 16 and up: one program
-        bins = [np.unique(rng.integers(0, distinct, n), return_inverse=True)[1].astype(np.int32) for _ in range(3)]
-        got = resample.boot_counts_binned(key, n, r, bins, chunk=20)
-        for g, b in zip(got, bins, strict=True):
-            np.testing.assert_array_equal(g, boot_counts(key, n, r, chunk=20, units_first=True, bins=b))
-    assert resample._binned_chunk._cache_size() == 1

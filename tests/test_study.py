@@ -413,48 +413,6 @@ def test_aggregate_keeps_each_tasks_draw_where_the_counts_fit(monkeypatch):
     assert results[0] == results[100_000]
 
 
-def test_each_tasks_share_of_the_aggregate_is_made_as_the_task_ends(monkeypatch):
-    """A task's share of the aggregate across tasks (`jaxeac.stats.tasks.task_share`: its pairs'
-    probabilities of improvement, its means, its merged counts) is made on the task's own thread as
-    soon as its statistics run, before later tasks are in, where its draws are kept; the aggregate
-    after the last task then only pools. Without room to keep the draws the aggregate makes every
-    share itself, after the last task: the same numbers either way."""
-    import threading
-    import time
-
-    from jaxeac.experiments.study import TaskStatistics
-    from jaxeac.stats import core, groups
-    from jaxeac.stats import tasks as stats_tasks
-
-    tasks, algos, n, trials = ("t0", "t1", "t2"), ("ac", "eac", "sarsa"), 30, 12
-    rng = np.random.default_rng(6)
-    samples = {t: {a: rng.binomial(trials, rng.uniform(0.2, 0.8), n).astype(np.int32) for a in algos}
-               for t in tasks}
-    made = []  # (task, the thread that made its share)
-    share = stats_tasks._share
-    monkeypatch.setattr(stats_tasks, "_share", lambda per, family, task, here, scores: made.append(
-        (task, threading.current_thread().name.split("_")[0])) or share(per, family, task, here, scores))
-    results = {}
-    # 200,000 bytes: every task's counts per value fit (3 tasks x 3 algorithms x at most 13 values x
-    # 400 resamples x 4 bytes), though the draws of the seeds themselves would not (270 x 400 x 4)
-    for budget in (200_000, 0):
-        monkeypatch.setattr(core, "MAX_KEPT_BYTES", budget)
-        monkeypatch.setattr(groups, "MAX_KEPT_BYTES", budget)
-        made.clear()
-        stats = TaskStatistics(tasks, algos, n, trials, resamples=400, key=4)
-        stats.add("t1", samples["t1"])
-        deadline = time.monotonic() + 120
-        while budget and not made and time.monotonic() < deadline:  # t1's share, before t0 and t2 come
-            time.sleep(0.01)
-        assert made == ([("t1", "jaxeac-task-stats")] if budget else [])
-        stats.add("t0", samples["t0"])
-        stats.add("t2", samples["t2"])
-        results[budget] = stats.result()
-        by = "jaxeac-task-stats" if budget else "jaxeac-statistics"
-        assert sorted(made) == [(t, by) for t in tasks], made
-    assert results[0] == results[200_000]
-
-
 def test_tasks_run_side_by_side_are_taken_as_their_runs_end():
     """The study takes each task (its curves, its statistics) as its runs end, not in the study's
     order: a first task that compiles the programs no longer holds back the others' statistics."""

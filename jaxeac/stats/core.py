@@ -45,7 +45,6 @@ from jaxeac.stats.groups import (
 )
 from jaxeac.stats.large import PATH_RULE, RAW, resampling_path
 from jaxeac.stats.result import Comparison
-from jaxeac.stats.tasks import aggregate_across_tasks, task_share
 
 #: fold_in stream of a task's shared (paired) draw under the task's key.
 PAIRED_STREAM = 1 << 20
@@ -243,7 +242,7 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
     alpha = round(1 - level, 12)
     root = as_key(key)
     used = list(dict.fromkeys(a for p in family for a in p))
-    rows, algos, paths, drawn, shares = [], [], {}, [], []
+    rows, algos, paths, drawn = [], [], {}, []
     aggregating = len(per.tasks) > 1 and normalize is not None
     keep = units * resamples * 4 <= MAX_KEPT_BYTES
     beside = ThreadPoolExecutor(max_workers=PAIRED_WORKERS, thread_name_prefix="jaxeac-paired")
@@ -251,8 +250,7 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
     aggregate_result = None
 
     def one_task(i: int, task):
-        """Task i's algorithm entries, rows (paired rows as futures), draws for the aggregate and its
-        share of it (`jaxeac.stats.tasks.task_share`), and paths."""
+        """Task i's algorithm entries, rows (paired rows as futures), draws for the aggregate and paths."""
         if ready is not None:
             ready(task)
         tkey = jax.random.fold_in(root, i)
@@ -273,7 +271,7 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
                 )
         groups = task_groups({a: per.values[task][a] for a in per.algos},
                              {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
-        entries, rows, drawn, share, paths = [], [], None, None, {}
+        entries, rows, drawn, paths = [], [], None, {}
         for a in per.algos:
             g = groups[a]
             paths[g.path] = paths.get(g.path, 0) + 1
@@ -282,24 +280,22 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
                             "excluded": per.excluded.get(task, {}).get(a, 0)})
         if aggregating:
             drawn = aggregate_draws(per, task, tkey, groups, shared, order, resamples, chunk, keep)
-            share = task_share(per, family, task, drawn, normalize=normalize, reference=reference_scores,
-                               baseline=baseline)
         for x, y in family:
             rows.append({"task": task, "x": x, "y": y, **pair_row(groups[x], groups[y], alpha),
                          "paired": by_pair.get((x, y))})
-        return entries, rows, drawn, share, paths
+        return entries, rows, drawn, paths
 
     try:
-        for entries, task_rows, task_drawn, task_share_, task_paths in by_task.map(
-                one_task, *zip(*enumerate(per.tasks), strict=True)):
+        for entries, task_rows, task_drawn, task_paths in by_task.map(one_task, *zip(*enumerate(per.tasks))):
             algos += entries
             rows += task_rows
             if aggregating:
                 drawn.append(task_drawn)
-                shares.append(task_share_)
             for k, v in task_paths.items():
                 paths[k] = paths.get(k, 0) + v
         if aggregating:
+            from jaxeac.stats.tasks import aggregate_across_tasks
+
             aggregate_result = aggregate_across_tasks(
                 per,
                 family,
@@ -309,9 +305,7 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
                 baseline=baseline,
                 level=level,
                 points=profile_points,
-                shares=shares,
             )
-            del shares
         for row in rows:  # the paired rows, drawn on host threads beside the groups and the aggregate
             row["paired"] = row["paired"].result() if row["paired"] is not None else None
             row["analysis"] = "paired" if row["paired"] else "unpaired"

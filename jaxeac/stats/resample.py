@@ -96,11 +96,6 @@ _binned_chunk = jax.jit(_binned, static_argnames=("n", "chunk", "width"))
 #: against 0.53 s together).
 BINNED_TOGETHER = {"cpu": False}
 
-#: Where rows go together, the fewest bins a program counts into (bins padded to a power of two at
-#: least this): one program per layout for every success count over up to 255 trials, where a
-#: study's tasks compiled one per bucket, 0.6-0.9 s each, some after its last task.
-BINNED_MIN_WIDTH = 256
-
 
 def boot_counts_binned(keys, n: int, resamples: int, bins: list[np.ndarray], *, chunk: int = 1000
                        ) -> list[np.ndarray]:
@@ -114,7 +109,7 @@ def boot_counts_binned(keys, n: int, resamples: int, bins: list[np.ndarray], *, 
                             bins=b) for i, b in enumerate(bins)]
     chunk = _cap(chunk, resamples, n)
     widths = [int(b.max(initial=-1)) + 1 for b in bins]
-    width = max(BINNED_MIN_WIDTH, 1 << max(max(widths) - 1, 0).bit_length())
+    width = max(16, 1 << max(max(widths) - 1, 0).bit_length())
     step = max(1, MAX_CHUNK_ELEMENTS // (chunk * n))
     out: list[np.ndarray] = []
     for start in range(0, len(bins), step):

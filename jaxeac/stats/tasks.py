@@ -66,18 +66,17 @@ def check_normalization(per: PerSeed, normalize, reference, baseline) -> None:
 
 def _scales(per: PerSeed, normalize, reference, baseline) -> dict:
     """{task: the map of raw scores onto one scale}."""
-    return {t: _scale(per, t, normalize, reference, baseline) for t in per.tasks}
-
-
-def _scale(per: PerSeed, t, normalize, reference, baseline):
-    """Task t's map of raw scores onto the common scale."""
-    if normalize == "minmax":
-        low, high = (float(v) for v in reference[t])
-        return lambda x: (x - low) / (high - low)
-    if normalize == "baseline":
-        m = float(per.values[t][baseline].mean())
-        return lambda x: x / m
-    return lambda x: x
+    out = {}
+    for t in per.tasks:
+        if normalize == "minmax":
+            low, high = (float(v) for v in reference[t])
+            out[t] = lambda x, low=low, high=high: (x - low) / (high - low)
+        elif normalize == "baseline":
+            m = float(per.values[t][baseline].mean())
+            out[t] = lambda x, m=m: x / m
+        else:
+            out[t] = lambda x: x
+    return out
 
 
 def normalized(per: PerSeed, normalize, reference, baseline) -> tuple[dict, dict]:
@@ -168,47 +167,6 @@ def prob_improvement(x, y) -> float:
     return float(a12_counts(np.bincount(inv[: y.size], minlength=u), np.bincount(inv[y.size :], minlength=u)))
 
 
-def task_share(per: PerSeed, family, task, drawn_task, *, normalize: str, reference=None, baseline=None):
-    """Task `task`'s share of `aggregate_across_tasks`, computed as soon as its draws are in (on the
-    task's own thread, beside later tasks; the same numbers as made there). `drawn_task`: the task's
-    entry of its `drawn`. None where the draws were not kept (they are drawn again, task by task,
-    after the last) or the task's scores cannot be put on the scale (the checks say why later)."""
-    if any(callable(e) for e in drawn_task[0].values()) or not _on_scale(per, task, normalize, reference,
-                                                                           baseline):
-        return None
-    scale = _scale(per, task, normalize, reference, baseline)
-    here = {a: _collapsed(scale(np.asarray(v, np.float64)), ct) for a, (v, ct) in drawn_task[0].items()}
-    return _share(per, family, task, here, {a: scale(x) for a, x in per.values[task].items()})
-
-
-def _on_scale(per: PerSeed, task, normalize, reference, baseline) -> bool:
-    """Whether `check_normalization` passes for `task`."""
-    if normalize == "minmax":
-        try:
-            low, high = (float(v) for v in (reference or {})[task])
-        except (KeyError, TypeError, ValueError):
-            return False
-        return math.isfinite(low) and math.isfinite(high) and high > low
-    return normalize != "baseline" or per.values[task][baseline].mean() != 0
-
-
-def _share(per: PerSeed, family, task, here: dict, scores: dict) -> dict:
-    """`task_share` from the task's draws on the common scale, equal values merged, {algo: (values,
-    counts [D, R])}, and its scores there {algo: [n]}: per pair, the probability of improvement and
-    each resample's [R]; per algorithm, each resample's mean [R] and its counts (None where too large
-    to keep: drawn again when pooled)."""
-    cums, pairs = {}, {}
-    for x, y in family:
-        (vx, cx), (vy, cy) = here[x], here[y]
-        if y not in cums:
-            cums[y] = cumulative(cy, zero_row=True)
-        nx, ny = per.values[task][x].size, per.values[task][y].size
-        pairs[x, y] = (prob_improvement(scores[x], scores[y]), wins_replicates(vx, cx, vy, cums[y], nx, ny))
-    means = {a: v @ ct.astype(np.float64) / per.values[task][a].size for a, (v, ct) in here.items()}
-    kept = {a: (v, ct) if ct.size <= BLOCK_ELEMENTS else None for a, (v, ct) in here.items()}
-    return {"pairs": pairs, "means": means, "kept": kept}
-
-
 def aggregate_across_tasks(
     per: PerSeed,
     family,
@@ -220,12 +178,10 @@ def aggregate_across_tasks(
     level: float = 0.95,
     points: int = 101,
     tau=None,
-    shares: list | None = None,
 ) -> dict:
     """The aggregates across tasks (see the module docstring) as a JSON-ready dict. `drawn`, one
     entry per task, is the comparison's own draw: ({algo: (raw values, counts units first
-    [rows, R]) or a function giving them}, whether the task's algorithms share one draw);
-    `shares`, one per task, `task_share`'s (None: computed here), the same numbers whenever made."""
+    [rows, R]) or a function giving them}, whether the task's algorithms share one draw)."""
     check_normalization(per, normalize, reference, baseline)
     scores, norm = normalized(per, normalize, reference, baseline)
     scale = _scales(per, normalize, reference, baseline)
@@ -247,21 +203,22 @@ def aggregate_across_tasks(
     pair_est = {p: [] for p in family}
     pair_star = {p: 0.0 for p in family}
     means, parts = {a: [] for a in algos}, {a: [] for a in algos}
-    # task by task (in order, whenever each share was made), each algorithm's draw taken once: the
-    # pairs' probability of improvement, the per-task means, and the merged counts kept for pooling
-    shares = list(shares) if shares is not None else [None] * len(tasks)
+    # task by task, each algorithm's draw taken once: the pairs' probability of improvement, the
+    # per-task means, and the merged counts kept for pooling across tasks
     for i, t in enumerate(tasks):
-        share = shares[i]
-        shares[i] = None
-        if share is None:
-            share = _share(per, family, t, {a: got(i, a) for a in algos}, scores[t])
-        for pair, (estimate, wins) in share["pairs"].items():
-            pair_est[pair].append(estimate)
-            pair_star[pair] = pair_star[pair] + wins
-        for a in algos:  # kept where merging made them small; else drawn again
-            means[a].append(share["means"][a])
-            parts[a].append(share["kept"][a] if share["kept"][a] is not None else i)
-        del share
+        here = {a: got(i, a) for a in algos}
+        cums = {}
+        for x, y in family:
+            (vx, cx), (vy, cy) = here[x], here[y]
+            if y not in cums:
+                cums[y] = cumulative(cy, zero_row=True)
+            nx, ny = per.values[t][x].size, per.values[t][y].size
+            pair_est[(x, y)].append(prob_improvement(scores[t][x], scores[t][y]))
+            pair_star[(x, y)] = pair_star[(x, y)] + wins_replicates(vx, cx, vy, cums[y], nx, ny)
+        for a, (v, ct) in here.items():  # kept where merging made them small; else drawn again
+            means[a].append(v @ ct.astype(np.float64) / per.values[t][a].size)
+            parts[a].append((v, ct) if ct.size <= BLOCK_ELEMENTS else i)
+        del here, cums
     # algorithm by algorithm: the same draws, pooled over tasks
     out_algos, profiles = {}, {"tau": tau.tolist()}
     for a in algos:
