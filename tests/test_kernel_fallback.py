@@ -144,7 +144,7 @@ def test_the_kernel_lowers_in_this_jax():
 
 
 DIALECT_LOOKUPS = textwrap.dedent("""
-    import dataclasses, hashlib, importlib.abc, json, sys
+    import hashlib, importlib.abc, json, sys
     tried = []  # the Triton dialect's module, looked up by the name MLIR's bindings import
 
     class Tried(importlib.abc.MetaPathFinder):
@@ -156,15 +156,13 @@ DIALECT_LOOKUPS = textwrap.dedent("""
     from jaxeac.algorithm.config import algorithm
     from jaxeac.envs.grid import GridWorld, get_map
     from jaxeac.running import kernel
-    from jaxeac.running.config import RunConfig, resolved_jump
+    from jaxeac.running.config import RunConfig, _kernel_config
 
     if sys.argv[1] == "as-before":
         kernel._name_triton_dialect = lambda: None
     env, texts = GridWorld(get_map("paper"), 40), []
     for algo in ("ac", "eac"):
-        cfg = RunConfig(trials=10, agent=algorithm(algo, tables="rows"))
-        run = dataclasses.replace(cfg, agent=cfg.agent.resolve("gpu"), loop="flat", kernel="pallas", lanes=None)
-        run = dataclasses.replace(run, jump=resolved_jump(env, run))
+        run = _kernel_config(env, RunConfig(trials=10, agent=algorithm(algo, tables="rows")), "gpu")
         texts.append(hashlib.sha256(kernel._lower(env, run, "cuda").as_text().encode()).hexdigest())
     print(json.dumps([len(tried), texts]))
 """)

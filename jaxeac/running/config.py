@@ -204,9 +204,13 @@ def _backend_problem(env: Any, cfg: RunConfig, backend: str) -> str | None:
     lowered where it would run on GPUs (in the interpreter off GPUs, it needs the backend's module only)."""
     from jaxeac.running.kernel import backend_problem
 
+    return backend_problem(env, _kernel_config(env, cfg, backend), lower=backend == "gpu")
+
+
+def _kernel_config(env: Any, cfg: RunConfig, backend: str) -> RunConfig:
+    """The run's config as the fused kernel would run it on `backend`, with its jump setting."""
     run = dataclasses.replace(cfg, agent=cfg.agent.resolve(backend), loop="flat", kernel="pallas", lanes=None)
-    run = dataclasses.replace(run, jump=resolved_jump(env, run))
-    return backend_problem(env, run, lower=backend == "gpu")
+    return dataclasses.replace(run, jump=resolved_jump(env, run))
 
 
 def jump_unsupported(env: Any, cfg: RunConfig) -> str | None:
