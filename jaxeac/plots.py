@@ -10,6 +10,7 @@ returns their file names.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -142,18 +143,22 @@ def policy_figure(grid: GridMap, policies: dict[str, np.ndarray], path: Path, *,
     plt.close(fig)
 
 
-def grid_figures(folder: Path, *, lines: dict[str, dict], grid_map: GridMap | None,
-                 policies: dict[str, np.ndarray] | None, seed: int, max_steps: int,
+def grid_figures(folder: Path, *, lines: dict[str, dict] | None = None, grid_map: GridMap | None = None,
+                 policies: dict[str, np.ndarray] | None = None, seed: int = 0, max_steps: int = 0,
                  paper: dict[str, int] | None = None) -> list[str]:
-    """Both grid figures of a run into `folder` (`jaxeac.experiments.grid.figure_inputs` gives the
-    arguments from its results); returns the file names. `lines`: Fig. 3's per algorithm;
-    `policies`: each algorithm's final policy of seed `seed`, drawn on `grid_map` (Fig. 2; none
-    off a grid map); `paper`: the paper's successes per algorithm, marked on the curves."""
-    cumulative_success_figure(lines, folder / "fig3_cumulative_successes.png", paper=paper)
-    if grid_map is None:  # a non-grid environment: no map to draw the policies on
-        return ["fig3_cumulative_successes.png"]
-    policy_figure(grid_map, policies, folder / "fig2_policies.png", seed=seed, max_steps=max_steps)
-    return ["fig3_cumulative_successes.png", "fig2_policies.png"]
+    """A run's grid figures into `folder` (`jaxeac.experiments.grid.curve_inputs` and
+    `policy_inputs` give the arguments from its results); returns the file names. `lines`: Fig. 3's
+    per algorithm (none: not drawn), with `paper`, the paper's successes per algorithm, marked on
+    the curves; `policies`: each algorithm's final policy of seed `seed`, drawn on `grid_map`
+    (Fig. 2; none without a map)."""
+    names = []
+    if lines is not None:
+        cumulative_success_figure(lines, folder / "fig3_cumulative_successes.png", paper=paper)
+        names.append("fig3_cumulative_successes.png")
+    if grid_map is not None:
+        policy_figure(grid_map, policies, folder / "fig2_policies.png", seed=seed, max_steps=max_steps)
+        names.append("fig2_policies.png")
+    return names
 
 
 def angle_figure(angles: dict[str, np.ndarray], path: Path, *, seed: int = 0):
@@ -410,16 +415,39 @@ def forest_figure(rows: list[dict], path: Path, *, title: str, xlabel: str):
     plt.close(fig)
 
 
-def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str]) -> None:
+#: The comparison's figures, in the order they are drawn (keys of stats.json's figure files).
+COMPARISON_FIGURES = ("curves", "distributions", "improvement")
+
+
+def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str], *,
+                       only: tuple[str, ...] = COMPARISON_FIGURES) -> None:
     """A run folder's comparison (`jaxeac.stats.run`, SPEC §6), drawn from its statistics: learning
     curves with simultaneous bands, per-seed ECDFs and the probability of improvement, saved in
     `out` under `files` (``curves``, ``distributions``, ``improvement``: the file names stats.json
-    records).
+    records); `only`: those of them to draw.
 
     data: {"measures": {name: {"baseline" | "treatment": (distinct values, their counts)}}}."""
+    for name in only:
+        _COMPARISON[name](stats, data, out / files[name])
+
+
+def comparison_png(name: str, stats: dict, data: dict) -> bytes:
+    """One figure of `comparison_figures`, as the bytes of its PNG file. The distributions need
+    of `stats` only ``baseline`` and ``treatment``: they can be drawn before the statistics."""
+    target = io.BytesIO()
+    _COMPARISON[name](stats, data, target)
+    return target.getvalue()
+
+
+def _sides(stats: dict) -> tuple[str, str, dict, dict]:
+    """The baseline, the treatment, and their colours and labels (the same in every figure)."""
     b, t = stats["baseline"], stats["treatment"]
-    colors = {b: style.color(b), t: style.color(t)}  # each algorithm's colour in every figure
-    shown = {b: style.label(b), t: style.label(t)}
+    return b, t, {b: style.color(b), t: style.color(t)}, {b: style.label(b), t: style.label(t)}
+
+
+def _curves_figure(stats: dict, data: dict, target) -> None:
+    """Per-trial means of both methods with simultaneous bands, and their difference."""
+    b, t, colors, shown = _sides(stats)
     cur = stats.get("curves")
     if cur:
         x = np.arange(1, cur["trials"] + 1)
@@ -454,8 +482,13 @@ def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str]
         ax2.set_ylabel(f"{shown[t]} − {shown[b]}")
         ax2.set_xlabel("trial")
         fig.subplots_adjust(left=0.12, right=0.97, top=0.94, bottom=0.09, hspace=0.08)
-        fig.savefig(out / files["curves"], dpi=80)
+        fig.savefig(target, dpi=80, format="png")
         plt.close(fig)
+
+
+def _distributions_figure(stats: dict, data: dict, target) -> None:
+    """Per-seed ECDFs of every measure, from their distinct values and counts."""
+    b, t, colors, shown = _sides(stats)
     names = list(data["measures"])
     fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3))
     for ax, name in zip(np.atleast_1d(axes), names, strict=True):
@@ -468,8 +501,13 @@ def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str]
     np.atleast_1d(axes)[0].legend(fontsize=8)
     fig.suptitle("Per-seed distributions (ECDF)", fontsize=10)
     fig.subplots_adjust(left=0.06, right=0.98, top=0.82, bottom=0.2, wspace=0.3)
-    fig.savefig(out / files["distributions"], dpi=80)
+    fig.savefig(target, dpi=80, format="png")
     plt.close(fig)
+
+
+def _improvement_figure(stats: dict, data: dict, target) -> None:
+    """The probability of improvement of every measure with its interval."""
+    b, t, colors, shown = _sides(stats)
     res = [stats["primary"], *stats["secondary"].values()]
     fig, ax = plt.subplots(figsize=(6, 0.6 * len(res) + 1.2))
     y = np.arange(len(res))[::-1]
@@ -485,5 +523,9 @@ def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str]
     ax.set_xlim(-0.03, 1.03)  # estimates of 0 or 1 stay visible
     ax.set_xlabel(f"P({shown[t]} better than {shown[b]}) with {100 * stats['level']:.6g} % CI")
     fig.subplots_adjust(left=0.3, right=0.96, top=0.95, bottom=0.25)
-    fig.savefig(out / files["improvement"], dpi=80)
+    fig.savefig(target, dpi=80, format="png")
     plt.close(fig)
+
+
+_COMPARISON = {"curves": _curves_figure, "distributions": _distributions_figure,
+               "improvement": _improvement_figure}

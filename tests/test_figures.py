@@ -226,3 +226,24 @@ def test_run_folder_and_comparison_figures(drawn, tmp_path):
     ecdf = names["Per-seed distributions (ECDF)"]
     assert {to_hex(line.get_color()) for ax in plot_axes(ecdf) for line in ax.get_lines()} == \
         {style.color("ac").lower(), style.color("eac").lower()}
+
+
+def test_the_distributions_figure_drawn_before_the_statistics_is_the_one_drawn_after(tmp_path):
+    """`compare_experiment` hands `on_counts` the figures' data it returns, as soon as the per-seed
+    measures exist; the distributions drawn from it alone (`jaxeac.plots.comparison_png`, as
+    `jaxeac grid` does in its figure helper while the statistics run) are the PNG
+    `comparison_figures` writes from the finished statistics, byte for byte; the others need those."""
+    from jaxeac.stats.report import FIGURES
+    from jaxeac.stats.run import compare_experiment
+
+    rng = np.random.default_rng(3)
+    sb, st = rng.random((60, 12)) < 0.3, rng.random((60, 12)) < 0.6
+    early = []
+    stats, plot = compare_experiment(sb, st, resamples=200, calibration_splits=4, paired=True,
+                                     on_counts=lambda sides, data: early.append((sides, data)))
+    [(sides, data)] = early
+    assert sides == {"baseline": "ac", "treatment": "eac"} and data is plot
+    plots.comparison_figures(stats, plot, tmp_path, FIGURES)
+    assert plots.comparison_png("distributions", sides, data) == (tmp_path / FIGURES["distributions"]).read_bytes()
+    assert plots.comparison_png("improvement", stats, plot) == (tmp_path / FIGURES["improvement"]).read_bytes()
+    assert plots.comparison_png("curves", sides, data) == b""  # no curves without the statistics

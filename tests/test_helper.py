@@ -127,7 +127,6 @@ def test_a_helper_that_dies_fails_its_jobs_and_one_killed_leaves_no_process():
 
 
 def test_sending_to_a_helper_that_has_gone_is_a_helper_error_and_kill_ends_a_stopped_one():
-    import threading
 
     h = Helper()
     os.kill(h.submit(os.getpid).result(timeout=30), signal.SIGKILL)
@@ -238,3 +237,24 @@ def test_the_peak_memory_is_the_helpers_own_not_its_parents():
     del held
     assert 0 < h.peak_rss_bytes < 2**30
 
+
+
+_PRELOADED: list[str] = []
+
+
+def _preload_slowly() -> None:
+    time.sleep(1.0)  # a job sent meanwhile waits in the pipe
+    _PRELOADED.append("preloaded")
+
+
+def _preloaded() -> list[str]:
+    return list(_PRELOADED)
+
+
+def test_a_helpers_preload_ends_before_it_reads_a_job():
+    """`preload` runs in the helper before its first job is read (two jobs importing one package at
+    once saw it half made), and a job sent while it runs finds it done."""
+    with Helper(threads=2, preload=_preload_slowly) as h:
+        first = h.submit(_preloaded)
+        assert first.result(timeout=60) == ["preloaded"]
+    assert _PRELOADED == []  # it ran there, not here

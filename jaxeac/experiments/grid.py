@@ -412,25 +412,30 @@ def per_seed_csv(run: GridRun) -> str:
     return buf.getvalue()
 
 
-def figure_inputs(run: GridRun, seed: int = 0) -> dict:
-    """The grid figures' arguments (`jaxeac.plots.grid_figures`, but the folder) from a run's results,
-    computed without matplotlib: Fig. 3's lines per algorithm, and on a grid map seed `seed`'s final
-    policies; the paper's successes are marked on its own world only (no map file, env or slip)."""
+def curve_inputs(run: GridRun) -> dict:
+    """Fig. 3's arguments (`jaxeac.plots.grid_figures`, but the folder) from a run's results, computed
+    without matplotlib: its lines per algorithm, counted from every seed's successes; the paper's
+    successes are marked on its own world only (no map file, env or slip)."""
     from jaxeac.stats.cumulative import cumulative_counts, cumulative_lines
 
     s = run.settings
     paper_world = s.map_file is None and s.env is None and not s.slip
-    grid = run.grid_map is not None
-    results = run.results
-    lines = {a: cumulative_lines(cumulative_counts(r.success), spread=True) for a, r in results.items()}
-    return {"lines": lines, "grid_map": run.grid_map,
-            "policies": {a: r.policy_of(seed) for a, r in results.items()} if grid else None,
-            "seed": seed, "max_steps": s.chances,
-            "paper": make_preset(s.preset).paper_successes if paper_world else None}
+    lines = {a: cumulative_lines(cumulative_counts(r.success), spread=True) for a, r in run.results.items()}
+    return {"lines": lines, "paper": make_preset(s.preset).paper_successes if paper_world else None}
+
+
+def policy_inputs(run: GridRun, seed: int = 0) -> dict:
+    """Fig. 2's arguments (`jaxeac.plots.grid_figures`, but the folder): on a grid map, seed `seed`'s
+    final policies (none off a grid map: nothing to draw)."""
+    if run.grid_map is None:
+        return {}
+    return {"grid_map": run.grid_map, "policies": {a: r.policy_of(seed) for a, r in run.results.items()},
+            "seed": seed, "max_steps": run.settings.chances}
 
 
 def draw_grid_figures(folder: Path, inputs: dict) -> list[str]:
-    """`jaxeac.plots.grid_figures` of `figure_inputs` into `folder` (a job a helper process can run)."""
+    """`jaxeac.plots.grid_figures` of `curve_inputs` or `policy_inputs` into `folder` (a job a
+    helper process can run)."""
     from jaxeac import plots
 
     return plots.grid_figures(folder, **inputs)
@@ -446,19 +451,22 @@ def _finish_folder(run: GridRun, stage: Path, summary: dict, options: OutputOpti
     from jaxeac.running.helper import in_helper
 
     summary["outputs"] = dataclasses.asdict(options)
-    drawn = None
-    if figures:  # drawn in the helper while per_seed.csv is written and E8's counts come in
-        drawn = in_helper(helper, draw_grid_figures, stage, figure_inputs(run))
-    try:
+    drawn = []  # Fig. 2 first, drawn while Fig. 3's lines are counted (on one H100, 0.3 s of a warm
+    try:        # 10^6-seed run); both in the helper while per_seed.csv is written and E8's counts come
+        if figures:
+            drawn.append(in_helper(helper, draw_grid_figures, stage, policy_inputs(run)))
+            drawn.append(in_helper(helper, draw_grid_figures, stage, curve_inputs(run)))
         if options.per_seed_csv:
             (stage / "per_seed.csv").write_text(per_seed_csv(run))
     except BaseException:
-        if figures and helper is not None:
-            with contextlib.suppress(Exception):
-                drawn()  # the helper no longer writes in the folder when it is dropped
+        if helper is not None:
+            for wait in drawn:
+                with contextlib.suppress(Exception):
+                    wait()  # the helper no longer writes in the folder when it is dropped
         raise
     if figures:
-        drawn = drawn()
+        policies = drawn[0]()
+        drawn = drawn[1]() + policies  # Fig. 3, then Fig. 2
     if timeline is not None:
         timeline["figures"] = time.time()
     if isinstance(diagnosed, Future):

@@ -56,19 +56,23 @@ class Helper:
     whose function raises gives that exception; one the process did not finish, or whose job or
     result could not cross between the processes, `HelperError`.
 
+    `preload` (a module-level function) runs there before the first job is read: the modules of the
+    jobs to come, imported once, not by two jobs at once (a job read while another imported the
+    same package saw it half made: ``ImportError ... partially initialized module``).
+
     The process is spawned without importing the caller's main module again (`_main_not_imported`),
     so a script need not keep its top level under ``if __name__ == "__main__":``; jobs are functions
     of importable modules."""
 
     def __init__(self, *, threads: int = THREADS, lanes: dict[str, int] | None = None, nice: int = NICE,
-                 name: str = "jaxeac-helper") -> None:
+                 name: str = "jaxeac-helper", preload: Callable[[], None] | None = None) -> None:
         import multiprocessing
 
         self._lanes = dict(lanes or {})  # lane name -> its threads, beside the `threads` of `submit`'s jobs
         context = multiprocessing.get_context("spawn")  # no fork of a process running JAX's threads
         self._conn, child = context.Pipe()
         self._process = context.Process(target=_serve, args=(child, threads, nice, helper_environment(),
-                                                             self._lanes), name=name, daemon=True)
+                                                             self._lanes, preload), name=name, daemon=True)
         with _main_not_imported():
             self._process.start()
         child.close()
@@ -260,8 +264,10 @@ def _own_peak_rss() -> int:
     return peak * (1 if sys.platform == "darwin" else 1024)
 
 
-def _serve(conn, threads: int, nice: int, environment: dict[str, str], lanes: dict[str, int]) -> None:
-    """The helper process: read jobs until the parent closes (None) or goes away (end of file)."""
+def _serve(conn, threads: int, nice: int, environment: dict[str, str], lanes: dict[str, int],
+           preload: Callable[[], None] | None = None) -> None:
+    """The helper process: `preload`, then read jobs until the parent closes (None) or goes away
+    (end of file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends this process
     os.environ.update(environment)
     try:
@@ -276,6 +282,9 @@ def _serve(conn, threads: int, nice: int, environment: dict[str, str], lanes: di
 
     jax.config.update("jax_platforms", "cpu")  # also where the parent's main module imported JAX first
     runtime.use_compilation_cache()  # as in the parent
+    if preload is not None:
+        with suppress(Exception):  # only a head start: a job needing what failed fails alone
+            preload()
     send = threading.Lock()
 
     def reply(message) -> None:

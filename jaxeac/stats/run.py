@@ -91,11 +91,15 @@ def compare_experiment(
     chunk: int = 1000,
     perm_chunk: int = 1000,
     paired: bool = False,
+    on_counts: Callable[[dict, dict], None] | None = None,
 ) -> tuple[dict, dict]:
     """All statistics from per-trial arrays [seeds, T]; returns (stats dict, data for the figures).
 
     `paired`: row i of both arrays is the same seed (a jaxeac run: shared keys, R1); the
-    paired analysis of every measure (`jaxeac.stats.paired`) is then added and leads the report."""
+    paired analysis of every measure (`jaxeac.stats.paired`) is then added and leads the report.
+    `on_counts(sides, data)`: called once the per-seed measures are known, before the statistics,
+    with ``{"baseline": …, "treatment": …}`` and the figures' data (their distributions figure needs
+    no more: `jaxeac.plots.comparison_png`)."""
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
     sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a)
@@ -119,6 +123,10 @@ def compare_experiment(
     vt = {k: mt[k] for k in names}
     for name, v in (*vb.items(), *vt.items()):
         check_measure(v, name)
+    plot = {"measures": {k: {"baseline": value_counts(vb[k]), "treatment": value_counts(vt[k])}
+                         for k in names}}
+    if on_counts is not None:
+        on_counts({"baseline": baseline, "treatment": treatment}, plot)
     curves = (np.asarray(returns_baseline), np.asarray(returns_treatment)) if bowling else (sb, st)
     k_main, k_cal = jax.random.split(as_key(key))
     # start the calibration draws now so they overlap the main comparison's host work
@@ -259,8 +267,6 @@ def compare_experiment(
         stats["analysis"] = "unpaired"
     stats["timing"]["statistics_seconds"] = time.perf_counter() - t0
     stats = {"schema": SCHEMA, "level": round(1 - alpha, 12), **cf.level_keys(stats, round(1 - alpha, 12))}
-    plot = {"measures": {k: {"baseline": value_counts(vb[k]), "treatment": value_counts(vt[k])}
-                         for k in names}}
     return stats, plot
 
 
@@ -298,12 +304,20 @@ def analyse_run_data(data: RunData, *, baseline: str = "ac", treatment: str = "e
                               paired=paired, **settings)
 
 
-def draw_comparison(stats: dict, plot: dict, folder: Path, files: dict[str, str]) -> None:
+def draw_comparison(stats: dict, plot: dict, folder: Path, files: dict[str, str],
+                    only: tuple[str, ...] | None = None) -> None:
     """`jaxeac.plots.comparison_figures` (the figures' layer, imported only to draw them; a job a
-    helper process can run)."""
-    from jaxeac.plots import comparison_figures
+    helper process can run); `only`: the figures to draw (default: all)."""
+    from jaxeac.plots import COMPARISON_FIGURES, comparison_figures
 
-    comparison_figures(stats, plot, folder, files)
+    comparison_figures(stats, plot, folder, files, only=COMPARISON_FIGURES if only is None else only)
+
+
+def comparison_png(name: str, stats: dict, plot: dict) -> bytes:
+    """`jaxeac.plots.comparison_png`: one comparison figure as PNG bytes (a helper process's job)."""
+    from jaxeac.plots import comparison_png as png
+
+    return png(name, stats, plot)
 
 
 def compare_run_dir(
@@ -329,8 +343,9 @@ def compare_run_dir(
     `data`: the run's results already in memory (as `jaxeac grid` has them when it compares
     the run it just wrote), instead of reading them back; `analysed`: a future of
     `analyse_run_data`'s result for them with the same settings, started earlier (`jaxeac grid`
-    starts it while the run's own figures are drawn); `draw(fn, *args)`: fn(*args) computed where
-    the figures are drawn (`jaxeac grid` on a GPU: a helper process; default: here). The
+    starts it while the run's own figures are drawn); `draw(stats, plot, folder, files)`: draws the
+    figures into the staging folder (`jaxeac grid` on a GPU: in a helper process; default:
+    `draw_comparison`, here). The
     comparison is paired when both methods ran the same seeds (a jaxeac run: seed i of each shares
     its key, R1), unless `unpaired`; `require_paired` makes other seeds an error. Returns the
     content of stats.json.
@@ -373,10 +388,7 @@ def compare_run_dir(
     stats["timing"]["load_seconds"] = t_load
     t_out = time.perf_counter()
     with staged_dir(run_dir) as stage:  # a second comparison's figures beside the first's
-        if draw is None:
-            draw_comparison(stats, plot, stage, figures)
-        else:
-            draw(draw_comparison, stats, plot, stage, figures)
+        (draw or draw_comparison)(stats, plot, stage, figures)
         stats["timing"]["figures_seconds"] = time.perf_counter() - t_out
         stats["timing"]["total_seconds"] = time.perf_counter() - t0
         clean = to_jsonable(stats)
