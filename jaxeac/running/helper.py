@@ -30,7 +30,8 @@ from contextlib import contextmanager, suppress
 #: The helper's scheduling priority, above its parent's (lower priority): the parent's threads
 #: (the runs' compiles and dispatch) come first on a busy host.
 NICE = 10
-#: Jobs the helper runs at once (a study's E8: one compile per algorithm ahead, then its tasks).
+#: Jobs a helper runs at once unless told otherwise (`threads`); a study's E8 helper runs fewer
+#: (`jaxeac.experiments.study_runs.HELPER_THREADS`: each compile at once adds to its memory).
 THREADS = 8
 
 
