@@ -420,14 +420,14 @@ COMPARISON_FIGURES = ("curves", "distributions", "improvement")
 
 
 def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str], *,
-                       only: tuple[str, ...] = COMPARISON_FIGURES) -> None:
+                       only: tuple[str, ...] | None = None) -> None:
     """A run folder's comparison (`jaxeac.stats.run`, SPEC §6), drawn from its statistics: learning
     curves with simultaneous bands, per-seed ECDFs and the probability of improvement, saved in
     `out` under `files` (``curves``, ``distributions``, ``improvement``: the file names stats.json
-    records); `only`: those of them to draw.
+    records); `only`: those of them to draw (None: all).
 
     data: {"measures": {name: {"baseline" | "treatment": (distinct values, their counts)}}}."""
-    for name in only:
+    for name in COMPARISON_FIGURES if only is None else only:
         _COMPARISON[name](stats, data, out / files[name])
 
 

@@ -97,9 +97,8 @@ def compare_experiment(
 
     `paired`: row i of both arrays is the same seed (a jaxeac run: shared keys, R1); the
     paired analysis of every measure (`jaxeac.stats.paired`) is then added and leads the report.
-    `on_counts(sides, data)`: called once the per-seed measures are known, before the statistics,
-    with ``{"baseline": …, "treatment": …}`` and the figures' data (their distributions figure needs
-    no more: `jaxeac.plots.comparison_png`)."""
+    `on_counts(sides, data)`: called with ``{"baseline": …, "treatment": …}`` and the figures' data
+    once the per-seed measures are known (the distributions figure needs no more)."""
     t0 = time.perf_counter()
     _check_settings(resamples, alpha, calibration_splits, calibration_resamples)
     sb, st = (a if isinstance(a, SuccessBits) else np.asarray(a)
@@ -307,10 +306,10 @@ def analyse_run_data(data: RunData, *, baseline: str = "ac", treatment: str = "e
 def draw_comparison(stats: dict, plot: dict, folder: Path, files: dict[str, str],
                     only: tuple[str, ...] | None = None) -> None:
     """`jaxeac.plots.comparison_figures` (the figures' layer, imported only to draw them; a job a
-    helper process can run); `only`: the figures to draw (default: all)."""
-    from jaxeac.plots import COMPARISON_FIGURES, comparison_figures
+    helper process can run); `only`: the figures to draw (None: all)."""
+    from jaxeac.plots import comparison_figures
 
-    comparison_figures(stats, plot, folder, files, only=COMPARISON_FIGURES if only is None else only)
+    comparison_figures(stats, plot, folder, files, only=only)
 
 
 def comparison_png(name: str, stats: dict, plot: dict) -> bytes:
@@ -344,11 +343,10 @@ def compare_run_dir(
     the run it just wrote), instead of reading them back; `analysed`: a future of
     `analyse_run_data`'s result for them with the same settings, started earlier (`jaxeac grid`
     starts it while the run's own figures are drawn); `draw(stats, plot, folder, files)`: draws the
-    figures into the staging folder (`jaxeac grid` on a GPU: in a helper process; default:
-    `draw_comparison`, here). The
-    comparison is paired when both methods ran the same seeds (a jaxeac run: seed i of each shares
-    its key, R1), unless `unpaired`; `require_paired` makes other seeds an error. Returns the
-    content of stats.json.
+    figures into the staging folder (default `draw_comparison`; `jaxeac grid` on a GPU: in a helper
+    process). The comparison is paired when both methods ran the same seeds (a jaxeac run: seed i
+    of each shares its key, R1), unless `unpaired`; `require_paired` makes other seeds an error.
+    Returns the content of stats.json.
     Bad input raises `jaxeac.errors.UsageError`.
     """
     t0 = time.perf_counter()
