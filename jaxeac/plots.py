@@ -415,10 +415,6 @@ def forest_figure(rows: list[dict], path: Path, *, title: str, xlabel: str):
     plt.close(fig)
 
 
-#: The comparison's figures, in the order they are drawn (keys of stats.json's figure files).
-COMPARISON_FIGURES = ("curves", "distributions", "improvement")
-
-
 def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str], *,
                        only: tuple[str, ...] | None = None) -> None:
     """A run folder's comparison (`jaxeac.stats.run`, SPEC §6), drawn from its statistics: learning
@@ -427,7 +423,7 @@ def comparison_figures(stats: dict, data: dict, out: Path, files: dict[str, str]
     records); `only`: those of them to draw (None: all).
 
     data: {"measures": {name: {"baseline" | "treatment": (distinct values, their counts)}}}."""
-    for name in COMPARISON_FIGURES if only is None else only:
+    for name in _COMPARISON if only is None else only:
         _COMPARISON[name](stats, data, out / files[name])
 
 
@@ -527,5 +523,6 @@ def _improvement_figure(stats: dict, data: dict, target) -> None:
     plt.close(fig)
 
 
+#: The comparison's figures by their keys in stats.json's file names, in the order they are drawn.
 _COMPARISON = {"curves": _curves_figure, "distributions": _distributions_figure,
                "improvement": _improvement_figure}
