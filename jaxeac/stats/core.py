@@ -257,18 +257,21 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
         shared, order = shared_draw(per, task, used, paired, jax.random.fold_in(tkey, PAIRED_STREAM), resamples,
                                      chunk)
         # the paired rows first: their host draws run on `beside` while this thread makes the groups
-        by_pair, pkey = {}, jax.random.fold_in(tkey, PAIRED_STREAM + 1)  # every paired row's key
+        diffs, pkey = {}, jax.random.fold_in(tkey, PAIRED_STREAM + 1)  # every paired row's key
         for x, y in family:
             if order is not None and x in order and y in order:
-                d = order[x] - order[y]
-                raw = shared is not None and resampling_path(d.size, np.unique(d).size, paired=True) == RAW
-                by_pair[x, y] = beside.submit(paired_row, d, shared.units() if raw else None, alpha, pkey, resamples)
+                diffs[x, y] = order[x] - order[y]
             elif paired == "paired":
                 raise UsageError(
                     f"--paired needs the same seed ids of {excerpt(x, 20)} and {excerpt(y, 20)}"
                     f"{' on task ' + excerpt(task, 20) if task else ''}; drop --paired to compare "
                     "them unpaired"
                 )
+        by_pair = {}
+        for p, d in diffs.items():
+            path = resampling_path(d.size, np.unique(d).size, paired=True)
+            by_pair[p] = beside.submit(paired_row, d, alpha, pkey, resamples, path=path,
+                                       per_seed=shared.units() if shared is not None and path == RAW else None)
         groups = task_groups({a: per.values[task][a] for a in per.algos},
                              {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
         entries, rows, drawn, paths = [], [], None, {}

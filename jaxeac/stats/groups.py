@@ -24,7 +24,7 @@ from jaxeac.stats._rng import host_rng, multinomial_counts
 from jaxeac.stats.asymptotic import abc_two_sample
 from jaxeac.stats.bca import bca_interval, bca_two_sample_counts
 from jaxeac.stats.large import resampling_path
-from jaxeac.stats.paired import paired_analysis, paired_tests
+from jaxeac.stats.paired import PAIRED_TEST_FIELDS, paired_analysis, paired_tests
 from jaxeac.stats.resample import boot_counts, boot_counts_binned, cumulative
 from jaxeac.stats.tasks import below_half, wins_replicates
 
@@ -184,20 +184,21 @@ def pair_row(gx: Group, gy: Group, alpha: float) -> dict:
     }
 
 
-def paired_row(d: np.ndarray, C: np.ndarray | None, alpha: float, key, resamples: int = 10_000) -> dict:
+def paired_row(d: np.ndarray, alpha: float, key, resamples: int = 10_000, *, path: str | None = None,
+               per_seed: np.ndarray | None = None) -> dict:
     """The paired comparison: per-seed differences d (X − Y of the same seed id). The interval takes
     the path `resampling_path(n, distinct, paired=True)` gives (recorded as ``path``): raw draws
-    from C, the task's shared draw over its seeds, else `jaxeac.stats.paired.paired_analysis`,
-    the run folders' paired analysis, which follows the same rule."""
+    from `per_seed`, the task's shared draw over its seeds [n, R], else
+    `jaxeac.stats.paired.paired_analysis`, the run folders' paired analysis, which follows the same
+    rule. `path`: that path, if already known."""
     n = d.size
-    out = paired_tests(d)
-    out["path"] = resampling_path(n, np.unique(d).size, paired=True)  # the one rule, as paired.py
-    if C is not None and out["path"] == large.RAW:  # C: the shared draw, units first [n, R]
-        star = d @ C.astype(np.float64) / n
-        out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
-        return out
-    res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha, mean_only=True)
-    out["mean_diff_ci"] = res["mean_diff_ci95"]
+    path = path or resampling_path(n, np.unique(d).size, paired=True)  # the one rule, as paired.py
+    if per_seed is None or path != large.RAW:
+        res = paired_analysis(np.zeros(n), d, key, resamples=resamples, alpha=alpha, mean_only=True)
+        return {k: res[k] for k in PAIRED_TEST_FIELDS} | {"path": path, "mean_diff_ci": res["mean_diff_ci95"]}
+    out = paired_tests(d) | {"path": path}
+    star = d @ per_seed.astype(np.float64) / n
+    out["mean_diff_ci"] = list(bca_interval(out["mean_diff"], star, [(d.sum() - d) / (n - 1)], alpha))
     return out
 
 

@@ -65,6 +65,10 @@ def _dz(mean: np.ndarray, square: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+#: The fields `paired_tests` gives.
+PAIRED_TEST_FIELDS = ("n", "mean_diff", "sd_diff", "se_diff", "t_paired", "df", "p_paired_t", "d_z")
+
+
 def paired_tests(d: np.ndarray) -> dict:
     """The closed-form part of a paired comparison of per-seed differences d, its one definition
     (run folders and the engine): the mean difference, its sd and se, the paired t test (Student
@@ -76,8 +80,7 @@ def paired_tests(d: np.ndarray) -> dict:
     t = mean / se if se > 0 else (math.copysign(math.inf, mean) if mean else 0.0)
     p = float(2 * special.stdtr(n - 1, -abs(t))) if math.isfinite(t) else (0.0 if mean else 1.0)
     dz = float(_dz(np.array(mean), np.array(float((d * d).mean())), n))
-    return {"n": n, "mean_diff": mean, "sd_diff": sd, "se_diff": se, "t_paired": t, "df": n - 1,
-            "p_paired_t": p, "d_z": dz}
+    return dict(zip(PAIRED_TEST_FIELDS, (n, mean, sd, se, t, n - 1, p, dz), strict=True))
 
 
 def paired_analysis(baseline, treatment, key, *, resamples: int = 10_000, alpha: float = 0.05,
