@@ -133,6 +133,20 @@ def _ratio_score_z(phi, x1, n1, x2, n2, correction):
     return diff / math.sqrt(var)
 
 
+def _root(f, lo: float, hi: float, *args) -> float:
+    """The root of f(·, *args) in [lo, hi] (f(lo) > 0 > f(hi)) by bisection to the last float: a
+    few dozen evaluations, without importing scipy.optimize (0.5 s on a 2-core CPU, in the
+    statistics' critical path)."""
+    while True:
+        mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            return mid
+        if f(mid, *args) > 0:
+            lo = mid
+        else:
+            hi = mid
+
+
 def risk_ratio_ci(
     count_baseline, n_baseline, count_treatment, n_treatment, alpha=0.05, correction=True
 ) -> Estimate:
@@ -141,8 +155,6 @@ def risk_ratio_ci(
     With correction=True this matches statsmodels
     `confint_proportions_2indep(..., compare="ratio", method="score")`.
     """
-    from scipy import optimize
-
     x1, n1, x2, n2 = float(count_treatment), float(n_treatment), float(count_baseline), float(n_baseline)
     z = special.ndtri(1 - alpha / 2)
     est = (x1 / n1) / (x2 / n2) if x2 > 0 else math.inf
@@ -152,12 +164,8 @@ def risk_ratio_ci(
 
     # z(phi) decreases in phi: the CI is {phi : -z <= z(phi) <= z}
     lo_end, hi_end = -30.0, 30.0
-    low = 0.0 if x1 == 0 or f(lo_end, z) <= 0 else math.exp(optimize.brentq(f, lo_end, hi_end, args=(z,)))
-    high = (
-        math.inf
-        if x2 == 0 or f(hi_end, -z) >= 0
-        else math.exp(optimize.brentq(f, lo_end, hi_end, args=(-z,)))
-    )
+    low = 0.0 if x1 == 0 or f(lo_end, z) <= 0 else math.exp(_root(f, lo_end, hi_end, z))
+    high = math.inf if x2 == 0 or f(hi_end, -z) >= 0 else math.exp(_root(f, lo_end, hi_end, -z))
     return Estimate(est, low, high, 1 - alpha)
 
 
