@@ -636,12 +636,18 @@ def test_running_column_sums_are_the_whole_arrays(n):
     np.testing.assert_array_equal(large.stacked_means(cols, n - 1, block=16), direct)
 
 
+@pytest.mark.parametrize("device", [False, True])
 @pytest.mark.parametrize("trials", [1, 7, 8, 9, 13, 200, 203])
-def test_measures_from_packed_bits_are_those_of_the_unpacked_rows(trials):
-    """`per_seed_codes` reads `SuccessBits` byte by byte (set bits and their positions per byte);
-    every code equals the unpacked bool path's, dtype included, on empty, full and random rows,
-    and bits past the last trial (a damaged pad) change nothing."""
+def test_measures_from_packed_bits_are_those_of_the_unpacked_rows(trials, device, monkeypatch):
+    """`per_seed_codes` reads `SuccessBits` byte by byte (set bits and their positions per byte), on
+    host threads or, on an accelerator, in one device program (`device_codes`, here on the CPU's
+    XLA, in blocks of 7,000 seeds); every code equals the unpacked bool path's, dtype included, on
+    empty, full and random rows, and bits past the last trial (a damaged pad) change nothing."""
+    from jaxeac.stats import device_sums, measures
     from jaxeac.stats.measures import per_seed_codes
+
+    monkeypatch.setattr(measures, "_on_device", lambda: device)
+    monkeypatch.setattr(device_sums, "CODES_BLOCK", 7_000)
 
     rng = np.random.default_rng(trials)
     success = rng.random((40_000, trials)) < rng.choice([0.0, 0.02, 0.5, 0.98, 1.0], size=(40_000, 1))

@@ -35,6 +35,46 @@ def _gram(c, block: int):
     return g, s
 
 
+#: Seeds per call of `device_codes` (at 200 trials: 100 MB of bits in, 64 MB of integers out).
+CODES_BLOCK = 1 << 22
+
+
+@partial(jax.jit, static_argnames=("trials", "late"))
+def _codes(bits, trials: int, late: int):
+    """`jaxeac.stats.measures._codes_of_bits` on the device, the same integers (int32 [n] each):
+    per byte its set bits and the sum of their positions, by population counts."""
+    n, width = bits.shape
+    position = 8 * np.arange(width)[:, None] + np.arange(8)  # [bytes, 8] trial of each bit
+    keep = np.packbits(position < trials, axis=1, bitorder="little")[:, 0]
+    in_late = np.packbits((position >= trials - late) & (position < trials), axis=1, bitorder="little")[:, 0]
+    b = bits & jnp.asarray(keep)
+
+    def ones(x):
+        return lax.population_count(x).astype(jnp.int32)
+
+    per_byte = ones(b)
+    count = per_byte.sum(1)
+    late_count = ones(b & jnp.asarray(in_late)).sum(1)
+    nonzero = b != 0
+    j = jnp.argmax(nonzero, axis=1).astype(jnp.int32)
+    x = jnp.take_along_axis(b, j[:, None], axis=1)[:, 0]
+    lowest = ones((x & (jnp.uint8(0) - x)) - jnp.uint8(1))  # the lowest set bit's position
+    first = jnp.where(nonzero.any(1), 8 * j + lowest + 1, trials + 1)
+    positions = ones(b & jnp.uint8(0xAA)) + 2 * ones(b & jnp.uint8(0xCC)) + 4 * ones(b & jnp.uint8(0xF0))
+    weights = jnp.asarray(trials - 8 * np.arange(width), jnp.int32)
+    area = (per_byte * weights).sum(1) - positions.sum(1)  # integer products: exact
+    return count, late_count, first, area
+
+
+def device_codes(c: SuccessBits, late: int) -> tuple[np.ndarray, ...]:
+    """(successes, late successes, first success or T + 1, Σ_t success_t (T − t)) of every row of
+    `c`, as `jaxeac.stats.measures` computes them on the host (int32 [n] each), on the device:
+    the packed rows travel, `CODES_BLOCK` seeds a call, all dispatched before any is read."""
+    parts = [_codes(jnp.asarray(c.bits[i:i + CODES_BLOCK]), c.trials, late)
+             for i in range(0, c.bits.shape[0], CODES_BLOCK)]
+    return tuple(np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(4))
+
+
 def _small_integers(c: np.ndarray, block: int = BLOCK, power: int = 2) -> bool:
     """Whether c fits int8 and per-block float32 sums of products of `power` entries are exact
     (below 2^24) with int32 totals."""

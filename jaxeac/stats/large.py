@@ -72,8 +72,8 @@ import numpy as np
 from jaxeac.stats._rng import warm_key_programs
 from jaxeac.stats.asymptotic import _column_sums, normal_bca
 from jaxeac.stats.bca import bca_interval, jackknife_iqm
-from jaxeac.stats.device_sums import BLOCK, _gram, _subset_sums, _unpack_bits
-from jaxeac.stats.measures import Coded, as_values, joint_counts
+from jaxeac.stats.device_sums import BLOCK, CODES_BLOCK, _codes, _gram, _subset_sums, _unpack_bits
+from jaxeac.stats.measures import Coded, as_values, joint_counts, late_window
 from jaxeac.stats.resample import iqm_from_counts
 
 #: Above this many seeds in either method the large-N path is used.
@@ -263,9 +263,10 @@ def iqm_interval(est: float, path: str, alpha: float, *, x=None, star=None, valu
 
 def compile_ahead(n: int, trials: int, splits: int, block: int = 4096) -> None:
     """Compile the large-N path's device programs for success bits of n seeds per method and T
-    trials (curve sums, calibration halves) before the data exists: `jaxeac grid` calls it on a
-    thread while the run computes. The programs land in the persistent compilation cache, so
-    the comparison loads them instead of compiling them (with the cache off they compile again).
+    trials (per-seed measures, curve sums, calibration halves) before the data exists: `jaxeac
+    grid` calls it on a thread while the run computes. The programs land in the persistent
+    compilation cache, so the comparison loads them instead of compiling them (with the cache off
+    they compile again).
     The comparison's key derivations are run once here too (`warm_key_programs`, any n): those
     stay compiled in this process, cache or not."""
     warm_key_programs()
@@ -276,6 +277,8 @@ def compile_ahead(n: int, trials: int, splits: int, block: int = 4096) -> None:
     for rows in {n, 2 * h}:
         bits = jax.ShapeDtypeStruct((rows, width), jnp.uint8)
         _unpack_bits.lower(bits, trials).compile()
+    for rows in {min(n, CODES_BLOCK), n % CODES_BLOCK} - {0}:  # the per-seed measures (`device_codes`)
+        _codes.lower(jax.ShapeDtypeStruct((rows, width), jnp.uint8), trials, late_window(trials)).compile()
     _gram.lower(jax.ShapeDtypeStruct((n, trials), jnp.bool_), BLOCK).compile()
     if splits > 0:
         nblocks = -(-2 * h // block)

@@ -173,6 +173,13 @@ def _codes_of_bits(bits: np.ndarray, trials: int, late: int) -> tuple[np.ndarray
     return count, late_count, first, area
 
 
+def _on_device() -> bool:
+    """Whether `SuccessBits` are read on an accelerator (`device_sums.device_codes`), not on host threads."""
+    import jax
+
+    return jax.default_backend() != "cpu"
+
+
 def per_seed_codes(success, returns: np.ndarray | None = None) -> dict:
     """Per-seed measures from success [N, T] (bool, or `SuccessBits`) and pins [N, T] for
     bowling, primary first: {name: `Coded`} (bowling's return: float64 [N]), plus the log-rank
@@ -206,8 +213,14 @@ def per_seed_codes(success, returns: np.ndarray | None = None) -> dict:
         # (float32 products and sums of integers below 2^24: exact)
         area[at] = blk.astype(np.float32) @ weights.astype(np.float32) if exact32 else (blk * weights).sum(1)
 
-    with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, -(-n // _BLOCK))) as pool:
-        list(pool.map(block, range(0, n, _BLOCK)))
+    if packed and n and _on_device():  # read at once on the device (10^6 seeds: 0.4-0.7 s on the host)
+        from jaxeac.stats.device_sums import device_codes
+
+        count, late_count, first, area = (a.astype(b.dtype) for a, b in zip(
+            device_codes(s, late), (count, late_count, first, area), strict=True))
+    else:
+        with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, -(-n // _BLOCK))) as pool:
+            list(pool.map(block, range(0, n, _BLOCK)))
     out = {}
     if returns is None:
         out["successes"] = Coded(count)
