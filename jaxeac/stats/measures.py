@@ -185,7 +185,9 @@ def per_seed_codes(success, returns: np.ndarray | None = None) -> dict:
     bowling, primary first: {name: `Coded`} (bowling's return: float64 [N]), plus the log-rank
     inputs "_time" (first success, T + 1 if none: the codes of first_success) and "_event" (bool).
 
-    Computed in blocks of `_BLOCK` seeds on host threads, so temporaries stay bounded whatever N.
+    Computed in blocks of `_BLOCK` seeds on host threads, so temporaries stay bounded whatever N;
+    `SuccessBits` on an accelerator in one device program (`device_sums.device_codes`), the same
+    integers.
     """
     packed = isinstance(success, SuccessBits)
     s = success if packed else np.asarray(success, bool)
@@ -213,7 +215,7 @@ def per_seed_codes(success, returns: np.ndarray | None = None) -> dict:
         # (float32 products and sums of integers below 2^24: exact)
         area[at] = blk.astype(np.float32) @ weights.astype(np.float32) if exact32 else (blk * weights).sum(1)
 
-    if packed and n and _on_device():  # read at once on the device (10^6 seeds: 0.4-0.7 s on the host)
+    if packed and n and _on_device():  # 10^6 seeds of both methods: 0.26-0.30 s on host threads, 0.05-0.21 s
         from jaxeac.stats.device_sums import device_codes
 
         count, late_count, first, area = (a.astype(b.dtype) for a, b in zip(
