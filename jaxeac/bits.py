@@ -67,6 +67,15 @@ class SuccessBits:
         return total.astype(np.float64)
 
 
+def trial_masks(width: int, trials: int, late: int) -> tuple[np.ndarray, np.ndarray]:
+    """uint8 [width] each: per byte of a row of `SuccessBits.bits`, its bits that are trials, and
+    those of the last `late` trials (bit b of byte j is trial 8j + b)."""
+    position = 8 * np.arange(width)[:, None] + np.arange(8)  # [bytes, 8] trial of each bit
+    keep = np.packbits(position < trials, axis=1, bitorder="little")[:, 0]
+    in_late = np.packbits((position >= trials - late) & (position < trials), axis=1, bitorder="little")[:, 0]
+    return keep, in_late
+
+
 def as_bool(success) -> np.ndarray:
     """bool [N, T] from a bool matrix or `SuccessBits`."""
     return success.unpack() if isinstance(success, SuccessBits) else np.asarray(success, bool)

@@ -270,8 +270,8 @@ def _engine_pass(per: PerSeed, family, *, baseline, treatment, paired, level, re
         by_pair = {}
         for p, d in diffs.items():
             path = resampling_path(d.size, np.unique(d).size, paired=True)
-            by_pair[p] = beside.submit(paired_row, d, alpha, pkey, resamples, path=path,
-                                       per_seed=shared.units() if shared is not None and path == RAW else None)
+            units = shared.units() if shared is not None and path == RAW else None
+            by_pair[p] = beside.submit(paired_row, d, alpha, pkey, resamples, path=path, per_seed=units)
         groups = task_groups({a: per.values[task][a] for a in per.algos},
                              {a: jax.random.fold_in(tkey, j) for j, a in enumerate(per.algos)}, resamples, chunk)
         entries, rows, drawn, paths = [], [], None, {}

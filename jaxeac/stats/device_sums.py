@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxeac.bits import SuccessBits
+from jaxeac.bits import SuccessBits, trial_masks
 from jaxeac.stats._rng import host_rng, hypergeometric_counts, mulhi32, random_words
 
 #: Seeds per block in the device sums (float32 sums of 0..100 stay exact integers below 2^24).
@@ -44,9 +44,7 @@ def _codes(bits, trials: int, late: int):
     """`jaxeac.stats.measures._codes_of_bits` on the device, the same integers (int32 [n] each):
     per byte its set bits and the sum of their positions, by population counts."""
     n, width = bits.shape
-    position = 8 * np.arange(width)[:, None] + np.arange(8)  # [bytes, 8] trial of each bit
-    keep = np.packbits(position < trials, axis=1, bitorder="little")[:, 0]
-    in_late = np.packbits((position >= trials - late) & (position < trials), axis=1, bitorder="little")[:, 0]
+    keep, in_late = trial_masks(width, trials, late)
     b = bits & jnp.asarray(keep)
 
     def ones(x):

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxeac.bits import SuccessBits
+from jaxeac.bits import SuccessBits, trial_masks
 from jaxeac.errors import UsageError
 
 LATE_FRACTION = 0.2
@@ -154,9 +154,7 @@ def _codes_of_bits(bits: np.ndarray, trials: int, late: int) -> tuple[np.ndarray
     them: per byte, its set bits and the sum of their positions, both from `np.bitwise_count`.
     Bits past the last trial are ignored. Exactly the unpacked rows' integers (tested)."""
     n, width = bits.shape
-    position = 8 * np.arange(width)[:, None] + np.arange(8)  # [bytes, 8] trial of each bit
-    keep = np.packbits(position < trials, axis=1, bitorder="little")[:, 0]  # bits that are trials
-    in_late = np.packbits((position >= trials - late) & (position < trials), axis=1, bitorder="little")[:, 0]
+    keep, in_late = trial_masks(width, trials, late)
     bits = bits & keep
     per_byte = np.bitwise_count(bits)  # uint8 [n, bytes]
     count = per_byte.sum(1, dtype=np.int64)
